@@ -1,0 +1,43 @@
+"""The ``fetchbench`` command. Each sub-package that has a ``cli`` module adds its own
+sub-commands through ``add_commands(subparsers)``, so features stay in their folders."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+
+# Sub-packages that may contribute commands, in the order they appear in --help.
+COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "evaluation")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fetchbench", description="FetchBench-MS: fetching benchmark on ManiSkill3")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for package in COMMAND_PACKAGES:
+        module_name = f"fetchbench_ms.{package}.cli"
+        # Only a package that does not exist (yet) is skipped; a cli module that fails
+        # to import is a real error and is raised.
+        if importlib.util.find_spec(f"fetchbench_ms.{package}") is None:
+            continue
+        if importlib.util.find_spec(module_name) is None:
+            continue
+        importlib.import_module(module_name).add_commands(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.func(args)
+    except (ValueError, KeyError, FileNotFoundError) as error:
+        # Bad input: one clear line that names what is valid, no traceback.
+        message = error.args[0] if isinstance(error, KeyError) and error.args else error
+        print(f"fetchbench: error: {message}", file=sys.stderr)
+        return 2
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

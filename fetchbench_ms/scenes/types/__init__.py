@@ -1,0 +1,1 @@
+"""One module per scene type; importing this package registers them all."""

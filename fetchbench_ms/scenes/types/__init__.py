@@ -1,2 +1,2 @@
 """One module per scene type; importing this package registers them all."""
-from . import desk  # noqa: F401
+from . import desk, drawer, large_shelf  # noqa: F401

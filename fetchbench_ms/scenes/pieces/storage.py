@@ -239,13 +239,13 @@ def build_doors(b: SceneBuilder, v, name: str, info: ShelfUnitInfo, z0: float, n
 
 
 # --------------------------------------------------------------------------- cell shelf (Kallax-like)
-def cell_shelf_params(rows=(1, 2), cols=(2, 4), max_boxes: int = 2) -> tuple[ParamSpec, ...]:
+def cell_shelf_params(rows=(1, 2), cols=(2, 4), depth=(0.26, 0.36), max_boxes: int = 2) -> tuple[ParamSpec, ...]:
     specs = [
         ParamSpec("rows", *rows, "count", "rows of cells", kind="int"),
         ParamSpec("cols", *cols, "count", "columns of cells (fewer if they do not fit)", kind="int"),
         ParamSpec("cell_width", 0.27, 0.36, "m", "clear width of a cell"),
         ParamSpec("cell_height", 0.25, 0.36, "m", "clear height of a cell"),
-        ParamSpec("depth", 0.26, 0.36, "m", "depth of the unit"),
+        ParamSpec("depth", *depth, "m", "depth of the unit"),
         ParamSpec("outer_thickness", 0.025, 0.05, "m", "thickness of the outer frame"),
         ParamSpec("inner_thickness", 0.012, 0.02, "m", "thickness of the inner dividers"),
         ParamSpec("n_boxes", 1, max_boxes, "count", "number of storage boxes in the cells", kind="int"),

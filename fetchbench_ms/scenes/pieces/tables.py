@@ -73,7 +73,8 @@ def build_desk(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float = 
             b.box_between(f"{name}_leg_{leg}", (lx, ly, z0), (lx + s, ly + s, z_under), frame_mat)
         else:
             b.cylinder(f"{name}_leg_{leg}", s / 2, z0, z_under, (lx + s / 2, ly + s / 2), frame_mat)
-    ah, sb, at = v["apron_height"], v["apron_setback"], 0.018
+    ah, at = v["apron_height"], 0.018
+    sb = min(v["apron_setback"], s - at)  # rails of neighbouring sides must not cross
     za = z_under - ah
     # Rails between the legs (flush with the legs' inner faces, so they only touch).
     b.box_between(f"{name}_apron_front", (xf + sb, yl + s, za), (xf + sb + at, yr - s, z_under), frame_mat)

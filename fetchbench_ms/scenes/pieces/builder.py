@@ -236,7 +236,7 @@ class SceneBuilder:
             free = OPEN_FREE_HEIGHT
             for i in np.nonzero(above & near)[0]:
                 gap = bounds[i, 0, 2] - s.height
-                if gap < free and probe.intersects(shapely_box(*bounds[i, 0, :2], *bounds[i, 1, :2])):
+                if gap < free and probe.intersects(_footprint(self.parts[i])):
                     free = gap
             out.append(float(free))
         return out
@@ -271,6 +271,24 @@ class SceneBuilder:
             camera_target=camera_target(surfaces),
             generator_version=GENERATOR_VERSION,
         )
+
+
+def _footprint(part: Part) -> Polygon:
+    """The part's shadow on the xy plane (exact for boxes and meshes, a polygon for round parts)."""
+    T = part.transform()
+    if part.shape == "convex_mesh":
+        local = np.asarray(part.mesh_vertices, dtype=float)
+    elif part.shape == "box":
+        half = np.asarray(part.size) / 2
+        local = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    else:
+        radius, length = part.size
+        half_z = length / 2 + (radius if part.shape == "capsule" else 0.0)
+        angles = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+        ring = np.column_stack([radius * np.cos(angles) / np.cos(np.pi / 16), radius * np.sin(angles) / np.cos(np.pi / 16)])
+        local = np.concatenate([np.column_stack([ring, np.full(16, z)]) for z in (-half_z, half_z)])
+    points = local @ T[:3, :3].T + T[:3, 3]
+    return shapely.MultiPoint(points[:, :2]).convex_hull
 
 
 def _surface_bounds(surfaces: Iterable[SupportSurface]) -> np.ndarray:

@@ -16,7 +16,9 @@ MAX_ROWS = 4
 MAX_COLS = 2
 
 
-def dresser_params(width=(0.6, 1.0), depth=(0.38, 0.5), rows=(2, MAX_ROWS), cols=(1, MAX_COLS), row_height=(0.14, 0.26)) -> tuple[ParamSpec, ...]:
+def dresser_params(
+    width=(0.6, 1.0), depth=(0.38, 0.5), rows=(2, MAX_ROWS), cols=(1, MAX_COLS), row_height=(0.14, 0.26), pull=(0.55, 0.85)
+) -> tuple[ParamSpec, ...]:
     specs = [
         ParamSpec("width", *width, "m", "outer width (along y)"),
         ParamSpec("depth", *depth, "m", "outer depth (along x)"),
@@ -42,7 +44,7 @@ def dresser_params(width=(0.6, 1.0), depth=(0.38, 0.5), rows=(2, MAX_ROWS), cols
     for c in range(cols[1]):
         specs += [
             ParamSpec(f"open_{c}_row", 0, MAX_ROWS - 1, "count", f"pulled-out drawer of column {c} (modulo the rows)", kind="int"),
-            ParamSpec(f"open_{c}_pull", 0.55, 0.85, "1", f"pull-out of that drawer as a share of its depth"),
+            ParamSpec(f"open_{c}_pull", *pull, "1", f"pull-out of that drawer as a share of its depth"),
         ]
     specs += list(material_params("carcass", "wood"))
     specs += list(material_params("front", "paint"))

@@ -76,12 +76,15 @@ def shelf_unit_params(
         ParamSpec("side_thickness", 0.015, 0.03, "m", "side panel thickness"),
         ParamSpec("board_thickness", 0.015, 0.03, "m", "shelf board thickness"),
         ParamSpec("top_thickness", 0.015, 0.035, "m", "top panel thickness"),
-        ParamSpec("plinth_height", *plinth, "m", "height of the plinth under the bottom board"),
-        ParamSpec("plinth_setback", 0.0, 0.04, "m", "plinth board set back from the front"),
         ParamSpec("back_thickness", 0.004, 0.012, "m", "back panel thickness"),
         ParamSpec("board_setback", 0.0, 0.03, "m", "shelf boards set back from the front edge"),
         ParamSpec("n_layers", *n_layers, "count", "number of compartments", kind="int"),
     ]
+    if plinth is not None:  # wall cabinets and units standing on something have none
+        specs += [
+            ParamSpec("plinth_height", *plinth, "m", "height of the plinth under the bottom board"),
+            ParamSpec("plinth_setback", 0.0, 0.04, "m", "plinth board set back from the front"),
+        ]
     specs += [ParamSpec(f"gap_{k}", *gap, "m", f"clear height of compartment {k}") for k in range(n_layers[1])]
     if max_baskets:
         specs += [
@@ -125,7 +128,7 @@ def build_shelf_unit(
     yi0, yi1 = ya + ts, yb - ts
     x_back = x0 + D - tback
     bx0 = x0 + v["board_setback"]
-    plinth = v["plinth_height"]
+    plinth = v.get("plinth_height", 0.0)
     # Compartments: the bottom board, then boards stacked by their gaps, then the top.
     layers = []
     z = z0 + plinth
@@ -188,6 +191,8 @@ def _free_span(span, occupied, width):
 
 # --------------------------------------------------------------------------- doors
 def door_params(n_doors: int) -> tuple[ParamSpec, ...]:
+    """Doors hinge on the cabinet's outer front edges (a single door: on the side its
+    ``build_doors`` caller names), so they swing away from the middle."""
     specs = [
         ParamSpec("door_thickness", 0.015, 0.022, "m", "door thickness"),
         ParamSpec("handle_length", 0.06, 0.2, "m", "length of the door handle bar"),
@@ -196,22 +201,19 @@ def door_params(n_doors: int) -> tuple[ParamSpec, ...]:
     specs += [
         ParamSpec(f"door_{k}_angle", 1.95, 2.8, "rad", f"opening angle of door {k} (pi/2 = perpendicular)") for k in range(n_doors)
     ]
-    if n_doors == 1:
-        specs.append(ParamSpec("hinge_side", 0, 1, "count", "0 hinge on the left (-y), 1 on the right", kind="int"))
     specs += list(material_params("door", "paint"))
     specs += list(material_params("handle", "metal"))
     return tuple(specs)
 
 
-def build_doors(b: SceneBuilder, v, name: str, info: ShelfUnitInfo, z0: float, n_doors: int) -> list[Polygon]:
+def build_doors(b: SceneBuilder, v, name: str, info: ShelfUnitInfo, z0: float, hinges: tuple[str, ...]) -> list[Polygon]:
     """Open doors in front of a cabinet; returns their footprints (to keep surfaces clear of them).
 
     A door hinges on the front-outer edge of the cabinet and swings out by its angle past
     90 degrees, so it never covers the opening."""
     td = v["door_thickness"]
     x0, ya, yb = info.x0, info.y0, info.y1
-    width = (yb - ya) / n_doors
-    hinges = ["left", "right"] if n_doors == 2 else [["left", "right"][int(v["hinge_side"])]]
+    width = (yb - ya) / len(hinges)
     footprints = []
     h = info.z_top - z0 - 0.004
     zc = z0 + 0.002 + h / 2

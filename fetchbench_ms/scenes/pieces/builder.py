@@ -86,8 +86,8 @@ def material(v: Mapping[str, float], group: str) -> Material:
 
 # --------------------------------------------------------------------------- robot region
 def robot_params(
-    x_gap: tuple[float, float] = (0.13, 0.22),
-    x_span: tuple[float, float] = (0.04, 0.12),
+    x_gap: tuple[float, float] = (0.12, 0.18),
+    x_span: tuple[float, float] = (0.03, 0.08),
     y_half: tuple[float, float] = (0.02, 0.1),
     y_shift: tuple[float, float] = (-0.05, 0.05),
     z_drop: tuple[float, float] = (0.2, 0.4),

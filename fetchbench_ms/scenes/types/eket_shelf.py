@@ -12,7 +12,7 @@ from ..registry import SceneType, register_scene_type
 PARAMS = (
     *prefixed("cubes", cube_wall_params()),
     *wall_params(),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.1, 0.3), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.1, 0.3), z_span=(0.03, 0.1)),
 )
 
 

@@ -9,7 +9,7 @@ from ..registry import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("rack", rack_params()),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
 )
 
 

@@ -13,7 +13,7 @@ PARAMS = (
     *prefixed("desk", desk_params(width=(1.05, 1.25), depth=(0.55, 0.68))),
     *prefixed("shelf_a", triangle_shelf_params()),
     *prefixed("shelf_b", triangle_shelf_params()),
-    *robot_params(x_gap=(0.12, 0.18), x_span=(0.03, 0.08), z_drop=(0.25, 0.45)),
+    *robot_params(z_drop=(0.25, 0.45)),
 )
 
 

@@ -32,6 +32,10 @@ OPEN_FREE_HEIGHT = 0.6
 #: support stays below this (with a margin) from the lowest base pose.
 REACH_ABOVE_BASE = 1.3
 REACH_MARGIN = 0.05
+#: The robot base's radius plus a margin (m), and the height above the base its first
+#: links occupy: furniture in that column in front of the base sets where the region ends.
+ROBOT_CLEARANCE = 0.12
+ROBOT_SHOULDER_HEIGHT = 0.4
 #: Smallest piece of a split support polygon that is kept (m^2): smaller slivers hold no object.
 MIN_SURFACE_AREA = 0.012
 #: Version of the generators: bump when any type's geometry for a given seed changes.
@@ -82,8 +86,8 @@ def material(v: Mapping[str, float], group: str) -> Material:
 
 # --------------------------------------------------------------------------- robot region
 def robot_params(
-    x_gap: tuple[float, float] = (0.13, 0.22),
-    x_span: tuple[float, float] = (0.04, 0.12),
+    x_gap: tuple[float, float] = (0.12, 0.18),
+    x_span: tuple[float, float] = (0.03, 0.08),
     y_half: tuple[float, float] = (0.02, 0.1),
     y_shift: tuple[float, float] = (-0.05, 0.05),
     z_drop: tuple[float, float] = (0.2, 0.4),
@@ -267,7 +271,7 @@ class SceneBuilder:
             params={k: values[k] for k in sorted(values)},
             parts=tuple(self.parts),
             support_surfaces=surfaces,
-            robot_region=robot_region(surfaces, values),
+            robot_region=robot_region(surfaces, values, np.array([part_aabb(p) for p in self.parts])),
             camera_target=camera_target(surfaces),
             generator_version=GENERATOR_VERSION,
         )
@@ -296,21 +300,36 @@ def _surface_bounds(surfaces: Iterable[SupportSurface]) -> np.ndarray:
     return np.array([pts.min(axis=0), pts.max(axis=0)])
 
 
-def robot_region(surfaces: tuple[SupportSurface, ...], v: Mapping[str, float]) -> RobotRegion:
-    """The original's rule, from the ``robot.*`` offsets; clamped so that the highest support
-    stays within the arm's reach above the lowest base and the base stays above the floor."""
+def robot_region(surfaces: tuple[SupportSurface, ...], v: Mapping[str, float], part_bounds: np.ndarray) -> RobotRegion:
+    """The original's rule, from the ``robot.*`` offsets: x in front of the supports' front
+    edge, y around their middle, z below the lowest one.
+
+    Two adjustments keep it usable: x is measured from whatever furniture stands in front
+    of the robot below its shoulders (a desk edge in front of shelves standing on it, drawer
+    handles) when that is nearer than the supports; z is clamped so the highest support
+    stays within the arm's reach above the lowest base and the base stays above the floor.
+    """
     (x_min, y_min), (x_max, y_max) = _surface_bounds(surfaces)
     heights = [s.height for s in surfaces]
     lowest, highest = min(heights), max(heights)
-    x_hi = x_min - v["robot.x_gap"]
     y_mid = (y_min + y_max) / 2 + v["robot.y_shift"]
+    y_lo, y_hi = y_mid - v["robot.y_half"], y_mid + v["robot.y_half"]
     z_hi = max(0.0, lowest - v["robot.z_drop"])
     z_lo = z_hi - v["robot.z_span"]
     z_lo = max(z_lo, highest - (REACH_ABOVE_BASE - REACH_MARGIN), 0.0)
     z_hi = max(z_hi, z_lo)
+    # Parts in the column in front of the base: within the base's footprint sideways and
+    # below the arm's first links (the clearance the robot-region check asks for).
+    in_way = (
+        (part_bounds[:, 0, 1] < y_hi + ROBOT_CLEARANCE)
+        & (part_bounds[:, 1, 1] > y_lo - ROBOT_CLEARANCE)
+        & (part_bounds[:, 0, 2] < z_hi + ROBOT_SHOULDER_HEIGHT)
+    )
+    x_front = min(x_min, float(part_bounds[in_way, 0, 0].min())) if in_way.any() else x_min
+    x_hi = x_front - v["robot.x_gap"]
     return RobotRegion(
         x_range=(x_hi - v["robot.x_span"], x_hi),
-        y_range=(y_mid - v["robot.y_half"], y_mid + v["robot.y_half"]),
+        y_range=(y_lo, y_hi),
         z_range=(z_lo, z_hi),
         yaw_range=(-v["robot.yaw_half"], v["robot.yaw_half"]),
     )

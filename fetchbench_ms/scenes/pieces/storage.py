@@ -87,21 +87,26 @@ def shelf_unit_params(
         ]
     specs += [ParamSpec(f"gap_{k}", *gap, "m", f"clear height of compartment {k}") for k in range(n_layers[1])]
     if max_baskets:
-        specs += [
-            ParamSpec("n_baskets", min_baskets, max_baskets, "count", "number of baskets on the shelves", kind="int"),
-            ParamSpec("basket_width_frac", 0.3, 0.5, "1", "basket width as a share of the inner width"),
-            ParamSpec("basket_depth_frac", 0.65, 0.92, "1", "basket depth as a share of the board depth"),
-            ParamSpec("basket_height_frac", 0.3, 0.55, "1", "basket height as a share of its compartment"),
-        ]
-        for k in range(max_baskets):
-            specs += [
-                ParamSpec(f"basket_{k}_layer", 0, 4, "count", f"compartment of basket {k} (modulo the reachable ones)", kind="int"),
-                ParamSpec(f"basket_{k}_pos", 0.0, 1.0, "1", f"sideways position of basket {k} in its free span"),
-            ]
-        specs += list(basket_params())
+        specs += list(layer_basket_params(min_baskets, max_baskets))
     specs += list(material_params("carcass", "wood"))
     specs += list(material_params("back", "paint"))
     return tuple(specs)
+
+
+def layer_basket_params(min_baskets: int, max_baskets: int, kind: str = "wicker") -> tuple[ParamSpec, ...]:
+    """Baskets standing on the boards of a shelf (see ``place_baskets``)."""
+    specs = [
+        ParamSpec("n_baskets", min_baskets, max_baskets, "count", "number of baskets on the shelves", kind="int"),
+        ParamSpec("basket_width_frac", 0.3, 0.5, "1", "basket width as a share of the inner width"),
+        ParamSpec("basket_depth_frac", 0.65, 0.92, "1", "basket depth as a share of the board depth"),
+        ParamSpec("basket_height_frac", 0.3, 0.55, "1", "basket height as a share of its compartment"),
+    ]
+    for k in range(max_baskets):
+        specs += [
+            ParamSpec(f"basket_{k}_layer", 0, 4, "count", f"board of basket {k} (modulo the reachable ones)", kind="int"),
+            ParamSpec(f"basket_{k}_pos", 0.0, 1.0, "1", f"sideways position of basket {k} in its free span"),
+        ]
+    return (*specs, *basket_params(kind))
 
 
 @dataclass
@@ -154,28 +159,35 @@ def build_shelf_unit(
     # Supports: every compartment within reach of the lowest one, and the top if it is too.
     lowest = layers[0][1]
     reachable = [layer for layer in layers if layer[1] - lowest <= MAX_SUPPORT_SPAN]
-    occupied: dict[int, list[tuple[float, float]]] = {}
-    n_baskets = int(v.get("n_baskets", 0))
-    for k in range(n_baskets):
-        li = int(v[f"basket_{k}_layer"]) % len(reachable)
-        board, zb, gap = reachable[li]
-        bw = v["basket_width_frac"] * (yi1 - yi0)
-        free = _free_span((yi0 + 0.005, yi1 - 0.005), occupied.get(li, []), bw)
-        if free is None:
-            continue
-        yc = free[0] + bw / 2 + v[f"basket_{k}_pos"] * (free[1] - free[0] - bw)
-        depth = v["basket_depth_frac"] * (x_back - bx0)
-        xc = bx0 + 0.005 + depth / 2
-        build_basket(b, v, f"{name}_basket_{k}", (xc, yc), (depth, bw), zb, v["basket_height_frac"] * gap)
-        occupied.setdefault(li, []).append((yc - bw / 2 - 0.005, yc + bw / 2 + 0.005))
-    for li, (board, zb, gap) in enumerate(reachable):
-        region = rect(bx0 + 0.002, x_back - 0.002, yi0 + 0.002, yi1 - 0.002)
-        for lo, hi in occupied.get(li, []):
-            region = region.difference(rect(bx0 - 1, x_back + 1, lo, hi))
-        b.surface_region(f"{name}_layer_{li}", label, region, zb, board)
+    place_baskets(b, v, name, reachable, (bx0, x_back), (yi0, yi1), label)
     if with_top_surface and z_top - lowest <= MAX_SUPPORT_SPAN:
         b.surface(f"{name}_top", label, rect(x0 + 0.01, x0 + D - 0.01, ya + 0.01, yb - 0.01), z_top, f"{name}_top")
     return info
+
+
+def place_baskets(b: SceneBuilder, v, name: str, layers, x_span, y_span, label: str) -> None:
+    """Stand the ``basket_k`` baskets on the given layers and add every layer's free board area.
+
+    ``layers`` are (board part, z of its top, clear height above); a layer's free area is
+    x_span x y_span minus its baskets."""
+    (x0, x1), (y0, y1) = x_span, y_span
+    occupied: dict[int, list[tuple[float, float]]] = {}
+    for k in range(int(v.get("n_baskets", 0))):
+        li = int(v[f"basket_{k}_layer"]) % len(layers)
+        board, zb, gap = layers[li]
+        bw = v["basket_width_frac"] * (y1 - y0)
+        free = _free_span((y0 + 0.005, y1 - 0.005), occupied.get(li, []), bw)
+        if free is None:
+            continue  # no room left on that board
+        yc = free[0] + bw / 2 + v[f"basket_{k}_pos"] * (free[1] - free[0] - bw)
+        depth = v["basket_depth_frac"] * (x1 - x0)
+        build_basket(b, v, f"{name}_basket_{k}", (x0 + 0.005 + depth / 2, yc), (depth, bw), zb, v["basket_height_frac"] * gap)
+        occupied.setdefault(li, []).append((yc - bw / 2 - 0.005, yc + bw / 2 + 0.005))
+    for li, (board, zb, gap) in enumerate(layers):
+        region = rect(x0 + 0.002, x1 - 0.002, y0 + 0.002, y1 - 0.002)
+        for lo, hi in occupied.get(li, []):
+            region = region.difference(rect(x0 - 1, x1 + 1, lo, hi))
+        b.surface_region(f"{name}_layer_{li}", label, region, zb, board)
 
 
 def _free_span(span, occupied, width):

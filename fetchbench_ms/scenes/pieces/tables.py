@@ -87,7 +87,7 @@ def build_desk(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float = 
 # --------------------------------------------------------------------------- round table
 def round_table_params() -> tuple[ParamSpec, ...]:
     return (
-        ParamSpec("radius", 0.3, 0.42, "m", "table top radius"),
+        ParamSpec("radius", 0.3, 0.4, "m", "table top radius"),
         ParamSpec("height", 0.55, 0.78, "m", "height of the table top surface"),
         ParamSpec("top_thickness", 0.02, 0.05, "m", "table top thickness"),
         ParamSpec("leg_style", 0, 1, "count", "0 central pedestal on a foot disc, 1 separate legs", kind="int"),

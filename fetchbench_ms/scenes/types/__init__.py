@@ -6,8 +6,11 @@ from . import (  # noqa: F401
     double_door_cabinet,
     drawer,
     drawer_shelf,
+    eket_shelf,
     large_shelf,
     large_shelf_desk,
+    layer_shelf,
     round_table,
     single_door_cabinet_desk,
+    triangle_shelf_desk,
 )

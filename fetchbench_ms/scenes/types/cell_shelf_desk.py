@@ -14,7 +14,7 @@ PARAMS = (
     *prefixed("cells", cell_shelf_params(rows=(1, 2), cols=(2, 4), depth=(0.25, 0.32))),
     ParamSpec("cells.slide", 0.0, 1.0, "1", "sideways position of the cell shelf on the desk (share of the free width)"),
     ParamSpec("cells.back_inset", 0.0, 0.03, "m", "cell shelf set in from the desk's back edge"),
-    *robot_params(x_gap=(0.12, 0.17), x_span=(0.03, 0.08), z_drop=(0.25, 0.45)),
+    *robot_params(z_drop=(0.25, 0.45)),
 )
 
 

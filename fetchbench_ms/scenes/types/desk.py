@@ -9,7 +9,7 @@ from ..registry import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("desk", desk_params(width=(0.9, 1.25), depth=(0.55, 0.72))),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.25, 0.45)),
+    *robot_params(z_drop=(0.25, 0.45)),
 )
 
 

@@ -10,7 +10,7 @@ from ..registry import SceneType, register_scene_type
 MAX_SHELVES = 2
 
 PARAMS = (
-    *prefixed("desk", desk_params(width=(0.9, 1.25), depth=(0.5, 0.68))),
+    *prefixed("desk", desk_params(width=(0.9, 1.2), depth=(0.5, 0.62))),
     *wall_params(),
     ParamSpec("wall_gap", 0.0, 0.03, "m", "gap between the desk's back edge and the wall"),
     *prefixed("wall_shelf", wall_shelf_params()),
@@ -25,7 +25,7 @@ PARAMS = (
             ParamSpec(f"shelf_{k}_slide", 0.0, 1.0, "1", f"sideways position of wall shelf {k} (share of the free width)"),
         )
     ),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.2, 0.35)),
+    *robot_params(z_drop=(0.2, 0.35)),
 )
 
 

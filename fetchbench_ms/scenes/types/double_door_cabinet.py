@@ -18,7 +18,7 @@ PARAMS = (
     ParamSpec("cabinet.mount_height", 0.9, 1.2, "m", "height of the cupboard's underside above the floor"),
     ParamSpec("cabinet.shift", -0.1, 0.1, "m", "sideways shift of the cupboard on the wall"),
     *wall_params(),
-    *robot_params(x_gap=(0.13, 0.2), y_half=(0.02, 0.07), y_shift=(-0.03, 0.03), z_drop=(0.2, 0.35), z_span=(0.05, 0.15)),
+    *robot_params(y_half=(0.02, 0.07), y_shift=(-0.03, 0.03), z_drop=(0.2, 0.35), z_span=(0.05, 0.15)),
 )
 
 

@@ -9,7 +9,7 @@ from ..registry import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("dresser", dresser_params(width=(0.6, 1.0), depth=(0.38, 0.5))),
-    *robot_params(x_gap=(0.17, 0.24), z_drop=(0.0, 0.15), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.0, 0.15), z_span=(0.03, 0.1)),
 )
 
 

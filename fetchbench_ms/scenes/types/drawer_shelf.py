@@ -17,7 +17,7 @@ PARAMS = (
     ),
     ParamSpec("hutch.slide", 0.0, 1.0, "1", "sideways position of the hutch on the chest (share of the free width)"),
     ParamSpec("hutch.front_inset", 0.0, 0.04, "m", "hutch set back from the chest's front edge"),
-    *robot_params(x_gap=(0.17, 0.24), z_drop=(0.0, 0.12), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.0, 0.12), z_span=(0.03, 0.1)),
 )
 
 

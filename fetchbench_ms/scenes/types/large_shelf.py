@@ -10,7 +10,7 @@ from ..registry import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("shelf", shelf_unit_params(width=(0.6, 0.9), depth=(0.28, 0.4), n_layers=(3, 5), gap=(0.22, 0.34), plinth=(0.03, 0.12))),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
 )
 
 

@@ -9,12 +9,12 @@ from ..pieces.tables import build_desk, desk_params
 from ..registry import SceneType, register_scene_type
 
 PARAMS = (
-    *prefixed("desk", desk_params(width=(0.7, 0.95), depth=(0.5, 0.65))),
+    *prefixed("desk", desk_params(width=(0.65, 0.9), depth=(0.5, 0.65))),
     *prefixed("shelf", shelf_unit_params(width=(0.45, 0.65), depth=(0.28, 0.36), n_layers=(3, 5), gap=(0.22, 0.32))),
     ParamSpec("shelf.side", 0, 1, "count", "0 bookcase on the desk's left (-y), 1 on its right", kind="int"),
     ParamSpec("shelf.gap", 0.0, 0.05, "m", "gap between desk and bookcase"),
     ParamSpec("shelf.front_offset", 0.0, 0.05, "m", "bookcase front set back from the desk front"),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
+    *robot_params(z_drop=(0.0, 0.1), z_span=(0.03, 0.1)),
 )
 
 

@@ -28,7 +28,7 @@ PARAMS = (
         )
     ),
     *prefixed("basket", basket_params()),
-    *robot_params(x_gap=(0.12, 0.18), x_span=(0.03, 0.08), z_drop=(0.2, 0.4)),
+    *robot_params(z_drop=(0.2, 0.4)),
 )
 
 

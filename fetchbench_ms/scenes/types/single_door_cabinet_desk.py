@@ -19,7 +19,7 @@ PARAMS = (
     ParamSpec("cabinet.side", 0, 1, "count", "0 cabinet on the desk's left end (-y), 1 on its right end", kind="int"),
     ParamSpec("cabinet.end_inset", 0.0, 0.04, "m", "cabinet set in from the desk's end"),
     ParamSpec("cabinet.back_inset", 0.0, 0.03, "m", "cabinet set in from the desk's back edge"),
-    *robot_params(x_gap=(0.13, 0.2), z_drop=(0.25, 0.45)),
+    *robot_params(z_drop=(0.25, 0.45)),
 )
 
 

@@ -144,6 +144,10 @@ def test_free_height_reachability_floor_and_robot_region_checks():
     assert check_scene(sunk)["floor"] == ["part 'sunk' reaches 20.0 mm below the floor"]
     in_the_way = _with_parts(shelf, Part("stool", "box", (0.3, 0.3, 0.3), (-0.1, 0.0, 0.15)))
     assert [p.split("'")[1] for p in check_scene(in_the_way)["robot_region"]] == ["stool"]
+    # Shelf 0 claims 0.5 m of free height, but the next board (z 0.63-0.65) is in the way.
+    overclaimed = _with_surface(shelf, 0, free_height=0.5)
+    [problem] = check_scene(overclaimed)["free_height"]
+    assert "part 'board_1' intrudes" in problem and "its claimed free height of 0.500 m" in problem
     with pytest.raises(AssertionError, match=r"\[free_height\] surface 'shelf_2'"):
         assert_scene_ok(low)
     with pytest.raises(ValueError, match="valid: interpenetration, floor"):

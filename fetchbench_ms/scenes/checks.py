@@ -10,7 +10,8 @@ can show every defect of a scene at once:
   (rays cast down through points of the polygon hit that part at the surface height),
   and nothing intrudes into the space above the polygon up to min(free_height, 8 cm)
   (drawer and basket walls may stand at the polygon's edges).
-- ``free_height_problems``: every surface has >= 8 cm of clear space above it.
+- ``free_height_problems``: every surface has >= 8 cm of clear space above it, and the
+  space up to the free height it claims is really clear.
 - ``reachability_problems``: on average over robot base poses sampled in the robot
   region, at least half of each surface's area lies in the Franka's reachable band
   (0.25-0.85 m horizontally from the base, 0.0-1.3 m above it).
@@ -155,14 +156,21 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
 
 
 def _intrusion_problems(
-    spec: SceneSpec, surface: SupportSurface, depth_tolerance: float, wall_margin: float
+    spec: SceneSpec,
+    surface: SupportSurface,
+    bottom: float,
+    top: float,
+    depth_tolerance: float,
+    wall_margin: float,
+    space: str = "the space above it",
 ) -> list[str]:
-    # The probe is the polygon (shrunk a little, more where walls line its edges) lifted
-    # 1 mm off the surface, up to the height objects need.
+    """Parts reaching into the polygon's prism between z = ``bottom`` and ``top``."""
+    # The probe is the polygon shrunk a little (more where walls line its edges).
     inset = wall_margin if surface.wall_top is not None else depth_tolerance
     polygon = surface.polygon.buffer(-inset, join_style="mitre")
-    top = surface.height + min(surface.free_height, MIN_FREE_HEIGHT)
-    prisms = polygon_prisms(polygon, surface.height + depth_tolerance, top)
+    if top <= bottom:
+        return []
+    prisms = polygon_prisms(polygon, bottom, top)
     if not prisms:
         return [f"surface {surface.name!r}: nothing left of its polygon after a {inset * 1000:.0f} mm inset"]
     identity = fcl.Transform(np.eye(3), np.zeros(3))
@@ -173,8 +181,8 @@ def _intrusion_problems(
         depth = max(_collision_depth(obj, probe) for probe in probes)
         if depth > depth_tolerance:
             problems.append(
-                f"surface {surface.name!r}: part {part.name!r} intrudes {depth * 1000:.1f} mm into the "
-                f"space above it (up to z={top:.3f})"
+                f"surface {surface.name!r}: part {part.name!r} intrudes {depth * 1000:.1f} mm into "
+                f"{space} (z {bottom:.3f}-{top:.3f})"
             )
     return problems
 
@@ -195,7 +203,9 @@ def support_problems(
             problems.append(f"surface {surface.name!r}: polygon is not valid (self-intersecting?)")
             continue
         problems += _surface_on_part_problems(spec, surface, height_tolerance)
-        problems += _intrusion_problems(spec, surface, depth_tolerance, wall_margin)
+        # The space objects need, from 1 mm above the surface.
+        top = surface.height + min(surface.free_height, MIN_FREE_HEIGHT)
+        problems += _intrusion_problems(spec, surface, surface.height + depth_tolerance, top, depth_tolerance, wall_margin)
         if surface.wall_top is not None and surface.wall_top <= surface.height:
             problems.append(f"surface {surface.name!r}: wall top {surface.wall_top:.3f} is not above it")
     if not spec.support_surfaces:
@@ -203,12 +213,24 @@ def support_problems(
     return problems
 
 
-def free_height_problems(spec: SceneSpec, min_free_height: float = MIN_FREE_HEIGHT) -> list[str]:
-    return [
-        f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m"
-        for s in spec.support_surfaces
-        if s.free_height < min_free_height
-    ]
+def free_height_problems(
+    spec: SceneSpec,
+    min_free_height: float = MIN_FREE_HEIGHT,
+    depth_tolerance: float = PENETRATION_TOLERANCE,
+    wall_margin: float = 0.005,
+) -> list[str]:
+    """Every surface has >= ``min_free_height`` of space, and the free height it claims is
+    really clear (above the first 8 cm, which ``support_problems`` covers) up to 1 mm
+    below its end: task samplers trust it to fit objects."""
+    problems = []
+    for s in spec.support_surfaces:
+        if s.free_height < min_free_height:
+            problems.append(f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m")
+        bottom = s.height + min(s.free_height, MIN_FREE_HEIGHT)
+        top = s.height + s.free_height - depth_tolerance
+        space = f"its claimed free height of {s.free_height:.3f} m"
+        problems += _intrusion_problems(spec, s, bottom, top, depth_tolerance, wall_margin, space)
+    return problems
 
 
 def sample_base_positions(spec: SceneSpec, n: int = 32, seed: int = 0) -> np.ndarray:

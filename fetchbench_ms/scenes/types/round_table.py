@@ -17,9 +17,9 @@ MAX_BASKETS = 2
 PARAMS = (
     *prefixed("table", round_table_params()),
     ParamSpec("n_baskets", 1, MAX_BASKETS, "count", "baskets on the table (the second only where it fits)", kind="int"),
-    ParamSpec("basket_length", 0.16, 0.26, "m", "basket length"),
-    ParamSpec("basket_width", 0.12, 0.2, "m", "basket width"),
-    ParamSpec("basket_height", 0.07, 0.14, "m", "basket height"),
+    ParamSpec("basket_length", 0.2, 0.3, "m", "basket length"),
+    ParamSpec("basket_width", 0.15, 0.22, "m", "basket width"),
+    ParamSpec("basket_height", 0.08, 0.15, "m", "basket height"),
     *(
         spec
         for k in range(MAX_BASKETS)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import math
 
+from shapely import affinity
+
 from ..params import ParamSpec, prefixed, sub_params
-from ..pieces.builder import SceneBuilder, robot_params
+from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.storage import basket_params, build_basket
 from ..pieces.tables import build_round_table, round_table_params
 from ..registry import SceneType, register_scene_type
@@ -15,9 +17,9 @@ MAX_BASKETS = 2
 PARAMS = (
     *prefixed("table", round_table_params()),
     ParamSpec("n_baskets", 1, MAX_BASKETS, "count", "baskets on the table (the second only where it fits)", kind="int"),
-    ParamSpec("basket_length", 0.16, 0.26, "m", "basket length"),
-    ParamSpec("basket_width", 0.12, 0.2, "m", "basket width"),
-    ParamSpec("basket_height", 0.07, 0.14, "m", "basket height"),
+    ParamSpec("basket_length", 0.2, 0.3, "m", "basket length"),
+    ParamSpec("basket_width", 0.15, 0.22, "m", "basket width"),
+    ParamSpec("basket_height", 0.08, 0.15, "m", "basket height"),
     *(
         spec
         for k in range(MAX_BASKETS)
@@ -45,10 +47,7 @@ def build(values):
         a, rho = values[f"basket_{k}_angle"], values[f"basket_{k}_radius"] * room
         center = (cx + rho * math.cos(a), cy + rho * math.sin(a))
         yaw = a + values[f"basket_{k}_yaw"]
-        from shapely.geometry import Polygon
-        from shapely import affinity
-
-        probe = affinity.translate(affinity.rotate(Polygon([(-L / 2, -W / 2), (L / 2, -W / 2), (L / 2, W / 2), (-L / 2, W / 2)]), yaw, origin=(0, 0), use_radians=True), *center)
+        probe = affinity.translate(affinity.rotate(rect(-L / 2, L / 2, -W / 2, W / 2), yaw, origin=(0, 0), use_radians=True), *center)
         if any(probe.buffer(0.01).intersects(f) for f in footprints):
             continue  # no room for this basket beside the others
         footprint = build_basket(b, bv, f"basket_{k}", center, (L, W), z, values["basket_height"], yaw)

@@ -105,12 +105,13 @@ def sample_candidates(asset: ObjectAsset, n: int, rng: np.random.Generator, conf
         hit_points, ray_index, hit_faces = mesh.ray.intersects_location(origins, closing, multiple_hits=False)
         if len(ray_index) == 0:
             continue
-        p = points[ray_index]
-        d = closing[ray_index]
-        q = hit_points
-        width = np.einsum("ij,ij->i", q - p, d)
-        exit_ok = np.einsum("ij,ij->i", mesh.face_normals[hit_faces], d) >= cos_cone
-        ok = exit_ok & (width >= config.min_width) & (width <= config.max_width)
+        p, q = points[ray_index], hit_points
+        # The closing axis is the line through both contacts (the ray started 0.1 mm inside).
+        width = np.linalg.norm(q - p, axis=1)
+        d = (q - p) / np.maximum(width, 1e-12)[:, None]
+        in_cone_p = np.einsum("ij,ij->i", inward[ray_index], d) >= cos_cone
+        in_cone_q = np.einsum("ij,ij->i", mesh.face_normals[hit_faces], d) >= cos_cone
+        ok = in_cone_p & in_cone_q & (width >= config.min_width) & (width <= config.max_width)
         p, q, d, width = p[ok], q[ok], d[ok], width[ok]
         # Sort by ray index so the result does not depend on the ray engine's output order.
         order = np.argsort(ray_index[ok], kind="stable")

@@ -44,7 +44,7 @@ class LabelSettings:
 
     seed: int = 0
     candidates_per_round: int = 32
-    max_rounds: int = 3
+    max_rounds: int = 5
     #: Stop drawing more rounds once an object has this many verified successes.
     target_successes: int = 24
     slots: int = 16

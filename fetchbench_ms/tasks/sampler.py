@@ -332,9 +332,9 @@ def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, Came
     for _ in range(config.camera_tries):
         target = center + rng.uniform(-0.3, 0.3, size=3) * half
         eye = np.array([
-            base_position[0] + rng.uniform(-0.1, 0.3),
-            center[1] + rng.uniform(0.5, 0.9),
-            target[2] + rng.uniform(0.1, 0.5),
+            base_position[0] + rng.uniform(-0.3, 0.1),
+            center[1] + rng.uniform(0.6, 1.0),
+            target[2] + rng.uniform(0.3, 0.7),
         ])
         eye_right = eye * [1, 1, 1]
         eye_right[1] = 2 * center[1] - eye[1]

@@ -6,17 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from _dev_scenes import ensure_registered
-
-ensure_registered()
-
-import fetchbench_ms  # noqa: E402,F401
-from fetchbench_ms.envs import ENV_IDS, control_modes, fetch_clouds, make, settle_and_hold  # noqa: E402
-from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET  # noqa: E402
-from fetchbench_ms.tasks import CATEGORY_LABELS, TaskSpec  # noqa: E402
-from fetchbench_ms.tasks.suite import TaskSuite  # noqa: E402
-from mani_skill.utils.geometry.rotation_conversions import quaternion_apply  # noqa: E402
-from mani_skill.utils.structs.pose import Pose  # noqa: E402
+import fetchbench_ms  # noqa: F401
+from fetchbench_ms.envs import ENV_IDS, control_modes, fetch_clouds, make, settle_and_hold
+from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET
+from fetchbench_ms.tasks import CATEGORY_LABELS, TaskSpec
+from fetchbench_ms.tasks.suite import TaskSuite
+from mani_skill.utils.geometry.rotation_conversions import quaternion_apply
+from mani_skill.utils.structs.pose import Pose
 
 FAST_IDS = ("FetchBench-v0", "FetchBench-Basket-v0", "FetchBench-LargeShelf-v0")
 

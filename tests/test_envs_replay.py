@@ -9,13 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from _dev_scenes import ensure_registered
-
-ensure_registered()
-
-import fetchbench_ms  # noqa: E402,F401
-from fetchbench_ms import replay_trajectory  # noqa: E402
-from mani_skill.utils.wrappers import RecordEpisode  # noqa: E402
+import fetchbench_ms  # noqa: F401
+from fetchbench_ms import replay_trajectory
+from mani_skill.utils.wrappers import RecordEpisode
 
 STEPS = 12
 

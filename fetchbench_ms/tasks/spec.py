@@ -228,7 +228,7 @@ class TaskSpec:
             return cls(
                 scene_type=d["scene_type"],
                 scene_seed=int(d["scene_seed"]),
-                scene_params={str(k): float(v) for k, v in dict(d["scene_params"]).items()},
+                scene_params=_scene_params(d["scene_params"]),
                 scene_hash=str(d["scene_hash"]),
                 objects=tuple(ObjectPlacement.from_dict(o) for o in d["objects"]),
                 target_index=int(d["target_index"]),
@@ -251,6 +251,16 @@ class TaskSpec:
 
     def content_hash(self) -> str:
         return sha256_bytes(self.to_json().encode())
+
+
+def _scene_params(params) -> dict:
+    """Parameter values as given (ints stay ints: the scene hash is over their JSON form)."""
+    if not isinstance(params, dict):
+        raise ValueError("task 'scene_params' must be a dict of parameter name -> number")
+    for name, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"task scene parameter {name!r} = {value!r} is not a number")
+    return dict(params)
 
 
 def pose_matrix(position, quat_wxyz) -> np.ndarray:

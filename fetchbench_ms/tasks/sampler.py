@@ -1,0 +1,383 @@
+"""Turn a seed into a ``TaskSpec`` the way FetchBench does.
+
+1. Scene: a scene type (fixed, or drawn with the weights of the paper's test-scene mix
+   among the types that offer the requested category) and a procedural scene from it.
+2. Objects: up to 15 catalog objects, each placed by choosing a support label with the
+   original's weights {in_basket .5, on_shelf .3, in_drawer .3, on_table .2} (among the
+   labels the scene has), a surface of that label by area, a point on the surface
+   polygon eroded by 0.1 x the object's largest extent, a random stable pose (by its
+   probability) with random yaw, 5 mm above the surface. The footprint must lie on the
+   surface, the object must fit under the board above, and its bounding box grown by
+   5 mm must touch nothing (furniture or objects already placed); 100 attempts each.
+3. Physics per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution
+   U(0, 0.1) (the original's ranges; PhysX has no rolling/torsion friction, so the
+   original's 0.05 has no counterpart).
+4. Robot base uniformly in the scene's robot region, facing +x; a box robot table
+   (x U(0.4, 0.7) m, y U(0.6, 1.0) m) under it, top at the base height.
+5. Two cameras, left and right of the robot (mirrored in y about the camera target),
+   looking at the camera target region's centre plus an offset; rejection-sampled (20
+   tries) so the vertical field of view covers the heights of the supports.
+6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
+   that fall off their support or do not come to rest are dropped. The settled poses
+   are stored, so an episode starts at rest.
+Every draw comes from one ``numpy.random.Generator`` seeded by ``seed``.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, replace
+
+import fcl
+import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
+from shapely.geometry import Point, Polygon
+
+from ..scenes import SCENE_TYPES, generate, get_scene_type
+from .objects import collision_vertices, load_object, object_ids
+from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
+
+SAMPLER_VERSION = "1"
+
+#: The original's support-label weights for placing an object.
+LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
+#: Test scenes per type in the original benchmark: the mix a random scene type follows.
+SCENE_TYPE_MIX = {
+    "CellShelfDesk": 10, "DrawerShelf": 10, "LargeShelf": 10, "LayerShelf": 10, "LargeShelfDesk": 9,
+    "RoundTable": 9, "DeskWall": 7, "SingleDoorCabinetDesk": 7, "Desk": 6, "DoubleDoorCabinet": 6,
+    "Drawer": 6, "EketShelf": 5, "TriangleShelfDesk": 5,
+}
+DENSITY_RANGE = (100.0, 400.0)  # kg/m^3
+FRICTION_RANGE = (0.6, 1.2)
+RESTITUTION_RANGE = (0.0, 0.1)
+ROBOT_TABLE_X_RANGE = (0.4, 0.7)  # m
+ROBOT_TABLE_Y_RANGE = (0.6, 1.0)  # m
+ROBOT_TABLE_FRONT = 0.12  # m the table reaches in front of the base (the Panda's base is ~0.1 m in radius)
+ROBOT_TABLE_MIN_HEIGHT = 0.01  # m: a base standing on the floor gets a 1 cm plate it sinks into
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    num_objects: int = 15
+    object_split: str = "test"
+    placement_attempts: int = 100
+    clearance: float = 0.005  # m, between an object's box and everything else
+    drop_height: float = 0.005  # m above the surface
+    erosion: float = 0.1  # x the object's largest extent
+    camera_tries: int = 20
+    camera_fov_x: float = math.radians(70.0)
+    camera_aspect: float = 4.0 / 3.0  # width / height of the sensor the FOV check assumes
+    settle: bool = True
+    scene_attempts: int = 20  # scenes tried before giving up (a category that no scene offers)
+
+
+def categories() -> tuple[str, ...]:
+    return tuple(CATEGORY_LABELS)
+
+
+def scene_types_for(category: str | None) -> tuple[str, ...]:
+    """Scene types whose generator offers ``category``'s support label (all types if None)."""
+    if category is None:
+        return SCENE_TYPES
+    label = _category_label(category)
+    return tuple(t for t in SCENE_TYPES if label in get_scene_type(t).support_labels)
+
+
+def _category_label(category: str) -> str:
+    if category not in CATEGORY_LABELS:
+        raise ValueError(f"unknown category {category!r}; valid: {', '.join(CATEGORY_LABELS)}")
+    return CATEGORY_LABELS[category]
+
+
+def sample_task(
+    seed: int,
+    scene_type: str | None = None,
+    category: str | None = None,
+    config: SamplerConfig = SamplerConfig(),
+) -> TaskSpec:
+    """Sample one task. ``scene_type`` fixes the furniture type; ``category`` (Table, Shelf,
+    Drawer, Basket) makes the target rest on that kind of support. Same arguments, same task."""
+    if scene_type is not None and scene_type not in SCENE_TYPES:
+        raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
+    target_label = None if category is None else _category_label(category)
+    rng = np.random.default_rng(int(seed))
+    if scene_type is not None:
+        candidates = (scene_type,)
+    else:
+        candidates = scene_types_for(category)
+        if not candidates:
+            raise ValueError(f"no scene type offers category {category!r}")
+    weights = np.array([SCENE_TYPE_MIX[t] for t in candidates], dtype=float)
+    ids = object_ids(config.object_split)
+    for _ in range(config.scene_attempts):
+        chosen_type = candidates[int(rng.choice(len(candidates), p=weights / weights.sum()))]
+        scene_seed = int(rng.integers(2**31))
+        task = _sample_in_scene(rng, chosen_type, scene_seed, target_label, ids, config)
+        if task is not None:
+            return replace(task, seed=int(seed))
+    raise ValueError(
+        f"could not sample a task for seed {seed} (scene type {scene_type}, category {category}) "
+        f"in {config.scene_attempts} scenes"
+    )
+
+
+def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> TaskSpec | None:
+    scene = generate(scene_type, scene_seed)
+    if target_label is not None and not scene.surfaces(target_label):
+        return None
+    world = _BoxWorld(scene)
+    placements = _place_objects(rng, scene, world, ids, config, target_label)
+    if target_label is not None and not any(p.support_label == target_label for p in placements):
+        return None
+    if not placements:
+        return None
+    robot = _sample_robot(rng, scene, world)
+    if robot is None:
+        return None
+    base_position, base_quat, table_center, table_size = robot
+    cameras = _sample_cameras(rng, scene, base_position, config)
+    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements)}
+    if config.settle:
+        from ..envs.settle import settle_placements  # the one simulator step of sampling
+
+        placements, report = settle_placements(scene, placements, table_center, table_size)
+        extra.update(report)
+    eligible = [i for i, p in enumerate(placements) if target_label is None or p.support_label == target_label]
+    if not eligible:
+        return None
+    target_index = int(eligible[int(rng.integers(len(eligible)))])
+    return TaskSpec(
+        scene_type=scene_type,
+        scene_seed=scene_seed,
+        scene_params=dict(scene.params),
+        scene_hash=scene.content_hash(),
+        objects=tuple(placements),
+        target_index=target_index,
+        robot_base_position=base_position,
+        robot_base_quat_wxyz=base_quat,
+        robot_table_center=table_center,
+        robot_table_size=table_size,
+        camera_left=cameras[0],
+        camera_right=cameras[1],
+        robot_init_qpos=DEFAULT_QPOS,
+        extra=extra,
+    )
+
+
+# ----------------------------------------------------------------------------- objects
+class _BoxWorld:
+    """Furniture primitives plus the boxes of placed objects, for exact overlap tests (FCL)."""
+
+    def __init__(self, scene):
+        self.manager = fcl.DynamicAABBTreeCollisionManager()
+        self.objects = []
+        for part in scene.parts:
+            if part.shape == "box":
+                geometry = fcl.Box(*part.size)
+            elif part.shape == "cylinder":
+                geometry = fcl.Cylinder(part.size[0], part.size[1])
+            elif part.shape == "capsule":
+                geometry = fcl.Capsule(part.size[0], part.size[1])
+            else:
+                hull = trimesh.Trimesh(np.asarray(part.mesh_vertices)).convex_hull
+                geometry = fcl.BVHModel()
+                geometry.beginModel(len(hull.vertices), len(hull.faces))
+                geometry.addSubModel(hull.vertices, hull.faces)
+                geometry.endModel()
+            T = part.transform()
+            self._add(fcl.CollisionObject(geometry, fcl.Transform(T[:3, :3], T[:3, 3])))
+
+    def _add(self, obj) -> None:
+        self.objects.append(obj)  # FCL keeps raw pointers: the Python objects must stay alive
+        self.manager.registerObject(obj)
+        self.manager.update()
+
+    @staticmethod
+    def box(size, rotation, center):
+        return fcl.CollisionObject(fcl.Box(*size), fcl.Transform(np.asarray(rotation, float), np.asarray(center, float)))
+
+    def hits(self, obj) -> bool:
+        request = fcl.CollisionRequest()
+        data = fcl.CollisionData(request, fcl.CollisionResult())
+        self.manager.collide(obj, data, fcl.defaultCollisionCallback)
+        return data.result.is_collision
+
+    def add(self, obj) -> None:
+        self._add(obj)
+
+
+@functools.lru_cache(maxsize=4096)
+def _rest_geometry(object_id: str, pose_index: int):
+    """For one stable pose: vertices in the support frame, their box, and the 2D hull of the footprint."""
+    asset = load_object(object_id)
+    T = asset.stable_poses[pose_index]
+    v = collision_vertices(asset) @ T[:3, :3].T + T[:3, 3]
+    hull_xy = v[ConvexHull(v[:, :2]).vertices, :2]
+    return v.min(axis=0), v.max(axis=0), hull_xy
+
+
+def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectPlacement]:
+    labels = [label for label in LABEL_WEIGHTS if scene.surfaces(label)]
+    label_p = np.array([LABEL_WEIGHTS[label] for label in labels])
+    label_p = label_p / label_p.sum()
+    chosen = rng.choice(len(ids), size=config.num_objects, replace=len(ids) < config.num_objects)
+    placements = []
+    for k, id_index in enumerate(chosen):
+        asset = load_object(ids[int(id_index)])
+        # With a category, the first object goes on that label so the task has a target there.
+        forced = target_label if (k == 0 and target_label is not None) else None
+        placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced)
+        if placed is not None:
+            placements.append(placed)
+    return placements
+
+
+def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label):
+    stable_p = asset.stable_probs / asset.stable_probs.sum()
+    max_extent = float(max(asset.record.extents))
+    eroded = {}
+    c = config.clearance
+    for _ in range(config.placement_attempts):
+        label = forced_label or labels[int(rng.choice(len(labels), p=label_p))]
+        surfaces = scene.surfaces(label)
+        areas = np.array([s.area for s in surfaces])
+        surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
+        pose_index = int(rng.choice(len(stable_p), p=stable_p))
+        yaw = float(rng.uniform(0.0, 2 * math.pi))
+        if surface.name not in eroded:
+            eroded[surface.name] = surface.polygon.buffer(-config.erosion * max_extent)
+        point = _sample_in_polygon(rng, eroded[surface.name])
+        if point is None:
+            continue
+        lo, hi, hull_xy = _rest_geometry(asset.object_id, pose_index)
+        if hi[2] - lo[2] + config.drop_height + c > surface.free_height:
+            continue
+        # Turn by the yaw about the box centre's vertical, put that centre over the point.
+        R_yaw = _rot_z(yaw)
+        center_xy = (lo[:2] + hi[:2]) / 2
+        footprint = (hull_xy - center_xy) @ R_yaw[:2, :2].T + point
+        if not surface.polygon.contains(Polygon(footprint)):
+            continue
+        # The stable pose's box, grown by the clearance except at the bottom (it must not
+        # touch its own support), must not touch furniture or the objects placed so far.
+        box_lo = lo - [c, c, -0.5 * config.drop_height]
+        box_hi = hi + [c, c, c]
+        z_shift = surface.height + config.drop_height - lo[2]
+        box_center = np.array([point[0], point[1], (box_lo[2] + box_hi[2]) / 2 + z_shift])
+        box = world.box(box_hi - box_lo, R_yaw, box_center)
+        if world.hits(box):
+            continue
+        world.add(box)
+        T_support_object = asset.stable_poses[pose_index]
+        T_world_object = np.eye(4)
+        T_world_object[:3, :3] = R_yaw @ T_support_object[:3, :3]
+        offset = np.array([center_xy[0], center_xy[1], 0.0])
+        T_world_object[:3, 3] = R_yaw @ (T_support_object[:3, 3] - offset) + [point[0], point[1], z_shift]
+        position, quat = matrix_to_pose(T_world_object)
+        friction = float(rng.uniform(*FRICTION_RANGE))
+        return ObjectPlacement(
+            object_id=asset.object_id,
+            position=position,
+            quat_wxyz=quat,
+            density=float(rng.uniform(*DENSITY_RANGE)),
+            static_friction=friction,
+            dynamic_friction=friction,
+            restitution=float(rng.uniform(*RESTITUTION_RANGE)),
+            support_surface=surface.name,
+            support_label=surface.label,
+        )
+    return None
+
+
+def _sample_in_polygon(rng, polygon, tries: int = 50):
+    """A uniform point in ``polygon`` (rejection in its bounding box), or None."""
+    if polygon.is_empty or polygon.area <= 0:
+        return None
+    x0, y0, x1, y1 = polygon.bounds
+    for _ in range(tries):
+        x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
+        if polygon.contains(Point(x, y)):
+            return float(x), float(y)
+    return None
+
+
+def _rot_z(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+# ----------------------------------------------------------------------------- robot
+def _sample_robot(rng, scene, world: _BoxWorld, tries: int = 20):
+    region = scene.robot_region
+    for _ in range(tries):
+        x = float(rng.uniform(*region.x_range))
+        y = float(rng.uniform(*region.y_range))
+        z = float(rng.uniform(*region.z_range))
+        yaw = float(rng.uniform(*region.yaw_range))
+        size_x = float(rng.uniform(*ROBOT_TABLE_X_RANGE))
+        size_y = float(rng.uniform(*ROBOT_TABLE_Y_RANGE))
+        R = _rot_z(yaw)
+        # Table top at the base height (the base stands on it), front edge just ahead of the base.
+        height = max(z, ROBOT_TABLE_MIN_HEIGHT)
+        center = np.array([x, y, 0.0]) + R @ np.array([ROBOT_TABLE_FRONT - size_x / 2, 0.0, 0.0])
+        center[2] = height / 2
+        if world.hits(world.box((size_x, size_y, height), R, center)):
+            continue
+        quat = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+        return (x, y, z), quat, tuple(float(v) for v in center), (size_x, size_y, height)
+    return None
+
+
+# ----------------------------------------------------------------------------- cameras
+def look_at_quat(eye, target) -> tuple[float, float, float, float]:
+    """wxyz rotation of a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target``."""
+    forward = np.asarray(target, float) - np.asarray(eye, float)
+    forward /= np.linalg.norm(forward)
+    left = np.cross([0.0, 0.0, 1.0], forward)
+    left /= np.linalg.norm(left)
+    up = np.cross(forward, left)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([forward, left, up], axis=1)
+    return matrix_to_pose(T)[1]
+
+
+def _covers_heights(eye, target, z_lo, z_hi, fov_y) -> bool:
+    """Both the lowest and highest support heights (at the target's x, y) are in view vertically."""
+    forward = np.asarray(target) - np.asarray(eye)
+    forward /= np.linalg.norm(forward)
+    left = np.cross([0.0, 0.0, 1.0], forward)
+    left /= np.linalg.norm(left)
+    up = np.cross(forward, left)
+    for z in (z_lo, z_hi):
+        d = np.array([target[0], target[1], z]) - eye
+        if abs(math.atan2(d @ up, d @ forward)) > fov_y / 2:
+            return False
+    return True
+
+
+def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, CameraPose]:
+    region = scene.camera_target
+    center, half = np.asarray(region.center), np.asarray(region.half_size)
+    heights = [s.height for s in scene.support_surfaces]
+    z_lo, z_hi = min(heights), max(heights) + 0.1
+    fov_y = 2 * math.atan(math.tan(config.camera_fov_x / 2) / config.camera_aspect)
+    best = None
+    for _ in range(config.camera_tries):
+        target = center + rng.uniform(-0.3, 0.3, size=3) * half
+        eye = np.array([
+            base_position[0] + rng.uniform(-0.4, 0.0),
+            center[1] + rng.uniform(0.7, 1.1),
+            target[2] + rng.uniform(0.4, 0.8),
+        ])
+        eye_right = eye * [1, 1, 1]
+        eye_right[1] = 2 * center[1] - eye[1]
+        target_right = target.copy()
+        target_right[1] = 2 * center[1] - target[1]
+        best = (eye, target, eye_right, target_right)
+        if _covers_heights(eye, target, z_lo, z_hi, fov_y) and _covers_heights(eye_right, target_right, z_lo, z_hi, fov_y):
+            break
+    eye, target, eye_right, target_right = best
+    left = CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
+    right = CameraPose(tuple(float(v) for v in eye_right), look_at_quat(eye_right, target_right), config.camera_fov_x)
+    return left, right

@@ -106,8 +106,9 @@ class ConvexSet:
             normals = np.asarray(hull.face_normals)
             offsets = np.einsum("ij,ij->i", normals, hull.vertices[hull.faces[:, 0]])
             # Coplanar triangles give the same plane: keep one.
-            nd = np.unique(np.round(np.column_stack([normals, offsets]), 7), axis=0)
-            planes.append(nd)
+            nd = np.column_stack([normals, offsets])
+            _, first = np.unique(np.round(nd, 6), axis=0, return_index=True)
+            planes.append(nd[np.sort(first)])
             center = hull.vertices.mean(axis=0)
             centers.append(center)
             radii.append(np.linalg.norm(hull.vertices - center, axis=1).max())

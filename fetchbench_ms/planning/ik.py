@@ -37,16 +37,12 @@ class IKResult:
 
 
 def rotation_error(R_target: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
-    """Axis-angle vector (B, 3) of R_target R^T, in the base frame."""
-    R_err = R_target @ R.transpose(1, 2)
-    cos = ((R_err.diagonal(dim1=1, dim2=2).sum(1) - 1) / 2).clamp(-1.0, 1.0)
-    angle = torch.arccos(cos)
-    axis = torch.stack([R_err[:, 2, 1] - R_err[:, 1, 2], R_err[:, 0, 2] - R_err[:, 2, 0],
-                        R_err[:, 1, 0] - R_err[:, 0, 1]], 1)
-    sin = torch.sin(angle)
-    # Near 0 the axis formula degenerates but the vector tends to the skew part / 2.
-    scale = torch.where(sin.abs() > 1e-6, angle / (2 * sin.clamp(min=1e-12)), torch.full_like(angle, 0.5))
-    return axis * scale[:, None]
+    """Axis-angle vector (B, 3) of R_target R^T, in the base frame (robust up to pi)."""
+    from pytorch_kinematics.transforms.rotation_conversions import matrix_to_quaternion, quaternion_to_axis_angle
+
+    quat = matrix_to_quaternion(R_target @ R.transpose(1, 2))
+    quat = torch.where(quat[:, :1] < 0, -quat, quat)  # the short way round
+    return quaternion_to_axis_angle(quat)
 
 
 def pose_errors(robot: PandaModel, q: torch.Tensor, T_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

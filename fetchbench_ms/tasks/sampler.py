@@ -1,0 +1,349 @@
+"""Turn a seed into a ``TaskSpec`` the way FetchBench does.
+
+1. Scene: a scene type (fixed, or drawn with the weights of the paper's test-scene mix
+   among the types that offer the requested category) and a procedural scene from it.
+2. Objects: up to 15 catalog objects, each placed by choosing a support label with the
+   original's weights {in_basket .5, on_shelf .3, in_drawer .3, on_table .2} (among the
+   labels the scene has), a surface of that label by area, a point on the surface
+   polygon eroded by 0.1 x the object's largest extent, a random stable pose (by its
+   probability) with random yaw, 5 mm above the surface. The footprint must lie on the
+   surface, the object must fit under the board above, and its bounding box grown by
+   5 mm must touch nothing (furniture or objects already placed); 100 attempts each.
+3. Physics per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution
+   U(0, 0.1) (the original's ranges; PhysX has no rolling/torsion friction, so the
+   original's 0.05 has no counterpart).
+4. Robot base uniformly in the scene's robot region, facing +x; a box robot table
+   (x U(0.4, 0.7) m, y U(0.6, 1.0) m) under it, top at the base height.
+5. Two cameras, left and right of the robot (mirrored in y about the camera target),
+   looking at the camera target region's centre plus an offset; rejection-sampled (20
+   tries) so the vertical field of view covers the heights of the supports.
+6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
+   that fall off their support or do not come to rest are dropped. The settled poses
+   are stored, so an episode starts at rest.
+Every draw comes from one ``numpy.random.Generator`` seeded by ``seed``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import trimesh
+from shapely.geometry import MultiPoint, Point
+
+from ..scenes import SCENE_TYPES, generate, get_scene_type
+from .objects import collision_vertices, load_object, object_ids
+from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
+
+SAMPLER_VERSION = "1"
+
+#: The original's support-label weights for placing an object.
+LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
+#: Test scenes per type in the original benchmark: the mix a random scene type follows.
+SCENE_TYPE_MIX = {
+    "CellShelfDesk": 10, "DrawerShelf": 10, "LargeShelf": 10, "LayerShelf": 10, "LargeShelfDesk": 9,
+    "RoundTable": 9, "DeskWall": 7, "SingleDoorCabinetDesk": 7, "Desk": 6, "DoubleDoorCabinet": 6,
+    "Drawer": 6, "EketShelf": 5, "TriangleShelfDesk": 5,
+}
+DENSITY_RANGE = (100.0, 400.0)  # kg/m^3
+FRICTION_RANGE = (0.6, 1.2)
+RESTITUTION_RANGE = (0.0, 0.1)
+ROBOT_TABLE_X_RANGE = (0.4, 0.7)  # m
+ROBOT_TABLE_Y_RANGE = (0.6, 1.0)  # m
+ROBOT_TABLE_FRONT = 0.12  # m the table reaches in front of the base (the Panda's base is ~0.1 m in radius)
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    num_objects: int = 15
+    object_split: str = "test"
+    placement_attempts: int = 100
+    clearance: float = 0.005  # m, between an object's box and everything else
+    drop_height: float = 0.005  # m above the surface
+    erosion: float = 0.1  # x the object's largest extent
+    camera_tries: int = 20
+    camera_fov_x: float = math.radians(70.0)
+    camera_aspect: float = 4.0 / 3.0  # width / height of the sensor the FOV check assumes
+    settle: bool = True
+    scene_attempts: int = 20  # scenes tried before giving up (a category that no scene offers)
+
+
+def categories() -> tuple[str, ...]:
+    return tuple(CATEGORY_LABELS)
+
+
+def scene_types_for(category: str | None) -> tuple[str, ...]:
+    """Scene types whose generator offers ``category``'s support label (all types if None)."""
+    if category is None:
+        return SCENE_TYPES
+    label = _category_label(category)
+    return tuple(t for t in SCENE_TYPES if label in get_scene_type(t).support_labels)
+
+
+def _category_label(category: str) -> str:
+    if category not in CATEGORY_LABELS:
+        raise ValueError(f"unknown category {category!r}; valid: {', '.join(CATEGORY_LABELS)}")
+    return CATEGORY_LABELS[category]
+
+
+def sample_task(
+    seed: int,
+    scene_type: str | None = None,
+    category: str | None = None,
+    config: SamplerConfig = SamplerConfig(),
+) -> TaskSpec:
+    """Sample one task. ``scene_type`` fixes the furniture type; ``category`` (Table, Shelf,
+    Drawer, Basket) makes the target rest on that kind of support. Same arguments, same task."""
+    if scene_type is not None and scene_type not in SCENE_TYPES:
+        raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
+    target_label = None if category is None else _category_label(category)
+    rng = np.random.default_rng(int(seed))
+    if scene_type is not None:
+        candidates = (scene_type,)
+    else:
+        candidates = scene_types_for(category)
+        if not candidates:
+            raise ValueError(f"no scene type offers category {category!r}")
+    weights = np.array([SCENE_TYPE_MIX[t] for t in candidates], dtype=float)
+    ids = object_ids(config.object_split)
+    for _ in range(config.scene_attempts):
+        chosen_type = candidates[int(rng.choice(len(candidates), p=weights / weights.sum()))]
+        scene_seed = int(rng.integers(2**31))
+        task = _sample_in_scene(rng, chosen_type, scene_seed, target_label, ids, config)
+        if task is not None:
+            return replace(task, seed=int(seed))
+    raise ValueError(
+        f"could not sample a task for seed {seed} (scene type {scene_type}, category {category}) "
+        f"in {config.scene_attempts} scenes"
+    )
+
+
+def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> TaskSpec | None:
+    scene = generate(scene_type, scene_seed)
+    if target_label is not None and not scene.surfaces(target_label):
+        return None
+    world = _furniture_collision(scene)
+    placements = _place_objects(rng, scene, world, ids, config, target_label)
+    if target_label is not None and not any(p.support_label == target_label for p in placements):
+        return None
+    if not placements:
+        return None
+    robot = _sample_robot(rng, scene, world)
+    if robot is None:
+        return None
+    base_position, base_quat, table_center, table_size = robot
+    cameras = _sample_cameras(rng, scene, base_position, config)
+    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements)}
+    if config.settle:
+        from ..envs.settle import settle_placements  # the one simulator step of sampling
+
+        placements, report = settle_placements(scene, placements, table_center, table_size)
+        extra.update(report)
+    eligible = [i for i, p in enumerate(placements) if target_label is None or p.support_label == target_label]
+    if not eligible:
+        return None
+    target_index = int(eligible[int(rng.integers(len(eligible)))])
+    return TaskSpec(
+        scene_type=scene_type,
+        scene_seed=scene_seed,
+        scene_params=dict(scene.params),
+        scene_hash=scene.content_hash(),
+        objects=tuple(placements),
+        target_index=target_index,
+        robot_base_position=base_position,
+        robot_base_quat_wxyz=base_quat,
+        robot_table_center=table_center,
+        robot_table_size=table_size,
+        camera_left=cameras[0],
+        camera_right=cameras[1],
+        robot_init_qpos=DEFAULT_QPOS,
+        extra=extra,
+    )
+
+
+# ----------------------------------------------------------------------------- objects
+def _furniture_collision(scene) -> trimesh.collision.CollisionManager:
+    """The furniture as exact primitives in an FCL collision manager."""
+    world = trimesh.collision.CollisionManager()
+    for part in scene.parts:
+        if part.shape == "box":
+            mesh = trimesh.creation.box(extents=part.size)
+        elif part.shape == "cylinder":
+            mesh = trimesh.creation.cylinder(radius=part.size[0], height=part.size[1])
+        elif part.shape == "capsule":
+            mesh = trimesh.creation.capsule(radius=part.size[0], height=part.size[1])
+        else:
+            mesh = trimesh.Trimesh(np.asarray(part.mesh_vertices)).convex_hull
+        world.add_object(f"part:{part.name}", mesh, transform=part.transform())
+    return world
+
+
+def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectPlacement]:
+    labels = [label for label in LABEL_WEIGHTS if scene.surfaces(label)]
+    label_p = np.array([LABEL_WEIGHTS[label] for label in labels])
+    label_p = label_p / label_p.sum()
+    chosen = rng.choice(len(ids), size=config.num_objects, replace=len(ids) < config.num_objects)
+    placements = []
+    for k, id_index in enumerate(chosen):
+        asset = load_object(ids[int(id_index)])
+        # With a category, the first object goes on that label so the task has a target there.
+        forced = target_label if (k == 0 and target_label is not None) else None
+        placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced, name=f"object:{k}")
+        if placed is not None:
+            placements.append(placed)
+    return placements
+
+
+def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label, name):
+    vertices = collision_vertices(asset)
+    stable_p = asset.stable_probs / asset.stable_probs.sum()
+    max_extent = float(max(asset.record.extents))
+    for _ in range(config.placement_attempts):
+        label = forced_label or labels[int(rng.choice(len(labels), p=label_p))]
+        surfaces = scene.surfaces(label)
+        areas = np.array([s.area for s in surfaces])
+        surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
+        pose_index = int(rng.choice(len(stable_p), p=stable_p))
+        yaw = float(rng.uniform(0.0, 2 * math.pi))
+        point = _sample_in_polygon(rng, surface.polygon.buffer(-config.erosion * max_extent))
+        if point is None:
+            continue
+        R_yaw = _rot_z(yaw)
+        T_support_object = asset.stable_poses[pose_index]
+        T_rest = np.eye(4)
+        T_rest[:3, :3] = R_yaw @ T_support_object[:3, :3]
+        T_rest[:3, 3] = R_yaw @ T_support_object[:3, 3]
+        v_rest = vertices @ T_rest[:3, :3].T + T_rest[:3, 3]
+        lo, hi = v_rest.min(axis=0), v_rest.max(axis=0)
+        if hi[2] - lo[2] + config.drop_height + config.clearance > surface.free_height:
+            continue
+        shift = np.array([point[0] - (lo[0] + hi[0]) / 2, point[1] - (lo[1] + hi[1]) / 2,
+                          surface.height + config.drop_height - lo[2]])
+        footprint = MultiPoint((v_rest[:, :2] + shift[:2]).tolist()).convex_hull
+        if not surface.polygon.contains(footprint):
+            continue
+        T_world_object = T_rest.copy()
+        T_world_object[:3, 3] += shift
+        # The object's box in the yawed frame (the stable pose's AABB turned by the yaw),
+        # grown by the clearance except at the bottom, which must not touch its support.
+        v_stable = vertices @ T_support_object[:3, :3].T + T_support_object[:3, 3]
+        s_lo, s_hi = v_stable.min(axis=0), v_stable.max(axis=0)
+        c = config.clearance
+        box_lo = s_lo - [c, c, -0.5 * config.drop_height]
+        box_hi = s_hi + [c, c, c]
+        box_T = np.eye(4)
+        box_T[:3, :3] = R_yaw
+        box_T[:3, 3] = R_yaw @ ((box_lo + box_hi) / 2) + shift
+        box = trimesh.creation.box(extents=box_hi - box_lo)
+        if world.in_collision_single(box, transform=box_T):
+            continue
+        world.add_object(name, box, transform=box_T)
+        position, quat = matrix_to_pose(T_world_object)
+        friction = float(rng.uniform(*FRICTION_RANGE))
+        return ObjectPlacement(
+            object_id=asset.object_id,
+            position=position,
+            quat_wxyz=quat,
+            density=float(rng.uniform(*DENSITY_RANGE)),
+            static_friction=friction,
+            dynamic_friction=friction,
+            restitution=float(rng.uniform(*RESTITUTION_RANGE)),
+            support_surface=surface.name,
+            support_label=surface.label,
+        )
+    return None
+
+
+def _sample_in_polygon(rng, polygon, tries: int = 50):
+    """A uniform point in ``polygon`` (rejection in its bounding box), or None."""
+    if polygon.is_empty or polygon.area <= 0:
+        return None
+    x0, y0, x1, y1 = polygon.bounds
+    for _ in range(tries):
+        x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
+        if polygon.contains(Point(x, y)):
+            return float(x), float(y)
+    return None
+
+
+def _rot_z(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+# ----------------------------------------------------------------------------- robot
+def _sample_robot(rng, scene, world, tries: int = 20):
+    region = scene.robot_region
+    for _ in range(tries):
+        x = float(rng.uniform(*region.x_range))
+        y = float(rng.uniform(*region.y_range))
+        z = float(rng.uniform(*region.z_range))
+        yaw = float(rng.uniform(*region.yaw_range))
+        size_x = float(rng.uniform(*ROBOT_TABLE_X_RANGE))
+        size_y = float(rng.uniform(*ROBOT_TABLE_Y_RANGE))
+        R = _rot_z(yaw)
+        # Table top at the base height (the base stands on it), front edge just ahead of the base.
+        center = np.array([x, y, 0.0]) + R @ np.array([ROBOT_TABLE_FRONT - size_x / 2, 0.0, 0.0])
+        center[2] = z / 2
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = center
+        if world.in_collision_single(trimesh.creation.box(extents=(size_x, size_y, z)), transform=T):
+            continue
+        quat = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
+        return (x, y, z), quat, tuple(float(v) for v in center), (size_x, size_y, z)
+    return None
+
+
+# ----------------------------------------------------------------------------- cameras
+def look_at_quat(eye, target) -> tuple[float, float, float, float]:
+    """wxyz rotation of a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target``."""
+    forward = np.asarray(target, float) - np.asarray(eye, float)
+    forward /= np.linalg.norm(forward)
+    left = np.cross([0.0, 0.0, 1.0], forward)
+    left /= np.linalg.norm(left)
+    up = np.cross(forward, left)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([forward, left, up], axis=1)
+    return matrix_to_pose(T)[1]
+
+
+def _covers_heights(eye, target, z_lo, z_hi, fov_y) -> bool:
+    """Both the lowest and highest support heights (at the target's x, y) are in view vertically."""
+    forward = np.asarray(target) - np.asarray(eye)
+    forward /= np.linalg.norm(forward)
+    left = np.cross([0.0, 0.0, 1.0], forward)
+    left /= np.linalg.norm(left)
+    up = np.cross(forward, left)
+    for z in (z_lo, z_hi):
+        d = np.array([target[0], target[1], z]) - eye
+        if abs(math.atan2(d @ up, d @ forward)) > fov_y / 2:
+            return False
+    return True
+
+
+def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, CameraPose]:
+    region = scene.camera_target
+    center, half = np.asarray(region.center), np.asarray(region.half_size)
+    heights = [s.height for s in scene.support_surfaces]
+    z_lo, z_hi = min(heights), max(heights) + 0.1
+    fov_y = 2 * math.atan(math.tan(config.camera_fov_x / 2) / config.camera_aspect)
+    best = None
+    for _ in range(config.camera_tries):
+        target = center + rng.uniform(-0.3, 0.3, size=3) * half
+        eye = np.array([
+            base_position[0] + rng.uniform(-0.3, 0.1),
+            center[1] + rng.uniform(0.6, 1.0),
+            target[2] + rng.uniform(0.3, 0.7),
+        ])
+        eye_right = eye * [1, 1, 1]
+        eye_right[1] = 2 * center[1] - eye[1]
+        target_right = target.copy()
+        target_right[1] = 2 * center[1] - target[1]
+        best = (eye, target, eye_right, target_right)
+        if _covers_heights(eye, target, z_lo, z_hi, fov_y) and _covers_heights(eye_right, target_right, z_lo, z_hi, fov_y):
+            break
+    eye, target, eye_right, target_right = best
+    left = CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
+    right = CameraPose(tuple(float(v) for v in eye_right), look_at_quat(eye_right, target_right), config.camera_fov_x)
+    return left, right

@@ -1,0 +1,100 @@
+"""Benchmark the FetchBench envs on this machine (CPU).
+
+Prints:
+- env step time with state obs, and its ratio to ManiSkill's PickCube-v1 measured in the
+  same process (goal <= 1.5x);
+- the median time to load a new task (reset with a new seed: sampling the task, settling
+  it, and rebuilding the scene), split into sampling and reconfiguring (goal <= 1 s);
+- the time of one point-cloud observation at 320x240 and 640x480.
+
+    PYTHONPATH=. python scripts/bench_env.py [--steps 300] [--tasks 10]
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import gymnasium as gym
+import mani_skill.envs  # noqa: F401  (PickCube-v1)
+import torch
+
+import fetchbench_ms  # noqa: F401  (FetchBench-*-v0)
+from fetchbench_ms.envs import fetchbench as fetchbench_env
+
+
+def step_time(env_id: str, steps: int, **kwargs) -> float:
+    """Seconds per env.step with zero delta-joint actions (the arm holds still), after warm-up."""
+    env = gym.make(env_id, obs_mode="state", control_mode="pd_joint_delta_pos", **kwargs)
+    env.reset(seed=0)
+    action = torch.zeros(env.action_space.shape)
+    for _ in range(10):
+        env.step(action)
+    start = time.perf_counter()
+    for _ in range(steps):
+        env.step(action)
+    elapsed = (time.perf_counter() - start) / steps
+    env.close()
+    return elapsed
+
+
+def new_task_times(n: int) -> tuple[list[float], list[float], list[float]]:
+    """(total, sampling, reconfigure) seconds for ``n`` resets to new tasks."""
+    env = gym.make("FetchBench-v0", obs_mode="state")
+    env.reset(seed=1000)
+    sample_s = []
+    original = fetchbench_env.FetchBenchEnv._sample_task
+
+    def timed_sample(self, seed):
+        t = time.perf_counter()
+        task = original(self, seed)
+        sample_s.append(time.perf_counter() - t)
+        return task
+
+    fetchbench_env.FetchBenchEnv._sample_task = timed_sample
+    totals = []
+    try:
+        for seed in range(n):
+            start = time.perf_counter()
+            _, info = env.reset(seed=seed)
+            totals.append(time.perf_counter() - start)
+            assert bool(info["reconfigure"]), "a new task must reconfigure"
+    finally:
+        fetchbench_env.FetchBenchEnv._sample_task = original
+        env.close()
+    return totals, sample_s, [t - s for t, s in zip(totals, sample_s)]
+
+
+def pointcloud_time(width: int, height: int, repeats: int = 5) -> float:
+    env = gym.make("FetchBench-v0", obs_mode="pointcloud", camera_width=width, camera_height=height)
+    env.reset(seed=0)
+    base = env.unwrapped
+    base.get_obs()  # first render compiles shaders
+    start = time.perf_counter()
+    for _ in range(repeats):
+        base.get_obs()
+    elapsed = (time.perf_counter() - start) / repeats
+    env.close()
+    return elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--tasks", type=int, default=10)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    pick = step_time("PickCube-v1", args.steps)
+    fetch = step_time("FetchBench-v0", args.steps)
+    print(f"step time, state obs: PickCube-v1 {pick * 1e3:.2f} ms, FetchBench-v0 {fetch * 1e3:.2f} ms, "
+          f"ratio {fetch / pick:.2f}x (goal <= 1.5x)")
+    totals, sampling, reconfig = new_task_times(args.tasks)
+    print(f"new task (median of {args.tasks}): total {statistics.median(totals):.2f} s = sampling+settling "
+          f"{statistics.median(sampling):.2f} s + reconfigure {statistics.median(reconfig):.2f} s (goal <= 1 s)")
+    for width, height in ((320, 240), (640, 480)):
+        print(f"point-cloud observation {width}x{height} (2 cameras): {pointcloud_time(width, height) * 1e3:.0f} ms")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,295 @@
+"""FetchBench-*-v0 envs on CPU: make/reset/step, determinism, success logic, bad input."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from _dev_scenes import ensure_registered
+
+ensure_registered()
+
+import fetchbench_ms  # noqa: E402,F401
+from fetchbench_ms.envs import ENV_IDS, control_modes, fetch_clouds, make, settle_and_hold  # noqa: E402
+from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET  # noqa: E402
+from fetchbench_ms.tasks import CATEGORY_LABELS, TaskSpec  # noqa: E402
+from fetchbench_ms.tasks.suite import TaskSuite  # noqa: E402
+from mani_skill.utils.geometry.rotation_conversions import quaternion_apply  # noqa: E402
+from mani_skill.utils.structs.pose import Pose  # noqa: E402
+
+FAST_IDS = ("FetchBench-v0", "FetchBench-Basket-v0", "FetchBench-LargeShelf-v0")
+
+
+def _make_reset_step(env_id: str, seeds=(0, 1, 2)):
+    env = gym.make(env_id, obs_mode="state", num_objects=8)
+    try:
+        for seed in seeds:
+            obs, info = env.reset(seed=seed)
+            assert obs.shape[0] == 1 and torch.isfinite(obs).all()
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample() * 0)
+            assert torch.isfinite(reward).all() and not bool(info["success"])
+            task = env.unwrapped.tasks[0]
+            kwargs = env.unwrapped.spec.kwargs
+            if "category" in kwargs:
+                assert task.target_label == CATEGORY_LABELS[kwargs["category"]]
+            if "scene_type" in kwargs:
+                assert task.scene_type == kwargs["scene_type"]
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", FAST_IDS)
+def test_env_makes_resets_steps_closes(env_id):
+    _make_reset_step(env_id)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", [i for i in ENV_IDS if i not in FAST_IDS])
+def test_every_registered_env_makes_resets_steps_closes(env_id):
+    _make_reset_step(env_id)
+
+
+def test_registered_ids():
+    assert len(ENV_IDS) == 1 + 4 + 13
+    assert {"FetchBench-Table-v0", "FetchBench-Shelf-v0", "FetchBench-Drawer-v0", "FetchBench-Basket-v0",
+            "FetchBench-LargeShelf-v0", "FetchBench-DrawerScene-v0"} <= set(ENV_IDS)
+    for env_id in ENV_IDS:
+        assert env_id in gym.registry
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = gym.make("FetchBench-v0", obs_mode="state_dict", control_mode="pd_joint_delta_pos")
+    yield env
+    env.close()
+
+
+def _object_poses(env) -> np.ndarray:
+    return np.stack([slot.pose.raw_pose[0].numpy() for slot in env.unwrapped.object_slots])
+
+
+def test_same_seed_same_start_and_different_seeds_differ(env):
+    env.reset(seed=11)
+    first = _object_poses(env)
+    env.reset(seed=12)
+    other = _object_poses(env)
+    _, info = env.reset(seed=11)
+    assert info["reconfigure"]  # a different task than the loaded one rebuilds the scene
+    assert np.array_equal(first, _object_poses(env))
+    assert first.shape != other.shape or not np.allclose(first, other)
+    _, info = env.reset(seed=11)
+    assert not info["reconfigure"]  # the same task again: no rebuild, same start
+    assert np.array_equal(first, _object_poses(env))
+
+
+def test_task_option_reproduces_a_task(env):
+    env.reset(seed=21)
+    task = env.unwrapped.tasks[0]
+    poses = _object_poses(env)
+    env.reset(seed=22)
+    _, info = env.reset(options={"task": task.to_dict()})
+    assert info["reconfigure"] and env.unwrapped.tasks[0] == task
+    assert np.array_equal(poses, _object_poses(env))
+
+
+def _place_target_com_in_base(env, point_base):
+    """Teleport the target so its centre of mass is at ``point_base`` (robot-base frame), at rest."""
+    base = env.unwrapped
+    b = base.built
+    k = int(b.target_index[0])
+    base_pose = base.agent.robot.pose.raw_pose
+    com_world = base_pose[:, :3] + quaternion_apply(base_pose[:, 3:], torch.tensor([point_base], dtype=torch.float32))
+    q = base.target.pose.raw_pose[:, 3:]
+    p = com_world - quaternion_apply(q, b.com_local[:, k])
+    base.target.set_pose(Pose.create_from_pq(p=p, q=q))
+    base.target.set_linear_velocity(torch.zeros(1, 3))
+    base.target.set_angular_velocity(torch.zeros(1, 3))
+
+
+def test_success_logic_on_scripted_states(env):
+    base = env.unwrapped
+    env.reset(seed=31)
+    info = base.evaluate()
+    assert not info["success"]  # the target is still on its support, in front of the robot
+    assert float(info["target_com_base"][0, 0]) > 0.0
+    assert float(info["max_others_moved"]) == 0.0
+
+    _place_target_com_in_base(env, [-0.2, 0.25, 0.66])  # the original's retrieval pose: held in free space
+    info = base.evaluate()
+    assert info["success"] and info["others_undisturbed"]
+    assert float(info["target_height"]) == pytest.approx(0.66, abs=1e-4)
+
+    # Another object knocked 20 cm off its place: a failure even with the target retrieved.
+    other = next(k for k in range(len(base.object_slots)) if k != int(base.built.target_index[0]) and bool(base.built.valid[0, k]))
+    slot = base.object_slots[other]
+    moved = slot.pose.raw_pose.clone()
+    moved[:, 2] -= 0.2
+    slot.set_pose(Pose.create(moved))
+    info = base.evaluate()
+    assert not info["success"] and float(info["max_others_moved"]) == pytest.approx(0.2, abs=1e-4)
+
+
+def test_release_thresholds_are_selectable():
+    env = gym.make("FetchBench-v0", obs_mode="state", success_criteria="release", num_objects=4)
+    try:
+        env.reset(seed=41)
+        _place_target_com_in_base(env, [0.1, 0.0, 0.29])  # retrieved by the release's rule, not the paper's
+        assert env.unwrapped.evaluate()["success"]
+        env.unwrapped.success_criteria = "paper"
+        assert not env.unwrapped.evaluate()["success"]
+    finally:
+        env.close()
+
+
+def test_settle_and_hold_keeps_a_resting_scene_and_drops_an_unheld_target(env):
+    base = env.unwrapped
+    env.reset(seed=51)
+    info = settle_and_hold(env, seconds=2.0)
+    assert not info["success"] and float(info["max_others_moved"]) < 0.01
+    assert float(info["target_moved"]) < 0.01
+    _place_target_com_in_base(env, [-0.2, 0.25, 0.66])
+    assert base.evaluate()["success"]
+    info = settle_and_hold(env, seconds=1.0)  # nothing holds it: it falls
+    assert not info["success"] and float(info["target_height"]) < 0.5
+    assert float(info["max_others_moved"]) < 0.01
+
+
+def test_at_rest_in_first_two_seconds_10_tasks():
+    _at_rest_fraction(range(100, 110), required=0.9)
+
+
+@pytest.mark.slow
+def test_at_rest_in_first_two_seconds_100_tasks():
+    _at_rest_fraction(range(200, 300), required=0.95)
+
+
+def _at_rest_fraction(seeds, required: float):
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos")
+    still, moved = 0, []
+    try:
+        action = torch.zeros(env.action_space.shape)
+        for seed in seeds:
+            env.reset(seed=seed)
+            for _ in range(2 * 20):  # 2 s at 20 Hz, the arm holding its start
+                _, _, _, _, info = env.step(action)
+            worst = max(float(info["max_others_moved"]), float(info["target_moved"]))
+            still += worst < 0.01
+            moved.append(round(worst, 4))
+    finally:
+        env.close()
+    assert still >= required * len(moved), moved
+
+
+def test_pointcloud_obs_segmented_in_base_frame():
+    env = gym.make("FetchBench-v0", obs_mode="pointcloud", num_objects=10)
+    try:
+        obs, info = env.reset(seed=61)
+        pcd = obs["pointcloud"]
+        assert pcd["xyz_base"].shape[1] == 2 * 320 * 240
+        clouds = fetch_clouds(obs)
+        assert len(clouds.target) > 0 and len(clouds.scene) > 1000
+        assert set(np.unique(clouds.scene_labels)) <= {LABEL_FURNITURE, LABEL_OBJECT}
+        # The target's points lie around its centre of mass (within the object's size).
+        com = info["target_com_base"][0].numpy()
+        assert np.linalg.norm(clouds.target.mean(axis=0) - com) < 0.15
+        # Base-frame points agree with the world points through the base pose.
+        base = env.unwrapped
+        labels = pcd["fetch_label"][0].numpy()
+        kept = labels > 0
+        world = pcd["xyzw"][0, kept, :3]
+        q, p = base.agent.robot.pose.raw_pose[0, 3:], base.agent.robot.pose.raw_pose[0, :3]
+        back = quaternion_apply(q.expand(int(kept.sum()), 4), pcd["xyz_base"][0, kept]) + p
+        assert torch.allclose(back, world, atol=1e-4)
+        # Every kept point is 0.15-2.5 m in front of its camera.
+        for side in ("left", "right"):
+            assert obs["extra"][f"cam_pose_base_{side}"].shape == (1, 16)
+        assert int(obs["extra"]["target_segmentation_id"][0]) == clouds.target_segmentation_id
+        assert set(np.unique(labels)) <= {0, LABEL_ROBOT, LABEL_TARGET, LABEL_OBJECT, LABEL_FURNITURE}
+    finally:
+        env.close()
+
+
+def test_rewards_are_finite_and_normalised():
+    for mode in ("normalized_dense", "dense", "sparse"):
+        env = gym.make("FetchBench-v0", obs_mode="state", reward_mode=mode, num_objects=4)
+        try:
+            env.reset(seed=71)
+            _, reward, _, _, _ = env.step(torch.zeros(env.action_space.shape))
+            assert torch.isfinite(reward).all()
+            if mode == "normalized_dense":
+                assert -1.0 <= float(reward) <= 1.0
+            _place_target_com_in_base(env, [-0.2, 0.25, 0.66])
+            info = env.unwrapped.evaluate()
+            top = env.unwrapped.get_reward(obs=None, action=None, info=info)
+            assert float(top) == {"normalized_dense": 1.0, "dense": 6.0, "sparse": 1.0}[mode]
+        finally:
+            env.close()
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (lambda: make("FetchBench-Tabel-v0"), ValueError, "valid: FetchBench-v0, FetchBench-Table-v0"),
+        (lambda: gym.make("FetchBench-v0", scene_type="Shelfs"), ValueError, "valid: CellShelfDesk, Desk"),
+        (lambda: gym.make("FetchBench-v0", category="Floor"), ValueError, "valid: Table, Shelf, Drawer, Basket"),
+        (lambda: gym.make("FetchBench-v0", control_mode="pd_joint_foo"), ValueError, "valid: pd_joint_delta_pos, pd_joint_pos"),
+        (lambda: gym.make("FetchBench-v0", camera_width=100), ValueError, "valid: 320x240, 640x480"),
+        (lambda: gym.make("FetchBench-v0", success_criteria="strict"), ValueError, "valid: paper, release"),
+    ],
+)
+def test_bad_env_arguments_name_valid_values(call, error, message):
+    with pytest.raises(error, match=message):
+        call()
+
+
+def test_bad_reset_options_name_valid_values(env, tmp_path):
+    with pytest.raises(ValueError, match="missing"):
+        env.reset(options={"task": {"scene_type": "Desk"}})
+    env.reset(seed=81)
+    good = env.unwrapped.tasks[0].to_dict()
+    with pytest.raises(ValueError, match="unknown scene type 'Sofa'; valid: CellShelfDesk"):
+        env.reset(options={"task": {**good, "scene_type": "Sofa"}})
+    with pytest.raises(ValueError, match="needs a task suite"):
+        env.reset(options={"task_id": "t0"})
+    suite = tmp_path / "suite.json"
+    TaskSuite("mini", {"t0": TaskSpec.from_dict(good)}).save(suite)
+    with_suite = gym.make("FetchBench-v0", obs_mode="state", task_suite=str(suite))
+    try:
+        with pytest.raises(KeyError, match="unknown task id 'nope' in suite 'mini'; valid: t0"):
+            with_suite.reset(options={"task_id": "nope"})
+        with_suite.reset(options={"task_id": "t0"})
+        assert with_suite.unwrapped.tasks[0] == TaskSpec.from_dict(good)
+    finally:
+        with_suite.close()
+
+
+def test_category_env_rejects_a_task_of_another_category(env):
+    env.reset(seed=91)
+    task = env.unwrapped.tasks[0]
+    other = next(c for c, label in CATEGORY_LABELS.items() if label != task.target_label)
+    shelf = gym.make(f"FetchBench-{other}-v0", obs_mode="state", num_objects=4)
+    try:
+        with pytest.raises(ValueError, match=f"this env is for {other} targets"):
+            shelf.reset(options={"task": task.to_dict()})
+    finally:
+        shelf.close()
+
+
+FAST_MODES = ("pd_joint_pos", "pd_joint_delta_pos", "pd_ee_delta_pose")
+
+
+@pytest.mark.parametrize(
+    "mode", [m if m in FAST_MODES else pytest.param(m, marks=pytest.mark.slow) for m in control_modes()]
+)
+def test_every_control_mode_steps(mode):
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode=mode, num_objects=3)
+    try:
+        env.reset(seed=5)
+        start = env.unwrapped.agent.robot.get_qpos().clone()
+        for _ in range(3):
+            _, reward, _, _, _ = env.step(env.action_space.sample())
+        assert torch.isfinite(reward).all()
+        assert not torch.allclose(start, env.unwrapped.agent.robot.get_qpos())  # the arm moved
+    finally:
+        env.close()

@@ -1,0 +1,130 @@
+"""TaskSpec and the task sampler (no env needed)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from _dev_scenes import ensure_registered
+
+ensure_registered()
+
+from fetchbench_ms.scenes import SCENE_TYPES  # noqa: E402
+from fetchbench_ms.tasks import CATEGORY_LABELS, SamplerConfig, TaskSpec, sample_task  # noqa: E402
+from fetchbench_ms.tasks.objects import collision_vertices, load_object  # noqa: E402
+from fetchbench_ms.tasks.suite import TaskSuite, load_suite  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def task() -> TaskSpec:
+    return sample_task(7)
+
+
+def test_same_seed_same_bytes_and_different_seeds_differ(task):
+    again = sample_task(7)
+    assert again.to_json() == task.to_json()
+    other = sample_task(8)
+    assert other.to_json() != task.to_json()
+
+
+def test_json_round_trip_is_identity(task):
+    text = json.dumps(task.to_dict())
+    back = TaskSpec.from_dict(json.loads(text))
+    assert back == task
+    assert back.content_hash() == task.content_hash()
+
+
+def test_sampled_task_follows_the_rules(task):
+    scene = task.scene()
+    surfaces = {s.name: s for s in scene.support_surfaces}
+    assert 1 <= len(task.objects) <= 15
+    assert task.scene_type in SCENE_TYPES
+    lo = np.array(task.robot_table_center) - np.array(task.robot_table_size) / 2
+    hi = np.array(task.robot_table_center) + np.array(task.robot_table_size) / 2
+    # The base stands on the robot table's top, inside its footprint (base faces +x, yaw 0 here).
+    assert hi[2] == pytest.approx(task.robot_base_position[2])
+    assert lo[0] <= task.robot_base_position[0] <= hi[0] and lo[1] <= task.robot_base_position[1] <= hi[1]
+    region = scene.robot_region
+    assert region.x_range[0] <= task.robot_base_position[0] <= region.x_range[1]
+    for placement in task.objects:
+        surface = surfaces[placement.support_surface]
+        assert placement.support_label == surface.label
+        assert 100 <= placement.density <= 400 and 0.6 <= placement.static_friction <= 1.2
+        assert 0 <= placement.restitution <= 0.1
+        # Settled: the object rests on its surface (lowest point within 1 cm of it).
+        v = collision_vertices(load_object(placement.object_id))
+        T = placement.transform()
+        z = v @ T[:3, :3].T[:, 2] + T[2, 3]
+        assert abs(z.min() - surface.height) < 0.01, placement
+
+
+def test_objects_do_not_interpenetrate(task):
+    manager = trimesh.collision.CollisionManager()
+    for k, placement in enumerate(task.objects):
+        for part in load_object(placement.object_id).convex_parts:
+            manager.add_object(f"{k}:{id(part)}", part, transform=placement.transform())
+    _, contacts = manager.in_collision_internal(return_data=True)
+    # Settled objects may touch (resting against each other) but not overlap.
+    depths = [c.depth for c in contacts if len({name.split(":")[0] for name in c.names}) == 2]
+    assert max(depths, default=0.0) < 0.003
+
+
+@pytest.mark.parametrize("category", list(CATEGORY_LABELS))
+def test_category_gives_targets_of_that_category(category):
+    for seed in range(3):
+        task = sample_task(seed, category=category, config=SamplerConfig(num_objects=6))
+        assert task.target_label == CATEGORY_LABELS[category]
+
+
+def test_fixed_scene_type_is_respected():
+    assert sample_task(1, scene_type="LargeShelf", config=SamplerConfig(num_objects=4)).scene_type == "LargeShelf"
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(scene_type="Shelfs"), "valid: CellShelfDesk"),
+        (dict(category="Floor"), "valid: Table, Shelf, Drawer, Basket"),
+    ],
+)
+def test_bad_sampler_input_names_valid_choices(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        sample_task(0, **kwargs)
+
+
+def test_malformed_task_dicts_are_rejected_with_the_valid_keys(task):
+    d = task.to_dict()
+    missing = {k: v for k, v in d.items() if k != "objects"}
+    with pytest.raises(ValueError, match="missing objects"):
+        TaskSpec.from_dict(missing)
+    with pytest.raises(ValueError, match="unknown keys colour"):
+        TaskSpec.from_dict({**d, "colour": 1})
+    with pytest.raises(ValueError, match="unknown scene type 'Sofa'; valid: CellShelfDesk"):
+        TaskSpec.from_dict({**d, "scene_type": "Sofa"})
+    with pytest.raises(ValueError, match="target_index 99 out of range"):
+        TaskSpec.from_dict({**d, "target_index": 99})
+    bad_object = dict(d["objects"][0], quat_wxyz=[2, 0, 0, 0])
+    with pytest.raises(ValueError, match="not unit length"):
+        TaskSpec.from_dict({**d, "objects": [bad_object]})
+    with pytest.raises(ValueError, match="version '0' is not supported"):
+        TaskSpec.from_dict({**d, "version": "0"})
+
+
+def test_stale_scene_generator_fails_loudly(task):
+    stale = TaskSpec.from_dict({**task.to_dict(), "scene_hash": "0" * 64})
+    with pytest.raises(ValueError, match="regenerates differently"):
+        stale.scene()
+
+
+def test_suite_round_trip_lookup_and_corruption(tmp_path, task):
+    path = tmp_path / "suite.json"
+    TaskSuite("mini", {"t0": task}).save(path)
+    suite = load_suite(path)
+    assert suite.get("t0") == task
+    with pytest.raises(KeyError, match="unknown task id 'nope' in suite 'mini'; valid: t0"):
+        suite.get("nope")
+    path.write_text(path.read_text().replace('"mini"', '"edited"'))
+    with pytest.raises(ValueError, match="corrupt"):
+        load_suite(path)

@@ -23,6 +23,8 @@ def build_parser() -> argparse.ArgumentParser:
         if importlib.util.find_spec(module_name) is None:
             continue
         importlib.import_module(module_name).add_commands(subparsers)
+    # The main job (`make demo`); its content changes as the project grows.
+    importlib.import_module("fetchbench_ms.demo").add_commands(subparsers)
     return parser
 
 

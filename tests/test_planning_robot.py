@@ -26,6 +26,11 @@ def test_fk_matches_pytorch_kinematics(robot):
         assert torch.allclose(ours[link], T, atol=1e-6), link
 
 
+def test_jacobian_matches_pytorch_kinematics(robot):
+    q = torch.as_tensor(np.random.default_rng(4).uniform(robot.q_min, robot.q_max, (32, 7)))
+    assert torch.allclose(robot.tcp_jacobian(q), robot.arm_chain.jacobian(q), atol=1e-6)
+
+
 def test_fk_matches_sapien(robot):
     import sapien
 

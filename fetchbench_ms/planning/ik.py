@@ -77,12 +77,13 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
         if len(idx) == 0:
             break
         qa = q[idx]
-        T = robot.link_poses(qa)["panda_hand_tcp"]
+        poses = robot.link_poses(qa)
+        T = poses["panda_hand_tcp"]
         e_pos = T_t[idx, :3, 3] - T[:, :3, 3]
         e_rot = rotation_error(T_t[idx, :3, :3], T[:, :3, :3])
         done = (e_pos.norm(dim=1) < pos_tol * 0.5) & (e_rot.norm(dim=1) < rot_tol * 0.5)
         err = torch.cat([e_pos, e_rot], 1)
-        J = robot.tcp_jacobian(qa)
+        J = robot.tcp_jacobian(qa, poses)
         JJt = J @ J.transpose(1, 2) + (damping ** 2) * eye
         dq = (J.transpose(1, 2) @ torch.linalg.solve(JJt, err[..., None]))[..., 0]
         # Limit the step so the linearisation holds.

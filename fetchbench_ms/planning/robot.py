@@ -134,6 +134,11 @@ class UrdfTreeFK:
         x, y, z = axes.T
         zero = torch.zeros_like(x)
         self._K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], 1).reshape(-1, 3, 3)  # cross matrices
+        self.joint_child = {j.name: j.child for j in order}
+
+    def joint_axis(self, names: tuple[str, ...]) -> torch.Tensor:
+        """(J, 3) joint axes in their child-link frames (the frame the motion is applied in)."""
+        return self._axes[[self._slot[n] for n in names]]
 
     def forward(self, q_full: torch.Tensor) -> dict[str, torch.Tensor]:
         B = q_full.shape[0]
@@ -261,10 +266,19 @@ class PandaModel:
         q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
         return self.arm_chain.forward_kinematics(q).get_matrix()
 
-    def tcp_jacobian(self, q) -> torch.Tensor:
-        """Geometric Jacobian of the TCP in the base frame, (B, 6, 7): linear rows first."""
-        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
-        return self.arm_chain.jacobian(q)
+    def tcp_jacobian(self, q, poses: dict | None = None) -> torch.Tensor:
+        """Geometric Jacobian of the TCP in the base frame, (B, 6, 7): linear rows first.
+
+        Built from the FK's joint frames (axis z_i and origin p_i of each arm joint:
+        J_i = [z_i x (p_tcp - p_i); z_i]); pytorch_kinematics' ``jacobian`` gives the same
+        (a test checks) but recomputes its own FK at several times the cost.
+        """
+        poses = poses if poses is not None else self.link_poses(q)
+        frames = torch.stack([poses[self.fk.joint_child[j]] for j in ARM_JOINTS], dim=1)  # (B, 7, 4, 4)
+        axes = torch.einsum("bjik,jk->bji", frames[..., :3, :3], self.fk.joint_axis(ARM_JOINTS))
+        p_tcp = poses["panda_hand_tcp"][:, None, :3, 3]
+        linear = torch.cross(axes, p_tcp - frames[..., :3, 3], dim=2)
+        return torch.cat([linear, axes], dim=2).transpose(1, 2)
 
     def within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         q = np.asarray(q).reshape(-1, 7)

@@ -68,6 +68,9 @@ class ExactRobot:
         for l, obj in self.objects.items():
             obj.setTransform(_transform(poses[l][0].numpy()))
 
+    def set_link_pose(self, link: str, T_base_link: np.ndarray) -> None:
+        self.objects[link].setTransform(_transform(T_base_link))
+
     def world_collisions(self, q, world: ExactWorld, finger: float = 0.04) -> list[tuple[str, str]]:
         """(link, obstacle) pairs in contact at ``q``."""
         self.pose(q, finger)

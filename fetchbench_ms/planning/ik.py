@@ -56,17 +56,21 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
              pos_tol: float = POS_TOL, rot_tol: float = ROT_TOL) -> IKResult:
     """Solve for every target pose in ``T_base_tcp`` ((4, 4) or (G, 4, 4)) from ``n_seeds`` starts.
 
-    Seeds: ``q_seed`` (if given) plus uniform samples inside the joint limits from ``rng``.
+    Seeds: ``q_seed`` (if given: (7,) for every target or (G, 7), one per target) plus
+    uniform samples inside the joint limits from ``rng``. Solutions are ranked by their
+    distance to the target's own seed.
     """
     if rng is None:
         rng = np.random.default_rng(0)
     targets = np.asarray(T_base_tcp, dtype=float).reshape(-1, 4, 4)
     G = len(targets)
     q_min, q_max = robot.q_min, robot.q_max
-    seeds = rng.uniform(q_min, q_max, size=(n_seeds, 7))
+    seeds = np.tile(rng.uniform(q_min, q_max, size=(n_seeds, 7)), (G, 1, 1))  # (G, S, 7)
+    ref = np.broadcast_to((q_min + q_max) / 2, (G, 7))
     if q_seed is not None:
-        seeds[0] = np.clip(np.asarray(q_seed, float), q_min, q_max)
-    q = torch.as_tensor(np.tile(seeds, (G, 1)))  # target-major: row = g * n_seeds + s
+        ref = np.clip(np.broadcast_to(np.asarray(q_seed, float), (G, 7)), q_min, q_max)
+        seeds[:, 0] = ref
+    q = torch.as_tensor(seeds.reshape(-1, 7).copy())  # target-major: row = g * n_seeds + s
     target_index = np.repeat(np.arange(G), n_seeds)
     T_t = torch.as_tensor(targets[target_index])
     lo, hi = torch.as_tensor(q_min), torch.as_tensor(q_max)
@@ -96,7 +100,7 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
     if checker is not None and ok.any():
         ok[ok] = checker.valid(q_np[ok])
     q_np, target_index = q_np[ok], target_index[ok]
-    ref = np.asarray(q_seed, float) if q_seed is not None else (q_min + q_max) / 2
+    ref = ref[target_index]
     # Best first: by target order (callers sort targets by preference), then distance to the seed.
     order = np.lexsort((np.abs(q_np - ref).sum(axis=1), target_index))
     q_np, target_index = q_np[order], target_index[order]

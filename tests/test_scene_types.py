@@ -130,7 +130,7 @@ def test_door_angle_override_turns_the_door():
 
 def test_drawer_pull_override_moves_the_drawer_surface():
     fronts = []
-    for pull in (0.55, 0.85):
+    for pull in (0.6, 0.85):
         spec = generate("Drawer", 6, {"dresser.open_0_pull": pull, "dresser.cols": 1})
         (surface,) = spec.surfaces("in_drawer")
         fronts.append(min(x for x, _ in surface.polygon_xy))

@@ -43,6 +43,8 @@ REACH_RADIUS = (0.25, 0.85)
 REACH_HEIGHT = (0.0, 1.3)
 #: Share of every surface's area that must be reachable (averaged over base poses).
 MIN_REACHABLE_FRACTION = 0.5
+#: Drawer and basket walls may stand this far inside a support polygon's edges (m).
+WALL_MARGIN = 0.005
 #: Clearance kept around the robot base's footprint (m): the base link's radius is ~0.1 m.
 ROBOT_BASE_RADIUS = 0.1
 #: Height above the base that must be free of furniture in the robot region (m): the
@@ -191,7 +193,7 @@ def support_problems(
     spec: SceneSpec,
     height_tolerance: float = SURFACE_HEIGHT_TOLERANCE,
     depth_tolerance: float = PENETRATION_TOLERANCE,
-    wall_margin: float = 0.005,
+    wall_margin: float = WALL_MARGIN,
 ) -> list[str]:
     """Each surface lies on its supporting part's top face and has clear space above it."""
     problems = []
@@ -217,7 +219,7 @@ def free_height_problems(
     spec: SceneSpec,
     min_free_height: float = MIN_FREE_HEIGHT,
     depth_tolerance: float = PENETRATION_TOLERANCE,
-    wall_margin: float = 0.005,
+    wall_margin: float = WALL_MARGIN,
 ) -> list[str]:
     """Every surface has >= ``min_free_height`` of space, and the free height it claims is
     really clear (above the first 8 cm, which ``support_problems`` covers) up to 1 mm
@@ -226,6 +228,8 @@ def free_height_problems(
     for s in spec.support_surfaces:
         if s.free_height < min_free_height:
             problems.append(f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m")
+        if not s.polygon.is_valid:
+            continue  # support_problems reports it
         bottom = s.height + min(s.free_height, MIN_FREE_HEIGHT)
         top = s.height + s.free_height - depth_tolerance
         space = f"its claimed free height of {s.free_height:.3f} m"

@@ -310,6 +310,13 @@ def test_bad_input_through_the_cli(argv_tail, message, capsys, tmp_path):
     assert not any(tmp_path.iterdir()), "nothing is written on bad input"
 
 
+def test_cli_rejects_negative_seeds(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["scenes", "generate", _a_type().name, "--seed", "-1"])
+    assert exit_info.value.code == 2
+    assert "a seed is an integer >= 0, got -1" in capsys.readouterr().err
+
+
 def test_cli_entry_point_exit_code_and_stderr(tmp_path):
     import subprocess
     import sys

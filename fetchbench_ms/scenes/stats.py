@@ -26,7 +26,7 @@ class TypeStats:
 def type_stats(scene_type: str, seeds=range(8)) -> TypeStats:
     seeds = list(seeds)
     if not seeds:
-        raise ValueError("need at least one seed")
+        raise ValueError(f"statistics of {scene_type} need at least one seed, got none")
     st = get_scene_type(scene_type)
     specs = [generate(scene_type, s) for s in seeds]
     counts = {lab: [len(spec.surfaces(lab)) for spec in specs] for lab in SUPPORT_LABELS}

@@ -350,3 +350,19 @@ def test_cli_list_generate_and_check(capsys, tmp_path):
 def test_support_surface_validation():
     with pytest.raises(ValueError, match="polygon of >= 3 vertices"):
         SupportSurface("s", "on_table", ((0, 0), (1, 0)), 0.5, 0.3, "top")
+
+
+def test_type_stats_summarise_the_generated_scenes():
+    from fetchbench_ms.scenes.stats import stats_table, type_stats
+
+    name = _a_type().name
+    specs = [generate(name, seed) for seed in range(3)]
+    stats = type_stats(name, range(3))
+    assert stats.n_params == len(get_scene_type(name).params)
+    assert stats.parts_mean == pytest.approx(np.mean([len(s.parts) for s in specs]))
+    for label in ("on_table", "on_shelf", "in_drawer", "in_basket"):
+        assert stats.surfaces_mean[label] == pytest.approx(np.mean([len(s.surfaces(label)) for s in specs]))
+    heights = [surface.height for s in specs for surface in s.support_surfaces]
+    assert stats.height_range == (min(heights), max(heights))
+    assert 0.5 <= stats.reach_min <= 1.0  # the reachability check passes on these seeds
+    assert stats_table([stats]).splitlines()[2].startswith(name)

@@ -99,6 +99,8 @@ def test_support_check_finds_floating_surfaces_and_intruders():
     shelf = reference_shelf()
     floating = _with_surface(shelf, 1, height=0.66)
     assert any("top under" in p for p in check_scene(floating)["support"])
+    buried = _with_surface(shelf, 1, height=0.64)  # inside the board (z 0.63-0.65)
+    assert any("top under" in p and "is at z=0.6500" in p for p in check_scene(buried)["support"])
     wrong_part = _with_surface(shelf, 1, supporting_part="board_0")
     assert check_scene(wrong_part)["support"]
     missing_part = _with_surface(shelf, 1, supporting_part="no_such_board")

@@ -132,7 +132,9 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
         return [f"surface {surface.name!r}: supporting part {surface.supporting_part!r} does not exist"]
     mesh = part_mesh(part)
     points = _probe_points(surface, inset=2 * tolerance)
-    start_z = surface.height + 0.01
+    # Rays start above the whole part, so they meet its top face first even when the
+    # surface is wrongly placed inside the part.
+    start_z = max(surface.height, float(mesh.bounds[1, 2])) + 0.01
     origins = np.column_stack([points, np.full(len(points), start_z)])
     directions = np.tile([0.0, 0.0, -1.0], (len(points), 1))
     hits, ray_ids, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
@@ -146,8 +148,7 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
             f"surface {surface.name!r}: {int(missing.sum())}/{len(points)} points of its polygon are not above "
             f"part {part.name!r} (e.g. ({x:.3f}, {y:.3f}))"
         )
-    off = np.abs(top_z - surface.height) > tolerance
-    off &= ~missing
+    off = np.abs(top_z - surface.height) > tolerance  # False where nothing was hit (NaN)
     if off.any():
         worst = int(np.nanargmax(np.where(off, np.abs(top_z - surface.height), -np.inf)))
         problems.append(

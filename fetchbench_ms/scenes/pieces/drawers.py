@@ -13,7 +13,7 @@ from ..params import ParamSpec
 from .builder import SceneBuilder, material, material_params, rect
 
 MAX_ROWS = 4
-MAX_COLS = 2
+MAX_COLS = 3
 
 
 def dresser_params(

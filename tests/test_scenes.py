@@ -99,6 +99,8 @@ def test_support_check_finds_floating_surfaces_and_intruders():
     shelf = reference_shelf()
     floating = _with_surface(shelf, 1, height=0.66)
     assert any("top under" in p for p in check_scene(floating)["support"])
+    buried = _with_surface(shelf, 1, height=0.64)  # inside the board (z 0.63-0.65)
+    assert any("top under" in p and "is at z=0.6500" in p for p in check_scene(buried)["support"])
     wrong_part = _with_surface(shelf, 1, supporting_part="board_0")
     assert check_scene(wrong_part)["support"]
     missing_part = _with_surface(shelf, 1, supporting_part="no_such_board")
@@ -310,6 +312,13 @@ def test_bad_input_through_the_cli(argv_tail, message, capsys, tmp_path):
     assert not any(tmp_path.iterdir()), "nothing is written on bad input"
 
 
+def test_cli_rejects_negative_seeds(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["scenes", "generate", _a_type().name, "--seed", "-1"])
+    assert exit_info.value.code == 2
+    assert "a seed is an integer >= 0, got -1" in capsys.readouterr().err
+
+
 def test_cli_entry_point_exit_code_and_stderr(tmp_path):
     import subprocess
     import sys
@@ -343,3 +352,19 @@ def test_cli_list_generate_and_check(capsys, tmp_path):
 def test_support_surface_validation():
     with pytest.raises(ValueError, match="polygon of >= 3 vertices"):
         SupportSurface("s", "on_table", ((0, 0), (1, 0)), 0.5, 0.3, "top")
+
+
+def test_type_stats_summarise_the_generated_scenes():
+    from fetchbench_ms.scenes.stats import stats_table, type_stats
+
+    name = _a_type().name
+    specs = [generate(name, seed) for seed in range(3)]
+    stats = type_stats(name, range(3))
+    assert stats.n_params == len(get_scene_type(name).params)
+    assert stats.parts_mean == pytest.approx(np.mean([len(s.parts) for s in specs]))
+    for label in ("on_table", "on_shelf", "in_drawer", "in_basket"):
+        assert stats.surfaces_mean[label] == pytest.approx(np.mean([len(s.surfaces(label)) for s in specs]))
+    heights = [surface.height for s in specs for surface in s.support_surfaces]
+    assert stats.height_range == (min(heights), max(heights))
+    assert 0.5 <= stats.reach_min <= 1.0  # the reachability check passes on these seeds
+    assert stats_table([stats]).splitlines()[2].startswith(name)

@@ -43,6 +43,8 @@ REACH_RADIUS = (0.25, 0.85)
 REACH_HEIGHT = (0.0, 1.3)
 #: Share of every surface's area that must be reachable (averaged over base poses).
 MIN_REACHABLE_FRACTION = 0.5
+#: Drawer and basket walls may stand this far inside a support polygon's edges (m).
+WALL_MARGIN = 0.005
 #: Clearance kept around the robot base's footprint (m): the base link's radius is ~0.1 m.
 ROBOT_BASE_RADIUS = 0.1
 #: Height above the base that must be free of furniture in the robot region (m): the
@@ -130,7 +132,9 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
         return [f"surface {surface.name!r}: supporting part {surface.supporting_part!r} does not exist"]
     mesh = part_mesh(part)
     points = _probe_points(surface, inset=2 * tolerance)
-    start_z = surface.height + 0.01
+    # Rays start above the whole part, so they meet its top face first even when the
+    # surface is wrongly placed inside the part.
+    start_z = max(surface.height, float(mesh.bounds[1, 2])) + 0.01
     origins = np.column_stack([points, np.full(len(points), start_z)])
     directions = np.tile([0.0, 0.0, -1.0], (len(points), 1))
     hits, ray_ids, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
@@ -144,8 +148,7 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
             f"surface {surface.name!r}: {int(missing.sum())}/{len(points)} points of its polygon are not above "
             f"part {part.name!r} (e.g. ({x:.3f}, {y:.3f}))"
         )
-    off = np.abs(top_z - surface.height) > tolerance
-    off &= ~missing
+    off = np.abs(top_z - surface.height) > tolerance  # False where nothing was hit (NaN)
     if off.any():
         worst = int(np.nanargmax(np.where(off, np.abs(top_z - surface.height), -np.inf)))
         problems.append(
@@ -191,7 +194,7 @@ def support_problems(
     spec: SceneSpec,
     height_tolerance: float = SURFACE_HEIGHT_TOLERANCE,
     depth_tolerance: float = PENETRATION_TOLERANCE,
-    wall_margin: float = 0.005,
+    wall_margin: float = WALL_MARGIN,
 ) -> list[str]:
     """Each surface lies on its supporting part's top face and has clear space above it."""
     problems = []
@@ -217,7 +220,7 @@ def free_height_problems(
     spec: SceneSpec,
     min_free_height: float = MIN_FREE_HEIGHT,
     depth_tolerance: float = PENETRATION_TOLERANCE,
-    wall_margin: float = 0.005,
+    wall_margin: float = WALL_MARGIN,
 ) -> list[str]:
     """Every surface has >= ``min_free_height`` of space, and the free height it claims is
     really clear (above the first 8 cm, which ``support_problems`` covers) up to 1 mm
@@ -226,6 +229,8 @@ def free_height_problems(
     for s in spec.support_surfaces:
         if s.free_height < min_free_height:
             problems.append(f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m")
+        if not s.polygon.is_valid:
+            continue  # support_problems reports it
         bottom = s.height + min(s.free_height, MIN_FREE_HEIGHT)
         top = s.height + s.free_height - depth_tolerance
         space = f"its claimed free height of {s.free_height:.3f} m"

@@ -312,10 +312,11 @@ def list_objects(split: str | None = None, source: str | None = None, category: 
     ]
 
 
-@functools.lru_cache(maxsize=512)
+@functools.lru_cache(maxsize=128)
 def get_object(object_id: str) -> ObjectAsset:
     """The object ``object_id``: geometry rebuilt from its source, derived values from
-    the index (checked against a fingerprint of the geometry)."""
+    the index (checked against a fingerprint of the geometry). Cached: treat the
+    returned meshes and arrays as read-only (copy before changing them)."""
     parse_id(object_id)
     if not (asset_dir() / MANIFEST_NAME).exists() and parse_id(object_id)[0] == "procedural":
         # No catalog built yet (fresh checkout before `fetchbench objects build`): a
@@ -384,9 +385,19 @@ def index_entry(asset: ObjectAsset) -> dict:
     }
 
 
+#: Functions ``f(stats_dict) -> None`` that add their own keys to ``stats()`` (e.g. the
+#: grasp module's counts and success rates), called in registration order.
+STATS_EXTENSIONS: list = []
+
+
+def register_stats_extension(function) -> None:
+    if function not in STATS_EXTENSIONS:
+        STATS_EXTENSIONS.append(function)
+
+
 def stats() -> dict:
-    """Counts per source, category and split (and drops per source). A plain dict, so
-    other modules (grasps) can add their own keys."""
+    """Counts per source, category and split (and drops per source), then whatever the
+    registered extensions add. A plain JSON-able dict."""
     index = load_index()
     records = _records_cached(str(asset_dir()))
     out: dict = {"total": len(records), "by_split": {}, "by_source": {}, "by_category": {}, "dropped": {}}
@@ -403,4 +414,6 @@ def stats() -> dict:
     for oid in index["dropped"]:
         source = oid.split("/")[0]
         out["dropped"][source] = out["dropped"].get(source, 0) + 1
+    for extension in STATS_EXTENSIONS:
+        extension(out)
     return out

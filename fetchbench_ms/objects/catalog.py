@@ -119,14 +119,14 @@ def _source_geometry(object_id: str):
     if source == "procedural":
         category, index = key.split("/")[1], int(key.split("/")[2])
         obj = procedural.generate(category, index)
-        return category, list(obj.parts), None, (*obj.rgb, 1.0), {"params": obj.params, "draws": obj.draws}
+        return category, list(obj.parts), None, (*obj.rgb, 1.0), {"params": obj.params, "draws": obj.draws, "scale": 1.0}
     if source == "blob":
         number = int(key)
         return "blob", blobs.blob_parts(number), None, None, {"file": f"pybullet_data/random_urdfs/{key}/{key}.obj", "scale": blobs.BLOB_SCALE}
     parts = ycb_convex_parts().get(key)
     if parts is None:
         raise ValueError(f"ycb/{key} has no shipped decomposition (not fetchable: see `fetchbench objects stats`)")
-    return ycb.YCB_CATEGORIES[key], [g.hull(p) for p in parts], ycb.load_scan(key), None, {"scan": key}
+    return ycb.YCB_CATEGORIES[key], [g.hull(p) for p in parts], ycb.load_scan(key), None, {"scan": key, "scale": 1.0}
 
 
 def fingerprint(parts) -> str:
@@ -283,10 +283,11 @@ def clear_caches() -> None:
 @functools.lru_cache(maxsize=4)
 def _records_cached(directory: str) -> tuple[ObjectRecord, ...]:
     objects = _index_cached(directory)["objects"]
-    return tuple(
-        ObjectRecord(oid, e["category"], e["source"], e["split"], tuple(e["extents"]))
-        for oid, e in sorted(objects.items())
-    )
+    return tuple(_record(oid, e) for oid, e in sorted(objects.items()))
+
+
+def _record(object_id: str, entry: dict) -> ObjectRecord:
+    return ObjectRecord(object_id, entry["category"], entry["source"], entry["split"], tuple(entry["extents"]))
 
 
 def _check_choice(kind: str, value, valid) -> None:
@@ -339,7 +340,7 @@ def get_object(object_id: str) -> ObjectAsset:
         )
     poses = np.array([_pose_matrix(p) for p in entry["stable_poses"]], dtype=np.float64)
     return ObjectAsset(
-        record=asset.record,
+        record=_record(object_id, entry),  # the same record list_objects() gives
         visual_mesh=asset.visual_mesh,
         convex_parts=asset.convex_parts,
         center_of_mass=asset.center_of_mass,

@@ -246,6 +246,8 @@ def test_bad_reset_options_name_valid_values(env, tmp_path):
     good = env.unwrapped.tasks[0].to_dict()
     with pytest.raises(ValueError, match="unknown scene type 'Sofa'; valid: CellShelfDesk"):
         env.reset(options={"task": {**good, "scene_type": "Sofa"}})
+    with pytest.raises(ValueError, match="objects from 'catalog/v0'.*resample the task"):
+        env.reset(options={"task": {**good, "object_source": "catalog/v0"}})
     with pytest.raises(ValueError, match="needs a task suite"):
         env.reset(options={"task_id": "t0"})
     suite = tmp_path / "suite.json"

@@ -35,7 +35,7 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import Point, Polygon
 
 from ..scenes import SCENE_TYPES, generate, get_scene_type
-from .objects import collision_vertices, load_object, object_ids
+from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
 SAMPLER_VERSION = "1"
@@ -161,6 +161,7 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
         camera_left=cameras[0],
         camera_right=cameras[1],
         robot_init_qpos=DEFAULT_QPOS,
+        object_source=object_source(),
         extra=extra,
     )
 

@@ -332,3 +332,20 @@ def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
         assert float(info["target_com_base"][0, 0]) < 0.0 and float(info["target_height"]) > 0.5
     finally:
         env.close()
+
+
+def test_state_obs_size_is_fixed_across_tasks_with_padded_slots():
+    env = gym.make("FetchBench-v0", obs_mode="state", num_objects=15)
+    try:
+        sizes, padded = set(), 0
+        for seed in (0, 1, 2, 3):
+            obs, _ = env.reset(seed=seed)
+            sizes.add(obs.shape)
+            base = env.unwrapped
+            assert len(base.object_slots) == 15
+            padded += int((~base.built.valid[0]).sum())
+            # Placeholders are parked and ignored by the evaluation.
+            env.step(torch.zeros(env.action_space.shape))
+        assert sizes == {env.observation_space.shape} and padded > 0
+    finally:
+        env.close()

@@ -241,7 +241,7 @@ class FetchBenchEnv(BaseEnv):
     def _load_scene(self, options: dict):
         self._tasks = self._pending_tasks
         self._scene_specs = [t.scene() for t in self._tasks]
-        self.built = build_tasks(self, self._tasks, self._scene_specs)
+        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects)
         self.object_slots = self.built.slots
         self.target = self.built.target
 

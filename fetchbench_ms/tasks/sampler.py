@@ -367,9 +367,9 @@ def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, Came
     for _ in range(config.camera_tries):
         target = center + rng.uniform(-0.3, 0.3, size=3) * half
         eye = np.array([
-            base_position[0] + rng.uniform(-0.4, 0.0),
-            center[1] + rng.uniform(0.7, 1.1),
-            target[2] + rng.uniform(0.4, 0.8),
+            base_position[0] + rng.uniform(-0.3, 0.1),
+            center[1] + rng.uniform(0.9, 1.3),
+            target[2] + rng.uniform(0.3, 0.7),
         ])
         eye_right = eye * [1, 1, 1]
         eye_right[1] = 2 * center[1] - eye[1]

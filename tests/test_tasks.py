@@ -127,3 +127,13 @@ def test_suite_round_trip_lookup_and_corruption(tmp_path, task):
     path.write_text(path.read_text().replace('"mini"', '"edited"'))
     with pytest.raises(ValueError, match="corrupt"):
         load_suite(path)
+
+
+def test_cli_samples_a_task_to_json_and_rejects_bad_categories(tmp_path, capsys):
+    from fetchbench_ms.cli import main
+
+    out = tmp_path / "task.json"
+    assert main(["tasks", "sample", "--seed", "7", "-o", str(out)]) == 0
+    assert TaskSpec.from_dict(json.loads(out.read_text())) == sample_task(7)
+    assert main(["tasks", "sample", "--seed", "7", "--category", "Drawers"]) == 2
+    assert "valid: Table, Shelf, Drawer, Basket" in capsys.readouterr().err

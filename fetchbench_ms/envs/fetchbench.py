@@ -16,6 +16,7 @@ from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from ..scenes import SCENE_TYPES
+from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, sample_task
 from ..tasks.spec import CATEGORY_LABELS, TaskSpec
 from . import pointcloud
@@ -224,6 +225,7 @@ class FetchBenchEnv(BaseEnv):
         return [t if isinstance(t, TaskSpec) else TaskSpec.from_dict(t) for t in tasks]
 
     def _check_task(self, task: TaskSpec) -> None:
+        check_object_source(task.object_source)
         if self.scene_type is not None and task.scene_type != self.scene_type:
             raise ValueError(f"task is in a {task.scene_type} scene but this env is for {self.scene_type} scenes")
         if self.category is not None and task.target_label != CATEGORY_LABELS[self.category]:
@@ -239,7 +241,7 @@ class FetchBenchEnv(BaseEnv):
     def _load_scene(self, options: dict):
         self._tasks = self._pending_tasks
         self._scene_specs = [t.scene() for t in self._tasks]
-        self.built = build_tasks(self, self._tasks, self._scene_specs)
+        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects)
         self.object_slots = self.built.slots
         self.target = self.built.target
 

@@ -5,8 +5,8 @@ simulator (one sub-scene) and the GPU simulator (``num_envs`` sub-scenes, each w
 different procedural scene and different objects):
 
 - object slots: every sub-scene gets the same number of dynamic object actors (the
-  largest object count among the tasks; shorter tasks are padded with small parked
-  placeholder boxes), built per sub-scene with ``set_scene_idxs`` and merged across
+  env's object count, or the largest among the tasks if larger; shorter tasks are padded
+  with small parked placeholder boxes without visuals), built per sub-scene with ``set_scene_idxs`` and merged across
   sub-scenes into one ``Actor`` per slot (``object_0`` ... ``object_{S-1}``), so state
   names are stable and every state leaf has batch size ``num_envs``;
 - the target: a second merged view over the target slot of each sub-scene;
@@ -37,8 +37,10 @@ ROBOT_TABLE_RGBA = (0.35, 0.35, 0.38, 1.0)
 
 
 def placeholder_position(slot: int) -> list[float]:
-    """Where an unused object slot is parked: on the floor, far from everything."""
-    return [-20.0 - 0.1 * slot, 20.0, PLACEHOLDER_HALF_SIZE]
+    """Where an unused object slot is parked: on the floor behind the robot and its table,
+    out of the cameras' views, and within 2.5 m of the origin (on GPU, sub-scenes are
+    5 m apart in one physics scene: anything further would reach a neighbour)."""
+    return [-1.8, -1.8 + 0.05 * slot, PLACEHOLDER_HALF_SIZE]
 
 
 @dataclass
@@ -58,10 +60,12 @@ class BuiltTasks:
     base_pose: torch.Tensor  # [B, 7]
 
 
-def build_tasks(env, tasks: list[TaskSpec], scene_specs) -> BuiltTasks:
+def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> BuiltTasks:
+    """Build ``tasks[i]`` into sub-scene i. ``min_slots`` pads the object slots to a fixed
+    count, so state observations keep their size from task to task."""
     scene = env.scene
     num_envs = len(tasks)
-    num_slots = max(len(t.objects) for t in tasks)
+    num_slots = max([min_slots] + [len(t.objects) for t in tasks])
     device = env.device
 
     initial_pose = np.zeros((num_envs, num_slots, 7))

@@ -35,7 +35,7 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import Point, Polygon
 
 from ..scenes import SCENE_TYPES, generate, get_scene_type
-from .objects import collision_vertices, load_object, object_ids
+from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
 SAMPLER_VERSION = "1"
@@ -161,6 +161,7 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
         camera_left=cameras[0],
         camera_right=cameras[1],
         robot_init_qpos=DEFAULT_QPOS,
+        object_source=object_source(),
         extra=extra,
     )
 
@@ -366,9 +367,9 @@ def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, Came
     for _ in range(config.camera_tries):
         target = center + rng.uniform(-0.3, 0.3, size=3) * half
         eye = np.array([
-            base_position[0] + rng.uniform(-0.4, 0.0),
-            center[1] + rng.uniform(0.7, 1.1),
-            target[2] + rng.uniform(0.4, 0.8),
+            base_position[0] + rng.uniform(-0.3, 0.1),
+            center[1] + rng.uniform(0.9, 1.3),
+            target[2] + rng.uniform(0.3, 0.7),
         ])
         eye_right = eye * [1, 1, 1]
         eye_right[1] = 2 * center[1] - eye[1]

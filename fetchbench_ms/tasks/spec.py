@@ -147,6 +147,7 @@ class TaskSpec:
     camera_left: CameraPose
     camera_right: CameraPose
     robot_init_qpos: tuple[float, ...] = DEFAULT_QPOS
+    object_source: str = ""  # tasks.objects.object_source() when sampled; checked on load
     seed: int | None = None  # the sampler seed that produced this task (None if hand-made)
     version: str = TASK_SPEC_VERSION
     extra: dict = field(default_factory=dict)  # free-form, JSON-safe (e.g. sampler statistics)
@@ -154,7 +155,7 @@ class TaskSpec:
     KEYS = (
         "version", "seed", "scene_type", "scene_seed", "scene_params", "scene_hash", "objects",
         "target_index", "robot_base_position", "robot_base_quat_wxyz", "robot_table_center",
-        "robot_table_size", "camera_left", "camera_right", "robot_init_qpos", "extra",
+        "robot_table_size", "camera_left", "camera_right", "robot_init_qpos", "object_source", "extra",
     )
 
     def __post_init__(self):
@@ -209,6 +210,7 @@ class TaskSpec:
             "camera_left": self.camera_left.to_dict(),
             "camera_right": self.camera_right.to_dict(),
             "robot_init_qpos": list(self.robot_init_qpos),
+            "object_source": self.object_source,
             "extra": self.extra,
         }
 
@@ -239,6 +241,7 @@ class TaskSpec:
                 camera_left=CameraPose.from_dict(d["camera_left"]),
                 camera_right=CameraPose.from_dict(d["camera_right"]),
                 robot_init_qpos=_floats(d["robot_init_qpos"], 9),
+                object_source=str(d["object_source"]),
                 seed=None if d["seed"] is None else int(d["seed"]),
                 version=d["version"],
                 extra=dict(d["extra"]),

@@ -359,7 +359,9 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
     tried: set = set()
     failure, attempts = None, 0
     for attempts in range(1, retries + 1):
-        failure = _attempt(env, method, state, rng, tried)
+        outcome = _attempt(env, method, state, rng, tried)
+        # A retry that finds no untried grasp keeps the failure that made it retry.
+        failure = failure if (outcome == "no_grasp_candidate" and attempts > 1) else outcome
         if failure is None or attempts == retries:
             break
         target_moved, others_moved = _moved(env)

@@ -19,7 +19,7 @@ class Attachment:
     radii: np.ndarray  # (M,)
 
     @classmethod
-    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 48, seed: int = 0) -> "Attachment":
+    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 96, seed: int = 0) -> "Attachment":
         """Spheres on object points (surface samples or observed cloud), hand frame.
 
         Farthest-point picks ``n_spheres`` centres; each radius is the distance to the
@@ -41,7 +41,7 @@ class Attachment:
         return cls(centers, np.maximum(radii, 0.005))
 
     @classmethod
-    def from_mesh(cls, mesh_hand: trimesh.Trimesh, n_samples: int = 2000, n_spheres: int = 48,
+    def from_mesh(cls, mesh_hand: trimesh.Trimesh, n_samples: int = 2000, n_spheres: int = 96,
                   seed: int = 0) -> "Attachment":
         points, _ = trimesh.sample.sample_surface(mesh_hand, n_samples, seed=np.random.default_rng(seed))
         return cls.from_points(np.concatenate([points, mesh_hand.vertices]), n_spheres, seed)

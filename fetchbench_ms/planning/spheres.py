@@ -25,9 +25,17 @@ from scipy.cluster.vq import kmeans2
 
 from ..utils.io import atomic_write_text, canonical_json, sha256_bytes
 
-FIT_VERSION = "1"
+FIT_VERSION = "2"
 DEFAULT_MARGIN = 0.004  # m added to every radius; larger than the sample spacing
 SPHERE_SPACING = 0.045  # m of link extent per sphere: sets k per link
+# The fingers and the hand decide whether low objects can be grasped: fat spheres there
+# would touch the board under a 3 cm can. More, tighter spheres (dense samples keep the
+# spacing under a millimetre, so a smaller margin stays conservative).
+LINK_FIT = {  # link: (spheres, margin)
+    "panda_leftfinger": (10, 0.002),
+    "panda_rightfinger": (10, 0.002),
+    "panda_hand": (12, 0.003),
+}
 
 
 @dataclass(frozen=True)
@@ -91,7 +99,8 @@ def load_or_fit(meshes: dict[str, trimesh.Trimesh], input_bytes: bytes, cache_ro
 
     ``input_bytes`` are the bytes the meshes came from (URDF + mesh files): part of the key.
     """
-    key = sha256_bytes(canonical_json({"version": FIT_VERSION, "margin": margin, "seed": seed}).encode()
+    key = sha256_bytes(canonical_json({"version": FIT_VERSION, "margin": margin, "seed": seed,
+                                       "link_fit": LINK_FIT}).encode()
                        + input_bytes)[:24]
     path = Path(cache_root) / "planning" / f"panda_spheres_{key}.json"
     if path.exists():
@@ -101,7 +110,8 @@ def load_or_fit(meshes: dict[str, trimesh.Trimesh], input_bytes: bytes, cache_ro
                 or sha256_bytes(canonical_json(body).encode()) != record.get("content_sha256"):
             raise ValueError(f"corrupt or stale sphere cache {path}: delete it to refit")
     else:
-        body = _to_json([fit_spheres(l, meshes[l], margin, seed) for l in sorted(meshes)])
+        body = _to_json([fit_spheres(l, meshes[l], LINK_FIT.get(l, (None, margin))[1], seed,
+                                     n_spheres=LINK_FIT.get(l, (None, margin))[0]) for l in sorted(meshes)])
         record = {"version": FIT_VERSION, "key": key, "margin": margin, "seed": seed, "links": body,
                   "content_sha256": sha256_bytes(canonical_json(body).encode())}
         atomic_write_text(path, canonical_json(record))

@@ -1,36 +1,51 @@
 """Grasp candidates for the target: the annotated (physics-verified) grasps of the
-object, or, for an object without labels in the grasp store, antipodal candidates
-computed from its convex parts as a stand-in (unverified, marked in the result)."""
+object from the grasp store, or, for an object without labels there, antipodal
+candidates computed from its convex parts as a stand-in (unverified; the episode
+records which source it used).
+
+Both are per-object assets computed ahead of time (the stand-in once per object and
+process, from a seed derived from the object id), so an episode's grasp "inference"
+is a lookup, as it is for FetchBench's annotated-grasp baselines.
+"""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..grasps.hand import TCP_OFFSET
+from ..utils.io import sha256_bytes
+
+STANDIN_CANDIDATES = 128
 
 
 @dataclass(frozen=True)
 class GraspCandidates:
-    T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame, best first
+    T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame
     source: str  # "annotated" or "antipodal-standin"
 
 
-def annotated_grasps(asset, rng: np.random.Generator, max_grasps: int = 64) -> GraspCandidates:
+@functools.lru_cache(maxsize=256)
+def object_grasps(object_id: str) -> GraspCandidates:
+    """All grasps of an object (cached per process)."""
     from ..grasps import load_grasps
 
     try:
-        labelled = load_grasps(asset.object_id).successful
-        T, source = labelled.T_object_hand, "annotated"
+        return GraspCandidates(load_grasps(object_id).successful.T_object_hand, "annotated")
     except (KeyError, FileNotFoundError):  # no store, or no labels for this object (stale/corrupt stores raise)
         from ..grasps.sampler import sample_candidates
+        from ..tasks.objects import load_object
 
-        T, source = sample_candidates(asset, max_grasps, rng).T_object_hand, "antipodal-standin"
-    if len(T) > max_grasps:
-        T = T[np.sort(rng.choice(len(T), max_grasps, replace=False))]
-    # Best first has no meaning among verified grasps: a seeded shuffle avoids a bias to
-    # whatever order the labeller produced.
-    return GraspCandidates(T[rng.permutation(len(T))], source)
+        seed = int(sha256_bytes(object_id.encode())[:8], 16)
+        candidates = sample_candidates(load_object(object_id), STANDIN_CANDIDATES, np.random.default_rng(seed))
+        return GraspCandidates(candidates.T_object_hand, "antipodal-standin")
+
+
+def choose_grasps(grasps: GraspCandidates, rng: np.random.Generator, max_grasps: int) -> GraspCandidates:
+    """A seeded random order (no grasp is better than another among verified ones), at most ``max_grasps``."""
+    order = rng.permutation(len(grasps.T_object_hand))[:max_grasps]
+    return GraspCandidates(grasps.T_object_hand[order], grasps.source)
 
 
 def tcp_from_hand(T_hand: np.ndarray) -> np.ndarray:

@@ -30,7 +30,7 @@ from ..planning.robot import panda
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
 from ..planning.world import pose_matrix
-from .grasp_source import annotated_grasps, retreat, tcp_from_hand
+from .grasp_source import choose_grasps, object_grasps, retreat, tcp_from_hand
 from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
 METHODS = {
@@ -48,8 +48,13 @@ class SolveConfig:
     pregrasp_distance: float = 0.04  # m back along the approach axis
     approach_overshoot: float = 1.05  # the approach goes 4 cm x 1.05
     lift_height: float = 0.02  # m, straight up after closing
+    # After the lift, back the held object out along the reverse approach (first of these
+    # distances whose straight line is free) before planning the retrieval. Not in the
+    # original's step list: the grasp pose sits millimetres from the furniture, and
+    # RRTConnect often fails to leave such a pocket within the budget. () = the original.
+    retreat_distances: tuple = (0.10, 0.06, 0.03)
     close_seconds: float = 1.5
-    max_grasps: int = 200  # candidates drawn (annotated grasps, or antipodal stand-ins)
+    max_grasps: int = 128  # candidates drawn (annotated grasps, or antipodal stand-ins)
     ik_grasps: int = 24  # candidates whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)
     goal_set_size: int = 8  # IK solutions handed to RRTConnect at once
@@ -72,6 +77,7 @@ class EpisodeState:
     sim_steps: int = 0
     phases: dict = field(default_factory=lambda: {p: False for p in PHASES})
     grasp_source: str = ""
+    notes: list = field(default_factory=list)  # what each try did, for diagnosis
 
     def timed(self, fn, *args, **kwargs):
         t = time.perf_counter()
@@ -202,7 +208,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     world, clouds = _world_model(env, method, state)
     T_base_object = object_poses_base(env)[task.target_index]
     asset = load_object(task.target.object_id)
-    grasps = state.timed(annotated_grasps, asset, rng, cfg.max_grasps)
+    grasps = state.timed(choose_grasps, object_grasps(task.target.object_id), rng, cfg.max_grasps)
     state.grasp_source = grasps.source
     T_grasp_tcp = np.stack([tcp_from_hand(T) for T in _hand_poses_base(T_base_object, grasps.T_object_hand)])
     keep = [i for i in range(len(T_grasp_tcp)) if i not in tried]
@@ -241,6 +247,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     plan = state.timed(plan_rrtconnect, open_checker, q_now, np.stack([c[1] for c in candidates]), budget)
     state.planning_time_left -= plan.planning_time
+    state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
+                       f"{plan.planning_time:.2f}s")
     if not plan.success:
         return "motion_planning_failure"
     state.phases["pregrasp_plan"] = True
@@ -260,6 +268,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     if lift is not None:
         ex.follow(lift, cfg.approach_speed_scale)
     state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
+    state.notes.append(f"finger gap after close {2 * ex.qpos_full()[7]:.4f} m, tcp error "
+                       f"{np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]):.4f} m")
     if not state.phases["grasped"]:
         return "grasp_failure"
 
@@ -283,12 +293,22 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     # The fingers wrap the object: the attachment spheres stand for both there.
     carry = CollisionChecker(robot, world, finger=finger, exclude=("target",), attachment=attachment,
                              margin=cfg.margin, ignore_links=("panda_leftfinger", "panda_rightfinger"))
+    T_tcp = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy()
+    for distance in cfg.retreat_distances:
+        path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(T_tcp, retreat(T_tcp, distance), 4),
+                           carry)
+        if path is not None and all(
+                carry.motion_valid(a, b) for a, b in zip(path[:-1], path[1:])):
+            ex.follow(path, cfg.approach_speed_scale * 2)
+            state.notes.append(f"retreated {distance:.2f} m")
+            break
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if len(goals) == 0 or budget <= 0:
         return "motion_planning_failure"
     plan = state.timed(plan_rrtconnect, carry, ex.q, goals[: cfg.goal_set_size], budget)
     state.planning_time_left -= plan.planning_time
+    state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s")
     if not plan.success:
         return "motion_planning_failure"
     state.phases["retrieval_plan"] = True
@@ -339,7 +359,9 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
     tried: set = set()
     failure, attempts = None, 0
     for attempts in range(1, retries + 1):
-        failure = _attempt(env, method, state, rng, tried)
+        outcome = _attempt(env, method, state, rng, tried)
+        # A retry that finds no untried grasp keeps the failure that made it retry.
+        failure = failure if (outcome == "no_grasp_candidate" and attempts > 1) else outcome
         if failure is None or attempts == retries:
             break
         target_moved, others_moved = _moved(env)
@@ -372,5 +394,6 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         "target_moved": round(float(info["target_moved"][0]), 4),
         "max_others_moved": round(float(info["max_others_moved"][0]), 4),
         "sim_steps": state.sim_steps,
+        "notes": state.notes,
         "wall_time": round(time.perf_counter() - t_wall, 2),
     }

@@ -11,7 +11,7 @@ from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import common, sapien_utils
-from mani_skill.utils.geometry.rotation_conversions import quaternion_apply
+from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
@@ -275,14 +275,23 @@ class FetchBenchEnv(BaseEnv):
     # ------------------------------------------------------------------ evaluation
     def _com_world(self, raw_pose: torch.Tensor) -> torch.Tensor:
         """[B, S, 3] centres of mass of the object slots from their raw poses [B, S, 7]."""
-        return raw_pose[..., :3] + quaternion_apply(raw_pose[..., 3:], self.built.com_local)
+        R = quaternion_to_matrix(raw_pose[..., 3:])  # [B, S, 3, 3]
+        return raw_pose[..., :3] + (R @ self.built.com_local[..., None])[..., 0]
 
     def _objects_raw_pose(self) -> torch.Tensor:
-        return torch.stack([slot.pose.raw_pose for slot in self.object_slots], dim=1)
+        """[B, S, 7] poses of the object slots."""
+        if self.gpu_sim_enabled:
+            return torch.stack([slot.pose.raw_pose for slot in self.object_slots], dim=1)
+        # CPU (one sub-scene): read the bodies directly; building a ManiSkill Pose per
+        # slot costs more than the whole physics step.
+        poses = [slot._objs[0].pose for slot in self.object_slots]
+        raw = np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32)
+        return torch.from_numpy(raw)[None]
 
     def evaluate(self):
         b = self.built
-        com_world = self._com_world(self._objects_raw_pose())
+        raw_pose = self._objects_raw_pose()
+        com_world = self._com_world(raw_pose)
         rows = torch.arange(self.num_envs, device=self.device)
         target_com_world = com_world[rows, b.target_index]
         target_com_base = pointcloud.world_to_base(target_com_world[:, None], self.agent.robot.pose.raw_pose)[:, 0]
@@ -297,6 +306,7 @@ class FetchBenchEnv(BaseEnv):
             lifted, retrieved = target_com_base[:, 2] > c["min_height"], target_com_base[:, 0] < c["max_x"]
         undisturbed = max_others_moved < c["max_others_moved"]
         return dict(
+            objects_pose=raw_pose,
             success=lifted & retrieved & undisturbed,
             is_grasped=self.agent.is_grasping(self.target),
             target_com_base=target_com_base,
@@ -317,7 +327,7 @@ class FetchBenchEnv(BaseEnv):
             is_grasped=info["is_grasped"],
         )
         if self.obs_mode_struct.state or self.obs_mode in ("state", "state_dict"):
-            raw = self._objects_raw_pose()
+            raw = info["objects_pose"]
             obs.update(
                 target_pose=self.target.pose.raw_pose,
                 target_com_base=info["target_com_base"],

@@ -49,10 +49,11 @@ def segmentation_lut(num_ids: int, robot_ids, target_ids, object_ids, furniture_
 
 def world_to_base(points_world: torch.Tensor, base_pose_raw: torch.Tensor) -> torch.Tensor:
     """[B, N, 3] world points into the frame of the base pose [B, 7] (p, q wxyz)."""
-    from mani_skill.utils.geometry.rotation_conversions import quaternion_apply, quaternion_invert
+    from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 
-    q_inv = quaternion_invert(base_pose_raw[:, 3:])[:, None, :].expand(-1, points_world.shape[1], -1)
-    return quaternion_apply(q_inv, points_world - base_pose_raw[:, None, :3])
+    R_world_base = quaternion_to_matrix(base_pose_raw[:, 3:])  # [B, 3, 3]
+    # p_base = R^T (p_world - t), as row vectors: (p_world - t) @ R
+    return (points_world - base_pose_raw[:, None, :3]) @ R_world_base
 
 
 def add_fetch_pointcloud(obs: dict, lut: torch.Tensor, base_pose_raw: torch.Tensor, camera_pixels: dict) -> None:

@@ -190,6 +190,8 @@ class FetchBenchEnv(BaseEnv):
                 seed = [int(s) for s in np.atleast_1d(self._batched_main_rng.randint(2**31))]
             tasks = [self._sample_task(int(s)) for s in self._episode_seeds(seed)]
         if tasks is not None and not partial and tasks != self._tasks:
+            for task in tasks:  # before anything is torn down: a refused task leaves the env as it was
+                self._check_task(task)
             options["reconfigure"] = True
             self._pending_tasks = tasks
         return super().reset(seed=seed, options=options)
@@ -233,8 +235,6 @@ class FetchBenchEnv(BaseEnv):
                              f"({CATEGORY_LABELS[self.category]})")
 
     def _load_agent(self, options: dict):
-        for task in self._pending_tasks:
-            self._check_task(task)
         base = torch.tensor([list(t.robot_base_position) + list(t.robot_base_quat_wxyz) for t in self._pending_tasks])
         super()._load_agent(options, Pose.create(base))
 

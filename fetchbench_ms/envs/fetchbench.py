@@ -32,6 +32,10 @@ SUCCESS_CRITERIA = {
 }
 CAMERA_RESOLUTIONS = ((320, 240), (640, 480))
 HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
+# Farthest a finger pad can be from the TCP (the pads span ~2 cm along the hand axis
+# around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
+# this, the fingers cannot touch it.
+FINGER_REACH = 0.08  # m
 DENSE_REWARD_MAX = 6.0
 
 
@@ -258,6 +262,8 @@ class FetchBenchEnv(BaseEnv):
             max_id, robot_ids, self.target.per_scene_id, object_ids, furniture_ids, self.num_envs, self.device
         )
         self._initial_com_world = self._com_world(b.initial_pose)
+        # The base is the articulation's fixed root, placed by the task: its frame is constant.
+        self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
@@ -288,13 +294,23 @@ class FetchBenchEnv(BaseEnv):
         raw = np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32)
         return torch.from_numpy(raw)[None]
 
+    def _is_grasping(self, target_com_world: torch.Tensor) -> torch.Tensor:
+        """The Panda's grasp test (both fingers push on the target). On CPU it reads every
+        contact of the scene, which costs more than the physics step with ~15 resting
+        objects, so it is skipped while the TCP is too far for the fingers to touch."""
+        if not self.gpu_sim_enabled:
+            reach = self.built.target_radius + FINGER_REACH
+            if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
+                return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        return self.agent.is_grasping(self.target)
+
     def evaluate(self):
         b = self.built
         raw_pose = self._objects_raw_pose()
         com_world = self._com_world(raw_pose)
         rows = torch.arange(self.num_envs, device=self.device)
         target_com_world = com_world[rows, b.target_index]
-        target_com_base = pointcloud.world_to_base(target_com_world[:, None], self.agent.robot.pose.raw_pose)[:, 0]
+        target_com_base = pointcloud.world_to_frame(target_com_world[:, None], *self._world_base)[:, 0]
         moved = torch.linalg.norm(com_world - self._initial_com_world, dim=-1)
         others = b.valid.clone()
         others[rows, b.target_index] = False
@@ -308,7 +324,7 @@ class FetchBenchEnv(BaseEnv):
         return dict(
             objects_pose=raw_pose,
             success=lifted & retrieved & undisturbed,
-            is_grasped=self.agent.is_grasping(self.target),
+            is_grasped=self._is_grasping(target_com_world),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],
@@ -323,7 +339,7 @@ class FetchBenchEnv(BaseEnv):
     def _get_obs_extra(self, info: dict):
         obs = dict(
             tcp_pose=self.agent.tcp.pose.raw_pose,
-            base_pose=self.agent.robot.pose.raw_pose,
+            base_pose=self.built.base_pose,
             is_grasped=info["is_grasped"],
         )
         if self.obs_mode_struct.state or self.obs_mode in ("state", "state_dict"):
@@ -349,7 +365,7 @@ class FetchBenchEnv(BaseEnv):
         obs = super().get_obs(info, unflattened=True)
         if self._obs_mode == "pointcloud":
             pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
-            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, self.agent.robot.pose.raw_pose, pixels)
+            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
         return obs if unflattened else self._flatten_raw_obs(obs)
 
     # ------------------------------------------------------------------ rewards

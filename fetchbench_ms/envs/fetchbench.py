@@ -261,6 +261,7 @@ class FetchBenchEnv(BaseEnv):
         self.segmentation_lut = pointcloud.segmentation_lut(
             max_id, robot_ids, self.target.per_scene_id, object_ids, furniture_ids, self.num_envs, self.device
         )
+        # Displacements are measured from the task's (settled) start poses.
         self._initial_com_world = self._com_world(b.initial_pose)
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
@@ -275,8 +276,6 @@ class FetchBenchEnv(BaseEnv):
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
-            # Displacements are measured from the task's (settled) start poses.
-            self._initial_com_world[env_idx] = self._com_world(b.initial_pose)[env_idx]
 
     # ------------------------------------------------------------------ evaluation
     def _com_world(self, raw_pose: torch.Tensor) -> torch.Tensor:

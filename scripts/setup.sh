@@ -60,8 +60,18 @@ fi
 
 # 3. Software Vulkan renderer. SAPIEN renders on CPU only with lavapipe >= 24.3; Debian 12's
 #    own Mesa (22.3) is too old, its bookworm-backports suite has 25.0.
-if "$VENV/bin/python" -m fetchbench_ms.utils.vulkan_check >/dev/null 2>&1; then
+#    The check renders a picture (~10 s: shader compilation), so its success is remembered
+#    together with what it depends on (installed packages, Vulkan drivers) and redone only
+#    when one of those changes.
+vk_stamp="$VENV/.fetchbench-vulkan-ok"
+vulkan_key() {
+  echo "$want $(ls /usr/share/vulkan/icd.d/ /etc/vulkan/icd.d/ 2>/dev/null | tr '\n' ' ') $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)"
+}
+if [ -f "$vk_stamp" ] && [ "$(cat "$vk_stamp")" = "$(vulkan_key)" ]; then
+  say "a Vulkan device works for SAPIEN (checked before, drivers unchanged)"
+elif "$VENV/bin/python" -m fetchbench_ms.utils.vulkan_check >/dev/null 2>&1; then
   say "a Vulkan device works for SAPIEN"
+  vulkan_key > "$vk_stamp"
 else
   . /etc/os-release
   if [ "${VERSION_CODENAME:-}" = "bookworm" ]; then
@@ -77,6 +87,7 @@ else
   fi
   if "$VENV/bin/python" -m fetchbench_ms.utils.vulkan_check; then
     say "software Vulkan renderer works"
+    vulkan_key > "$vk_stamp"
   else
     say "SAPIEN still finds no usable Vulkan device"; exit 1
   fi

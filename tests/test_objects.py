@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import gzip
+import hashlib
 import json
 import math
 import shutil
@@ -55,10 +56,10 @@ def test_every_indexed_object_meets_the_limits(index):
 
 
 def test_sampled_objects_have_valid_convex_parts_and_mass_properties():
-    ids = _one_per_category(catalog.list_objects())
-    for oid in ids:
+    records = {r.object_id: r for r in catalog.list_objects()}
+    for oid in _one_per_category(records.values()):
         asset = catalog.get_object(oid)
-        assert asset.object_id == oid
+        assert asset.record == records[oid]
         for part in asset.convex_parts:
             report = g.check_part(part)
             assert report.watertight and report.convex, oid
@@ -71,6 +72,15 @@ def test_sampled_objects_have_valid_convex_parts_and_mass_properties():
         assert np.all(np.abs(asset.center_of_mass) <= asset.extents / 2 + 1e-9)
         assert asset.stable_poses.shape[1:] == (4, 4) and asset.stable_probs[0] == asset.stable_probs.max()
         assert len(asset.visual_mesh.faces) > 0
+
+
+def test_surface_mesh_is_watertight_union_of_parts():
+    for oid in ("ycb/025_mug", catalog.list_objects(category="mug", source="procedural")[0].object_id):
+        asset = catalog.get_object(oid)
+        surface = asset.surface_mesh()
+        assert surface.is_watertight and surface.is_volume
+        # The union is never larger than the parts together, and close to them.
+        assert 0.9 * asset.volume <= surface.volume <= asset.volume * (1 + 1e-6)
 
 
 def test_limits_reject_what_the_robot_cannot_fetch():
@@ -205,48 +215,46 @@ def test_unknown_ids_categories_splits_and_sources_are_clear_errors():
         catalog.list_objects(source="shapenet")
 
 
-@pytest.mark.parametrize("name", [catalog.INDEX_NAME, catalog.YCB_CONVEX_NAME])
-def test_tampered_files_are_refused(tmp_path, monkeypatch, name):
+@pytest.fixture
+def asset_copy(tmp_path, monkeypatch):
+    """A copy of the shipped object files that the catalog reads instead of the originals."""
     copy = tmp_path / "objects"
     shutil.copytree(catalog.asset_dir(), copy)
-    data = bytearray((copy / name).read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    (copy / name).write_bytes(bytes(data))
     monkeypatch.setenv("FETCHBENCH_OBJECT_ASSETS", str(copy))
     catalog.clear_caches()
-    try:
-        with pytest.raises(ValueError, match="corrupt or stale"):
-            if name == catalog.INDEX_NAME:
-                catalog.list_objects()
-            else:
-                catalog.get_object(catalog.list_objects(source="ycb")[0].object_id)
-        with pytest.raises(ValueError, match="does not match"):
-            build.verify(copy)
-    finally:
-        monkeypatch.delenv("FETCHBENCH_OBJECT_ASSETS")
-        catalog.clear_caches()
+    yield copy
+    monkeypatch.delenv("FETCHBENCH_OBJECT_ASSETS")
+    catalog.clear_caches()
 
 
-def test_stale_index_is_refused(tmp_path, monkeypatch):
+@pytest.mark.parametrize("name", [catalog.INDEX_NAME, catalog.YCB_CONVEX_NAME])
+def test_tampered_files_are_refused(asset_copy, name):
+    ycb_id = catalog.list_objects(source="ycb")[0].object_id
+    catalog.clear_caches()
+    data = bytearray((asset_copy / name).read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (asset_copy / name).write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="corrupt or stale"):
+        if name == catalog.INDEX_NAME:
+            catalog.list_objects()
+        else:
+            catalog.get_object(ycb_id)
+    with pytest.raises(ValueError, match="does not match"):
+        build.verify(asset_copy)
+
+
+def test_stale_index_is_refused(asset_copy):
     """An index whose fingerprint no longer matches the regenerated geometry fails."""
-    copy = tmp_path / "objects"
-    shutil.copytree(catalog.asset_dir(), copy)
-    index = json.loads(gzip.decompress((copy / catalog.INDEX_NAME).read_bytes()))
+    index = json.loads(gzip.decompress((asset_copy / catalog.INDEX_NAME).read_bytes()))
     oid = sorted(i for i in index["objects"] if i.startswith("procedural/"))[0]
     index["objects"][oid]["fingerprint"] = "0" * 16
     data = gzip.compress(json.dumps(index).encode(), mtime=0)
-    (copy / catalog.INDEX_NAME).write_bytes(data)
-    manifest = json.loads((copy / catalog.MANIFEST_NAME).read_text())
-    manifest["files"][catalog.INDEX_NAME]["sha256"] = __import__("hashlib").sha256(data).hexdigest()
-    (copy / catalog.MANIFEST_NAME).write_text(json.dumps(manifest))
-    monkeypatch.setenv("FETCHBENCH_OBJECT_ASSETS", str(copy))
-    catalog.clear_caches()
-    try:
-        with pytest.raises(ValueError, match="stale"):
-            catalog.get_object(oid)
-    finally:
-        monkeypatch.delenv("FETCHBENCH_OBJECT_ASSETS")
-        catalog.clear_caches()
+    (asset_copy / catalog.INDEX_NAME).write_bytes(data)
+    manifest = json.loads((asset_copy / catalog.MANIFEST_NAME).read_text())
+    manifest["files"][catalog.INDEX_NAME]["sha256"] = hashlib.sha256(data).hexdigest()
+    (asset_copy / catalog.MANIFEST_NAME).write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="stale"):
+        catalog.get_object(oid)
 
 
 # ----------------------------------------------------------------------- builder and CLI
@@ -254,12 +262,12 @@ def test_stale_index_is_refused(tmp_path, monkeypatch):
 
 def test_builder_is_resumable_and_byte_identical(tmp_path, monkeypatch):
     monkeypatch.setenv("FETCHBENCH_CACHE", str(tmp_path / "cache"))
-    first = build.build(tmp_path / "a", workers=1, limit=2, log=lambda m: None)
-    again = build.build(tmp_path / "a", workers=1, limit=2, log=lambda m: None)
-    assert first["objects"] + first["dropped"] == 6 and first["built_now"] == 6
+    first = build.build(tmp_path / "a", workers=1, limit=1, log=lambda m: None)
+    again = build.build(tmp_path / "a", workers=1, limit=1, log=lambda m: None)
+    assert first["objects"] + first["dropped"] == 3 and first["built_now"] == 3
     assert again["built_now"] == 0  # resumed from the work file
     monkeypatch.setenv("FETCHBENCH_CACHE", str(tmp_path / "cache2"))
-    build.build(tmp_path / "b", workers=2, limit=2, log=lambda m: None)
+    build.build(tmp_path / "b", workers=2, limit=1, log=lambda m: None)
     for name in (catalog.INDEX_NAME, catalog.YCB_CONVEX_NAME):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     # Entries built here equal the shipped ones.

@@ -99,6 +99,8 @@ def test_support_check_finds_floating_surfaces_and_intruders():
     shelf = reference_shelf()
     floating = _with_surface(shelf, 1, height=0.66)
     assert any("top under" in p for p in check_scene(floating)["support"])
+    buried = _with_surface(shelf, 1, height=0.64)  # inside the board (z 0.63-0.65)
+    assert any("top under" in p and "is at z=0.6500" in p for p in check_scene(buried)["support"])
     wrong_part = _with_surface(shelf, 1, supporting_part="board_0")
     assert check_scene(wrong_part)["support"]
     missing_part = _with_surface(shelf, 1, supporting_part="no_such_board")
@@ -144,6 +146,10 @@ def test_free_height_reachability_floor_and_robot_region_checks():
     assert check_scene(sunk)["floor"] == ["part 'sunk' reaches 20.0 mm below the floor"]
     in_the_way = _with_parts(shelf, Part("stool", "box", (0.3, 0.3, 0.3), (-0.1, 0.0, 0.15)))
     assert [p.split("'")[1] for p in check_scene(in_the_way)["robot_region"]] == ["stool"]
+    # Shelf 0 claims 0.5 m of free height, but the next board (z 0.63-0.65) is in the way.
+    overclaimed = _with_surface(shelf, 0, free_height=0.5)
+    [problem] = check_scene(overclaimed)["free_height"]
+    assert "part 'board_1' intrudes" in problem and "its claimed free height of 0.500 m" in problem
     with pytest.raises(AssertionError, match=r"\[free_height\] surface 'shelf_2'"):
         assert_scene_ok(low)
     with pytest.raises(ValueError, match="valid: interpenetration, floor"):
@@ -306,6 +312,13 @@ def test_bad_input_through_the_cli(argv_tail, message, capsys, tmp_path):
     assert not any(tmp_path.iterdir()), "nothing is written on bad input"
 
 
+def test_cli_rejects_negative_seeds(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["scenes", "generate", _a_type().name, "--seed", "-1"])
+    assert exit_info.value.code == 2
+    assert "a seed is an integer >= 0, got -1" in capsys.readouterr().err
+
+
 def test_cli_entry_point_exit_code_and_stderr(tmp_path):
     import subprocess
     import sys
@@ -339,3 +352,19 @@ def test_cli_list_generate_and_check(capsys, tmp_path):
 def test_support_surface_validation():
     with pytest.raises(ValueError, match="polygon of >= 3 vertices"):
         SupportSurface("s", "on_table", ((0, 0), (1, 0)), 0.5, 0.3, "top")
+
+
+def test_type_stats_summarise_the_generated_scenes():
+    from fetchbench_ms.scenes.stats import stats_table, type_stats
+
+    name = _a_type().name
+    specs = [generate(name, seed) for seed in range(3)]
+    stats = type_stats(name, range(3))
+    assert stats.n_params == len(get_scene_type(name).params)
+    assert stats.parts_mean == pytest.approx(np.mean([len(s.parts) for s in specs]))
+    for label in ("on_table", "on_shelf", "in_drawer", "in_basket"):
+        assert stats.surfaces_mean[label] == pytest.approx(np.mean([len(s.surfaces(label)) for s in specs]))
+    heights = [surface.height for s in specs for surface in s.support_surfaces]
+    assert stats.height_range == (min(heights), max(heights))
+    assert 0.5 <= stats.reach_min <= 1.0  # the reachability check passes on these seeds
+    assert stats_table([stats]).splitlines()[2].startswith(name)

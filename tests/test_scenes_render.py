@@ -86,3 +86,21 @@ def test_export_cli_obj_and_surfaces(tmp_path):
     assert cli.main(["scenes", "export", name, "--seed", "0", "--out", str(out), "--with-surfaces"]) == 0
     s = generate(name, 0)
     assert len(trimesh.load(out).geometry) == len(s.parts) + len(s.support_surfaces)
+
+
+def test_demo_writes_gallery_page_and_statistics(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out), "--stat-seeds", "1", "--size", "64x48"]) == 0
+    names = _types()
+    pictures = sorted(p.stem for p in (out / "gallery").glob("*.png"))
+    assert pictures == sorted(names)
+    assert Image.open(out / "gallery" / f"{names[0]}.png").size == (64, 48)
+    stats = json.loads((out / "scene_stats.json").read_text())
+    assert [s["scene_type"] for s in stats] == names
+    page = (out / "scenes.md").read_text()
+    for name in names:
+        assert f"![{name}, seed 0](gallery/{name}.png)" in page
+    printed = capsys.readouterr().out
+    assert f"total ({len(names)} types)" in printed

@@ -37,6 +37,8 @@ def _stats(args) -> int:
     print("by category:")
     for category, c in sorted(data["by_category"].items()):
         print(f"  {category:16s} {c['total']:5d}  train {c['train']:5d}  test {c['test']:4d}  sources {','.join(sorted(c['sources']))}")
+    for key in sorted(set(data) - {"total", "by_split", "by_source", "by_category", "dropped"}):
+        print(f"{key}: {json.dumps(data[key], sort_keys=True)}")  # added by extensions
     return 0
 
 

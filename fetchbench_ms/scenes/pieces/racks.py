@@ -72,8 +72,8 @@ def build_rack(b: SceneBuilder, v, name: str, x0: float, y0: float) -> None:
 # --------------------------------------------------------------------------- triangle corner shelf
 def triangle_shelf_params() -> tuple[ParamSpec, ...]:
     return (
-        ParamSpec("leg_a", 0.24, 0.34, "m", "length of the triangle's first straight edge"),
-        ParamSpec("leg_b", 0.22, 0.3, "m", "length of the triangle's second straight edge"),
+        ParamSpec("leg_a", 0.27, 0.36, "m", "length of the triangle's first straight edge"),
+        ParamSpec("leg_b", 0.24, 0.32, "m", "length of the triangle's second straight edge"),
         ParamSpec("bulge", 0.0, 0.06, "m", "outward bulge of the front (curved) edge"),
         ParamSpec("n_boards", 2, 3, "count", "number of boards", kind="int"),
         ParamSpec("gap", 0.14, 0.24, "m", "clear height between boards"),

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from shapely import affinity
@@ -111,16 +111,15 @@ def layer_basket_params(min_baskets: int, max_baskets: int, max_layers: int, kin
     return (*specs, *basket_params(kind))
 
 
-@dataclass
+@dataclass(frozen=True)
 class ShelfUnitInfo:
+    """Outer extent of a built bookcase / cabinet."""
+
     x0: float
     x1: float
     y0: float
     y1: float
     z_top: float
-    inner_y: tuple[float, float]
-    layers: list[tuple[str, float, float]] = field(default_factory=list)  # (board part, z top, clear gap)
-    board_x: tuple[float, float] = (0.0, 0.0)
 
 
 def build_shelf_unit(
@@ -157,7 +156,7 @@ def build_shelf_unit(
     if plinth > 0.005:
         ps = v["plinth_setback"]
         b.box_between(f"{name}_plinth", (x0 + ps, yi0, z0), (x0 + ps + 0.018, yi1, z0 + plinth), carcass)
-    info = ShelfUnitInfo(x0, x0 + D, ya, yb, z_top, (yi0, yi1), layers, (bx0, x_back))
+    info = ShelfUnitInfo(x0, x0 + D, ya, yb, z_top)
     # Supports: every compartment within reach of the lowest one, and the top if it is too.
     lowest = layers[0][1]
     reachable = [layer for layer in layers if layer[1] - lowest <= MAX_SUPPORT_SPAN]

@@ -1,0 +1,61 @@
+"""Picture of an object with its labelled grasps, drawn as simple hand outlines (CPU, matplotlib)."""
+from __future__ import annotations
+
+import io
+import os
+
+import numpy as np
+
+from ..utils.io import atomic_write_bytes
+from .hand import gripper_outline_hand
+from .store import Grasps
+
+
+def render_grasps_png(asset, grasps: Grasps, out: str | os.PathLike, max_grasps: int = 40, show_failures: bool = False,
+                      rng: np.random.Generator | None = None) -> int:
+    """Draw ``asset`` and up to ``max_grasps`` successful grasps (green; failures red if asked).
+    Returns how many outlines were drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
+
+    rng = rng if rng is not None else np.random.default_rng(0)
+    mesh = asset.visual_mesh
+    faces = mesh.faces
+    if len(faces) > 6000:  # a translucent surface reads the same from a subset; keeps the file light
+        faces = faces[np.sort(rng.choice(len(faces), size=6000, replace=False))]
+    fig = plt.figure(figsize=(6, 6), dpi=110)
+    ax = fig.add_subplot(projection="3d")
+    ax.add_collection3d(Poly3DCollection(mesh.vertices[faces], facecolor=(0.6, 0.6, 0.75, 0.35), edgecolor="none"))
+    drawn = 0
+    groups = [(grasps.success, "tab:green")] + ([(~grasps.success, "tab:red")] if show_failures else [])
+    for mask, color in groups:
+        index = np.flatnonzero(mask)
+        if len(index) > max_grasps:
+            index = np.sort(rng.choice(index, size=max_grasps, replace=False))
+        segments = []
+        for i in index:
+            T = grasps.T_object_hand[i]
+            lines = gripper_outline_hand(max(float(grasps.width[i]), 0.01)) @ T[:3, :3].T + T[:3, 3]
+            segments.extend(lines)
+        if segments:
+            ax.add_collection3d(Line3DCollection(np.array(segments), colors=color, linewidths=1.0))
+        drawn += len(index)
+    centre = mesh.bounds.mean(axis=0)
+    half = max(mesh.extents.max() / 2 + 0.12, 0.1)
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(centre[2] - half, centre[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    rate = grasps.success.mean() if len(grasps) else 0.0
+    ax.set_title(f"{grasps.object_id}: {int(grasps.success.sum())}/{len(grasps)} trials held ({rate:.0%})", fontsize=9)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    plt.close(fig)
+    atomic_write_bytes(out, buffer.getvalue())
+    return drawn

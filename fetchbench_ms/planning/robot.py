@@ -1,0 +1,291 @@
+"""The Panda as the planner sees it: ManiSkill's URDF, batched forward kinematics
+(pytorch_kinematics) and a conservative collision-sphere model with the
+self-collision pairs that matter.
+
+Everything is in the robot base frame (``panda_link0``). Joint vectors ``q`` are the
+7 arm joints; the two finger joints are given separately as a finger opening per
+finger (0..0.04 m), because the planner never moves them.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import torch
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from ..utils.mesh_cache import cache_dir
+from .spheres import DEFAULT_MARGIN, FIT_VERSION, load_or_fit
+
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+# Links whose spheres are checked against the world. panda_link0 stands on the robot
+# table, so it only takes part in self-collision.
+WORLD_LINKS = ("panda_link1", "panda_link2", "panda_link3", "panda_link4", "panda_link5", "panda_link6",
+               "panda_link7", "panda_hand", "panda_leftfinger", "panda_rightfinger")
+HAND_LINKS = ("panda_hand", "panda_leftfinger", "panda_rightfinger")
+# Franka's published joint acceleration limits (rad/s^2); the URDF carries only velocities.
+ACCELERATION_LIMITS = np.array([15.0, 7.5, 10.0, 12.5, 15.0, 20.0, 20.0])
+# FetchBench's default configuration (arm), fingers open at 0.04.
+Q_DEFAULT = np.array([-0.3127, -1.1997, 0.0578, -2.1768, 0.0649, 0.9786, 0.5300])
+FINGER_OPEN = 0.04
+TCP_OFFSET = 0.1034  # panda_hand -> panda_hand_tcp along hand z
+
+
+def panda_urdf_path() -> str:
+    # find_spec, not import: importing mani_skill registers every env (~2 s).
+    import importlib.util
+
+    root = importlib.util.find_spec("mani_skill").submodule_search_locations[0]
+    return os.path.join(root, "assets", "robots", "panda", "panda_v2.urdf")
+
+
+def _origin_matrix(element) -> np.ndarray:
+    T = np.eye(4)
+    origin = element.find("origin") if element is not None else None
+    if origin is not None:
+        T[:3, 3] = [float(v) for v in origin.get("xyz", "0 0 0").split()]
+        T[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in origin.get("rpy", "0 0 0").split()]).as_matrix()
+    return T
+
+
+def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
+    """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link frame."""
+    root = ET.parse(urdf_path).getroot()
+    base = os.path.dirname(urdf_path)
+    meshes = {}
+    for link in root.findall("link"):
+        pieces = []
+        for col in link.findall("collision"):
+            geom = col.find("geometry")
+            T = _origin_matrix(col)
+            if geom.find("mesh") is not None:
+                piece = trimesh.load(os.path.join(base, geom.find("mesh").get("filename")), force="mesh")
+            elif geom.find("box") is not None:
+                piece = trimesh.creation.box([float(v) for v in geom.find("box").get("size").split()])
+            else:
+                raise ValueError(f"unsupported collision geometry in link {link.get('name')}")
+            pieces.append(piece.apply_transform(T))
+        if pieces:
+            meshes[link.get("name")] = trimesh.util.concatenate(pieces)
+    return meshes
+
+
+def joint_velocity_limits(urdf_path: str) -> np.ndarray:
+    root = ET.parse(urdf_path).getroot()
+    by_name = {j.get("name"): j for j in root.findall("joint")}
+    return np.array([float(by_name[n].find("limit").get("velocity")) for n in ARM_JOINTS])
+
+
+@dataclass(frozen=True)
+class _Joint:
+    name: str
+    kind: str  # revolute | prismatic | fixed
+    parent: str
+    child: str
+    T_parent_joint: np.ndarray
+    axis: np.ndarray
+    q_index: int  # index into the 9-vector (7 arm + 2 fingers), -1 for fixed
+
+
+class UrdfTreeFK:
+    """Batched forward kinematics of the URDF's kinematic tree in torch.
+
+    Why not pytorch_kinematics' forward_kinematics for the planner's inner loop: at the
+    batch sizes of collision checking (1-50 configurations) its general code costs
+    ~3 ms per call in Python overhead; this fixed-order product of joint transforms costs
+    a fraction of that. pytorch_kinematics stays the Jacobian source for IK and the
+    reference the tests compare against.
+    """
+
+    def __init__(self, urdf_path: str, joint_names: tuple[str, ...]):
+        root = ET.parse(urdf_path).getroot()
+        joints = []
+        for j in root.findall("joint"):
+            axis = j.find("axis")
+            joints.append(_Joint(
+                name=j.get("name"), kind=j.get("type"), parent=j.find("parent").get("link"),
+                child=j.find("child").get("link"), T_parent_joint=_origin_matrix(j),
+                axis=np.array([float(v) for v in (axis.get("xyz") if axis is not None else "0 0 1").split()]),
+                q_index=joint_names.index(j.get("name")) if j.get("name") in joint_names else -1))
+        children = {j.parent for j in joints}
+        self.root_link = next(iter(children - {j.child for j in joints}))
+        order, known = [], {self.root_link}
+        while len(order) < len(joints):  # parents before children
+            for j in joints:
+                if j not in order and j.parent in known:
+                    order.append(j)
+                    known.add(j.child)
+        self.joints = order
+        self.links = (self.root_link,) + tuple(j.child for j in order)
+        self._T = [torch.as_tensor(j.T_parent_joint) for j in order]
+        moving = [j for j in order if j.kind != "fixed"]
+        self._slot = {j.name: i for i, j in enumerate(moving)}
+        self._q_index = torch.as_tensor([j.q_index for j in moving])
+        axes = torch.as_tensor(np.stack([j.axis for j in moving]))  # (M, 3)
+        self._prismatic = torch.as_tensor([j.kind == "prismatic" for j in moving])
+        self._axes = axes
+        x, y, z = axes.T
+        zero = torch.zeros_like(x)
+        self._K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], 1).reshape(-1, 3, 3)  # cross matrices
+        self.joint_child = {j.name: j.child for j in order}
+
+    def joint_axis(self, names: tuple[str, ...]) -> torch.Tensor:
+        """(J, 3) joint axes in their child-link frames (the frame the motion is applied in)."""
+        return self._axes[[self._slot[n] for n in names]]
+
+    def forward(self, q_full: torch.Tensor) -> dict[str, torch.Tensor]:
+        B = q_full.shape[0]
+        v = q_full[:, self._q_index]  # (B, M)
+        # All joint motions at once: Rodrigues for revolute, translation for prismatic.
+        s, c = torch.sin(v)[..., None, None], torch.cos(v)[..., None, None]
+        R = torch.eye(3, dtype=torch.float64) + s * self._K + (1 - c) * (self._K @ self._K)
+        R = torch.where(self._prismatic[None, :, None, None], torch.eye(3, dtype=torch.float64), R)
+        t = torch.where(self._prismatic[None, :, None], v[..., None] * self._axes, torch.zeros(()))
+        motion = torch.zeros(B, len(self._axes), 4, 4, dtype=torch.float64)
+        motion[..., :3, :3] = R
+        motion[..., :3, 3] = t
+        motion[..., 3, 3] = 1.0
+        poses = {self.root_link: torch.eye(4, dtype=torch.float64).expand(B, 4, 4)}
+        for j, T_origin in zip(self.joints, self._T):
+            T = poses[j.parent] @ T_origin
+            if j.name in self._slot:
+                T = T @ motion[:, self._slot[j.name]]
+            poses[j.child] = T
+        return poses
+
+
+def disabled_collision_pairs(srdf_path: str) -> set[frozenset[str]]:
+    root = ET.parse(srdf_path).getroot()
+    return {frozenset((d.get("link1"), d.get("link2"))) for d in root.findall("disable_collisions")}
+
+
+@dataclass(frozen=True)
+class SphereModel:
+    """All spheres of the robot, flattened: sphere i belongs to ``links[link_index[i]]``."""
+
+    links: tuple[str, ...]
+    link_index: np.ndarray  # (S,)
+    centers_link: np.ndarray  # (S, 3) in each sphere's link frame
+    radii: np.ndarray  # (S,)
+    margin: float
+    version: str
+
+
+class PandaModel:
+    """Batched FK and collision spheres of ManiSkill's Panda (float64, CPU torch)."""
+
+    def __init__(self, margin: float = DEFAULT_MARGIN, seed: int = 0):
+        import pytorch_kinematics as pk
+
+        self.urdf_path = panda_urdf_path()
+        with open(self.urdf_path, "rb") as f:
+            urdf = f.read()
+        # The URDF parser prints a warning per unknown dynamics attribute; they are noise here.
+        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+            self.chain = pk.build_chain_from_urdf(urdf).to(dtype=torch.float64)
+            self.arm_chain = pk.build_serial_chain_from_urdf(urdf, "panda_hand_tcp").to(dtype=torch.float64)
+        names = self.chain.get_joint_parameter_names()
+        if tuple(names) != ARM_JOINTS + FINGER_JOINTS:
+            raise ValueError(f"unexpected Panda joint order {names}")
+        self.fk = UrdfTreeFK(self.urdf_path, ARM_JOINTS + FINGER_JOINTS)
+        low, high = self.chain.get_joint_limits()
+        self.q_min = np.asarray(low[:7], dtype=float)
+        self.q_max = np.asarray(high[:7], dtype=float)
+        self.velocity_limits = joint_velocity_limits(self.urdf_path)
+        self.acceleration_limits = ACCELERATION_LIMITS.copy()
+        self.collision_meshes = link_collision_meshes(self.urdf_path)
+        self.spheres = self._fit(margin, seed)
+        self.self_collision_pairs = self._self_pairs(self.urdf_path.replace(".urdf", ".srdf"))
+
+    # -- spheres ------------------------------------------------------------------------
+    def _fit(self, margin: float, seed: int) -> SphereModel:
+        links = tuple(sorted(self.collision_meshes))
+        fitted = load_or_fit(self.collision_meshes, self._input_bytes(), cache_dir(), margin, seed)
+        return SphereModel(
+            links=links,
+            link_index=np.concatenate([np.full(len(s.radii), i) for i, s in enumerate(fitted)]),
+            centers_link=np.concatenate([s.centers_link for s in fitted]),
+            radii=np.concatenate([s.radii for s in fitted]),
+            margin=margin,
+            version=FIT_VERSION,
+        )
+
+    def _input_bytes(self) -> bytes:
+        """URDF + collision mesh bytes: what the fitted spheres depend on."""
+        root = ET.parse(self.urdf_path).getroot()
+        files = sorted({m.get("filename") for m in root.iter("mesh") if "collision" in m.get("filename")})
+        base = os.path.dirname(self.urdf_path)
+        data = [open(self.urdf_path, "rb").read()] + [open(os.path.join(base, f), "rb").read() for f in files]
+        return b"|".join(data)
+
+    def _self_pairs(self, srdf_path: str) -> np.ndarray:
+        """Sphere index pairs (P, 2) of link pairs that can touch (the SRDF's complement)."""
+        disabled = disabled_collision_pairs(srdf_path)
+        links = self.spheres.links
+        pairs = []
+        for a in range(len(links)):
+            for b in range(a + 1, len(links)):
+                if frozenset((links[a], links[b])) in disabled:
+                    continue
+                ia = np.flatnonzero(self.spheres.link_index == a)
+                ib = np.flatnonzero(self.spheres.link_index == b)
+                pairs.append(np.stack(np.meshgrid(ia, ib, indexing="ij"), -1).reshape(-1, 2))
+        return np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=int)
+
+    def sphere_mask(self, links: tuple[str, ...]) -> np.ndarray:
+        idx = [self.spheres.links.index(l) for l in links]
+        return np.isin(self.spheres.link_index, idx)
+
+    # -- kinematics ---------------------------------------------------------------------
+    def _full_q(self, q: torch.Tensor, finger: float | torch.Tensor) -> torch.Tensor:
+        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
+        f = torch.as_tensor(finger, dtype=torch.float64).reshape(-1, 1).expand(q.shape[0], 1)
+        return torch.cat([q, f, f], dim=1)
+
+    def link_poses(self, q, finger=FINGER_OPEN) -> dict[str, torch.Tensor]:
+        """T_base_link for every link, each (B, 4, 4)."""
+        return self.fk.forward(self._full_q(q, finger))
+
+    def sphere_centers(self, q, finger=FINGER_OPEN, poses: dict | None = None) -> torch.Tensor:
+        """Sphere centres in the base frame, (B, S, 3)."""
+        poses = poses if poses is not None else self.link_poses(q, finger)
+        T = torch.stack([poses[l] for l in self.spheres.links], dim=1)  # (B, L, 4, 4)
+        T_s = T[:, torch.as_tensor(self.spheres.link_index)]  # (B, S, 4, 4)
+        c = torch.as_tensor(self.spheres.centers_link)
+        return torch.einsum("bsij,sj->bsi", T_s[..., :3, :3], c) + T_s[..., :3, 3]
+
+    def tcp_pose(self, q) -> torch.Tensor:
+        """T_base_tcp (B, 4, 4): the point between the finger pads (ManiSkill's panda_hand_tcp)."""
+        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
+        return self.arm_chain.forward_kinematics(q).get_matrix()
+
+    def tcp_jacobian(self, q, poses: dict | None = None) -> torch.Tensor:
+        """Geometric Jacobian of the TCP in the base frame, (B, 6, 7): linear rows first.
+
+        Built from the FK's joint frames (axis z_i and origin p_i of each arm joint:
+        J_i = [z_i x (p_tcp - p_i); z_i]); pytorch_kinematics' ``jacobian`` gives the same
+        (a test checks) but recomputes its own FK at several times the cost.
+        """
+        poses = poses if poses is not None else self.link_poses(q)
+        frames = torch.stack([poses[self.fk.joint_child[j]] for j in ARM_JOINTS], dim=1)  # (B, 7, 4, 4)
+        axes = torch.einsum("bjik,jk->bji", frames[..., :3, :3], self.fk.joint_axis(ARM_JOINTS))
+        p_tcp = poses["panda_hand_tcp"][:, None, :3, 3]
+        linear = torch.cross(axes, p_tcp - frames[..., :3, 3], dim=2)
+        return torch.cat([linear, axes], dim=2).transpose(1, 2)
+
+    def within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        q = np.asarray(q).reshape(-1, 7)
+        return np.all((q >= self.q_min - tol) & (q <= self.q_max + tol), axis=1)
+
+
+@lru_cache(maxsize=4)
+def panda(margin: float = DEFAULT_MARGIN, seed: int = 0) -> PandaModel:
+    """The shared Panda model (fitting spheres once per process)."""
+    return PandaModel(margin, seed)

@@ -1,0 +1,61 @@
+"""Grasp candidates for the target: the annotated (physics-verified) grasps of the
+object from the grasp store, or, for an object without labels there, antipodal
+candidates computed from its convex parts as a stand-in (unverified; the episode
+records which source it used).
+
+Both are per-object assets computed ahead of time (the stand-in once per object and
+process, from a seed derived from the object id), so an episode's grasp "inference"
+is a lookup, as it is for FetchBench's annotated-grasp baselines.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..grasps.hand import TCP_OFFSET
+from ..utils.io import sha256_bytes
+
+STANDIN_CANDIDATES = 128
+
+
+@dataclass(frozen=True)
+class GraspCandidates:
+    T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame
+    source: str  # "annotated" or "antipodal-standin"
+
+
+@functools.lru_cache(maxsize=256)
+def object_grasps(object_id: str) -> GraspCandidates:
+    """All grasps of an object (cached per process)."""
+    from ..grasps import load_grasps
+
+    try:
+        return GraspCandidates(load_grasps(object_id).successful.T_object_hand, "annotated")
+    except (KeyError, FileNotFoundError):  # no store, or no labels for this object (stale/corrupt stores raise)
+        from ..grasps.sampler import sample_candidates
+        from ..tasks.objects import load_object
+
+        seed = int(sha256_bytes(object_id.encode())[:8], 16)
+        candidates = sample_candidates(load_object(object_id), STANDIN_CANDIDATES, np.random.default_rng(seed))
+        return GraspCandidates(candidates.T_object_hand, "antipodal-standin")
+
+
+def choose_grasps(grasps: GraspCandidates, rng: np.random.Generator, max_grasps: int) -> GraspCandidates:
+    """A seeded random order (no grasp is better than another among verified ones), at most ``max_grasps``."""
+    order = rng.permutation(len(grasps.T_object_hand))[:max_grasps]
+    return GraspCandidates(grasps.T_object_hand[order], grasps.source)
+
+
+def tcp_from_hand(T_hand: np.ndarray) -> np.ndarray:
+    offset = np.eye(4)
+    offset[2, 3] = TCP_OFFSET
+    return T_hand @ offset
+
+
+def retreat(T_tcp: np.ndarray, distance: float) -> np.ndarray:
+    """The pose ``distance`` back along the hand's approach axis (its z)."""
+    back = np.eye(4)
+    back[2, 3] = -distance
+    return T_tcp @ back

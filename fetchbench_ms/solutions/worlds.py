@@ -1,0 +1,63 @@
+"""World models of one FetchBench episode, in the robot base frame.
+
+- ``mesh_world``: the oracle. Furniture parts from the task's SceneSpec (exact boxes,
+  cylinders, capsules, convex pieces), the robot table and the floor as boxes, every
+  object's convex parts at its current simulated pose (one group per object, the target
+  in the group "target").
+- ``pointcloud_world``: what the cameras saw. The segmented scene cloud (furniture and
+  other objects; robot points are already labelled apart) as a 5 mm distance field, the
+  target's points as their own group "target". The robot table and floor are not assumed
+  known: they are in the cloud where the cameras see them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..planning.world import CollisionWorld, PointCloudField, box_set, convex_set_from_parts, obstacle_sets_from_parts
+from ..planning.world import pose_matrix
+
+FLOOR_THICKNESS = 0.1  # m: a slab under z = 0 stands for the floor
+
+
+def _raw_pose_matrix(raw) -> np.ndarray:
+    raw = np.asarray(raw, dtype=float).reshape(7)
+    return pose_matrix(raw[:3], raw[3:])
+
+
+def T_world_base(env) -> np.ndarray:
+    return _raw_pose_matrix(env.unwrapped.agent.robot.pose.raw_pose[0].cpu().numpy())
+
+
+def object_poses_base(env) -> list[np.ndarray]:
+    """Current T_base_object of every task object, in task order."""
+    u = env.unwrapped
+    T_base_world = np.linalg.inv(T_world_base(env))
+    task = u.tasks[0]
+    return [T_base_world @ _raw_pose_matrix(u.object_slots[k].pose.raw_pose[0].cpu().numpy())
+            for k in range(len(task.objects))]
+
+
+def mesh_world(env) -> CollisionWorld:
+    from ..tasks.objects import load_object
+
+    u = env.unwrapped
+    task = u.tasks[0]
+    T_base_world = np.linalg.inv(T_world_base(env))
+    world = CollisionWorld()
+    for obstacle_set in obstacle_sets_from_parts(task.scene().parts, T_base_world):
+        world.add("scene", obstacle_set)
+    T_table = T_base_world @ pose_matrix(task.robot_table_center, task.robot_base_quat_wxyz)
+    T_floor = T_base_world @ pose_matrix([0.0, 0.0, -FLOOR_THICKNESS / 2])
+    world.add("scene", box_set(np.stack([T_table, T_floor]), [task.robot_table_size, [20.0, 20.0, FLOOR_THICKNESS]]))
+    for k, (placement, T) in enumerate(zip(task.objects, object_poses_base(env))):
+        group = "target" if k == task.target_index else f"object:{k}"
+        world.add(group, convex_set_from_parts(load_object(placement.object_id).convex_parts, T))
+    return world
+
+
+def pointcloud_world(clouds, voxel: float = 0.005) -> CollisionWorld:
+    """``clouds``: ``fetchbench_ms.envs.FetchClouds`` (base frame)."""
+    world = CollisionWorld()
+    world.add("scene", PointCloudField(clouds.scene, voxel))
+    world.add("target", PointCloudField(clouds.target, voxel))
+    return world

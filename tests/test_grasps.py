@@ -1,0 +1,168 @@
+"""Grasp labels: candidate geometry, physics labels, storage and the shipped library."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from fetchbench_ms.cli import main as cli_main
+from fetchbench_ms.grasps import hand, store
+from fetchbench_ms.grasps.build import LabelSettings, build
+from fetchbench_ms.grasps.physics import GraspLabeller
+from fetchbench_ms.grasps.sampler import SamplerConfig, object_collision_manager, sample_candidates
+from fetchbench_ms.objects.asset import ObjectAsset, ObjectRecord
+
+SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "grasps"
+
+# Small primitive objects, so these tests need no catalog: id -> (kind, dimensions).
+PRIMITIVES = {
+    "test/box_a": ("box", (0.05, 0.07, 0.12)),
+    "test/cylinder_b": ("cylinder", (0.03, 0.10)),
+}
+
+
+def primitive_asset(object_id: str) -> ObjectAsset:
+    """A box or cylinder standing on z = 0, as an ObjectAsset (module-level: spawn can pickle it)."""
+    kind, dims = PRIMITIVES[object_id]
+    if kind == "box":
+        mesh = trimesh.creation.box(extents=dims)
+    else:
+        mesh = trimesh.creation.cylinder(radius=dims[0], height=dims[1], sections=48)
+    mesh.apply_translation([0, 0, -mesh.bounds[0, 2]])
+    record = ObjectRecord(object_id, kind, "procedural", "train", tuple(float(e) for e in mesh.extents))
+    return ObjectAsset(record, mesh, (mesh,), mesh.center_mass, float(mesh.volume), np.eye(4)[None], np.ones(1))
+
+
+@pytest.fixture(scope="module")
+def labeller():
+    return GraspLabeller(slots=16)
+
+
+def test_candidates_are_antipodal_open_and_collision_free():
+    asset = primitive_asset("test/box_a")
+    config = SamplerConfig()
+    candidates = sample_candidates(asset, 24, np.random.default_rng(3), config)
+    assert len(candidates) == 24
+    # Widths within the hand's opening, and equal to the contact distance.
+    assert np.all(candidates.width >= config.min_width) and np.all(candidates.width <= hand.MAX_OPENING - 0.005)
+    p, q = candidates.contacts[:, 0], candidates.contacts[:, 1]
+    np.testing.assert_allclose(np.linalg.norm(q - p, axis=1), candidates.width, atol=1e-6)
+    # The closing axis (hand y) runs p -> q and lies inside the friction cone of both contacts.
+    closing = candidates.T_object_hand[:, :3, 1]
+    np.testing.assert_allclose(closing, (q - p) / candidates.width[:, None], atol=1e-6)
+    mesh = asset.visual_mesh
+    _, _, face_p = trimesh.proximity.closest_point(mesh, p)
+    _, _, face_q = trimesh.proximity.closest_point(mesh, q)
+    cos_cone = np.cos(config.cone_half_angle) - 1e-6
+    assert np.all(np.einsum("ij,ij->i", -mesh.face_normals[face_p], closing) >= cos_cone)
+    assert np.all(np.einsum("ij,ij->i", mesh.face_normals[face_q], closing) >= cos_cone)
+    # The TCP lies on the approach axis within the depth range of the contact midpoint.
+    tcp = candidates.T_object_hand[:, :3, 3] + hand.TCP_OFFSET * candidates.T_object_hand[:, :3, 2]
+    offset = np.einsum("ij,ij->i", tcp - (p + q) / 2, candidates.T_object_hand[:, :3, 2])
+    assert np.all((offset >= config.depth_range[0] - 1e-9) & (offset <= config.depth_range[1] + 1e-9))
+    # The open hand is clear of the object (checked by distance, not the sampler's yes/no query).
+    manager = object_collision_manager(asset)
+    open_hand = hand.open_hand_mesh()
+    for T in candidates.T_object_hand:
+        assert manager.min_distance_single(open_hand, transform=T) > 0.0
+    # Rotations are proper.
+    R = candidates.T_object_hand[:, :3, :3]
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-9)
+    # Same seed, same candidates.
+    again = sample_candidates(asset, 24, np.random.default_rng(3), config)
+    assert np.array_equal(again.T_object_hand, candidates.T_object_hand)
+
+
+def test_sampler_rejects_objects_too_wide_for_the_hand():
+    mesh = trimesh.creation.box(extents=(0.12, 0.12, 0.12))
+    record = ObjectRecord("test/wide", "box", "procedural", "train", (0.12, 0.12, 0.12))
+    asset = ObjectAsset(record, mesh, (mesh,), np.zeros(3), float(mesh.volume), np.eye(4)[None], np.ones(1))
+    assert len(sample_candidates(asset, 8, np.random.default_rng(0))) == 0
+
+
+def test_physics_holds_good_grasps_and_drops_bad_ones(labeller):
+    asset = primitive_asset("test/cylinder_b")
+    candidates = sample_candidates(asset, 8, np.random.default_rng(1))
+    good = candidates.T_object_hand
+    # The same hands moved 7 cm out along their approach axis close on air: all must fail.
+    T_back = np.eye(4)
+    T_back[2, 3] = -0.07
+    missed = good @ T_back
+    result = labeller.label(asset, np.concatenate([good, missed]))
+    assert result.success[:8].mean() >= 0.85
+    assert not result.success[8:].any()
+    # Finger gap after closing on a 6 cm cylinder, across its diameter.
+    held = result.success[:8]
+    np.testing.assert_allclose(result.width[:8][held], candidates.width[held], atol=0.006)
+    assert np.all(result.width[8:] < 0.002)  # empty hands close fully
+
+
+def test_physics_fails_an_object_too_heavy_to_hold(labeller):
+    asset = primitive_asset("test/box_a")
+    candidates = sample_candidates(asset, 8, np.random.default_rng(2))
+    labeller.set_object(asset, density=60000.0)  # ~25 kg: beyond the 100 N gripper and friction
+    heavy = labeller.run_batch(candidates.T_object_hand)
+    labeller.set_object(asset)
+    light = labeller.run_batch(candidates.T_object_hand)
+    assert heavy.success.mean() <= 0.25 and light.success.mean() >= 0.85
+
+
+def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
+    settings = LabelSettings(candidates_per_round=16, max_rounds=1, target_successes=8)
+    ids = sorted(PRIMITIVES)
+    manifest = build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    assert sorted(i for e in manifest["shards"].values() for i in e["successes_per_object"]) == ids
+    files = sorted(tmp_path.glob("shard_*.npz"))
+    before = {f.name: f.read_bytes() for f in files}
+
+    grasps = store.load_grasps("test/box_a", tmp_path)
+    assert grasps.T_object_hand.shape == (16, 4, 4) and grasps.success.dtype == bool
+    np.testing.assert_allclose(grasps.T_object_hand[:, :3, :3] @ np.swapaxes(grasps.T_object_hand[:, :3, :3], 1, 2),
+                               np.tile(np.eye(3), (16, 1, 1)), atol=1e-6)
+    # Stored poses are the sampled ones up to float16 rotation / float32 position rounding.
+    sampled = sample_candidates(primitive_asset("test/box_a"), 16, np.random.default_rng(
+        [0, int(store.sha256_bytes(b"test/box_a")[:15], 16)]), settings.sampler)
+    np.testing.assert_allclose(grasps.T_object_hand, sampled.T_object_hand, atol=2e-3)
+    assert grasps.success.sum() >= 8
+    assert store.objects_with_grasps(tmp_path) == [i for i in ids if manifest_count(manifest, i) >= store.MIN_SUCCESSES]
+
+    # A second run resumes: nothing relabelled, files byte-identical.
+    messages = []
+    build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=messages.append)
+    assert "0 to label" in messages[0]
+    assert {f.name: f.read_bytes() for f in files} == before
+
+    # Unknown id: a clear KeyError naming how to list valid ids.
+    with pytest.raises(KeyError, match="no grasps for object 'test/nope'"):
+        store.GraspStore(tmp_path).load("test/nope")
+    # Tampered file: the hash check refuses it, and `verify` reports it.
+    tampered = files[0]
+    data = bytearray(tampered.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    tampered.write_bytes(bytes(data))
+    fresh = store.GraspStore(tmp_path)
+    victim = next(i for i in ids if store.shard_name(store.shard_of(i)) == tampered.name)
+    with pytest.raises(ValueError, match="corrupt or was changed"):
+        fresh.load(victim)
+    assert cli_main(["grasps", "verify", "--dir", str(tmp_path)]) == 1
+    assert "sha256 does not match" in capsys.readouterr().out
+    # The builder notices the broken shard and relabels it to the same bytes.
+    build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    assert {f.name: f.read_bytes() for f in files} == before
+    assert cli_main(["grasps", "verify", "--dir", str(tmp_path)]) == 0
+    # A manifest from another code version is refused as stale.
+    manifest_path = tmp_path / store.MANIFEST
+    stale = json.loads(manifest_path.read_text())
+    stale["version"] = store.GRASPS_VERSION + 1
+    manifest_path.write_text(json.dumps(stale))
+    with pytest.raises(ValueError, match="stale grasp labels"):
+        store.GraspStore(tmp_path)
+
+
+def manifest_count(manifest: dict, object_id: str) -> int:
+    return next(e["successes_per_object"][object_id] for e in manifest["shards"].values()
+                if object_id in e["successes_per_object"])

@@ -1,0 +1,122 @@
+"""IK reaches what it claims, RRTConnect paths are collision-free against exact meshes,
+time parametrisation respects the Panda's limits."""
+import numpy as np
+import pytest
+import torch
+
+from fetchbench_ms.planning.checker import Attachment, CollisionChecker
+from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
+from fetchbench_ms.planning.exact import ExactRobot
+from fetchbench_ms.planning.ik import POS_TOL, ROT_TOL, pose_errors, solve_ik
+from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
+from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
+from fetchbench_ms.planning.timing import time_parametrize
+
+
+@pytest.fixture(scope="module")
+def robot():
+    torch.set_num_threads(1)
+    return panda()
+
+
+@pytest.fixture(scope="module")
+def shelf(robot):
+    world, exact = shelf_worlds()
+    return world, exact, CollisionChecker(robot, world)
+
+
+def test_ik_reaches_reachable_poses_within_tolerance(robot):
+    rng = np.random.default_rng(3)
+    q_true = rng.uniform(robot.q_min, robot.q_max, (8, 7))
+    targets = robot.link_poses(torch.as_tensor(q_true))["panda_hand_tcp"].numpy()
+    result = solve_ik(robot, targets, n_seeds=32, rng=np.random.default_rng(0))
+    assert set(result.target_index.tolist()) == set(range(8))
+    e_pos, e_rot = pose_errors(robot, torch.as_tensor(result.q), torch.as_tensor(targets[result.target_index]))
+    assert float(e_pos.max()) <= POS_TOL and float(e_rot.max()) <= ROT_TOL
+    assert robot.within_limits(result.q).all()
+
+
+def test_ik_unreachable_pose_has_no_solution(robot):
+    far = hand_pose([1.4, 0.0, 0.4])  # beyond the Panda's ~0.85 m reach
+    assert not solve_ik(robot, far, n_seeds=32).found
+
+
+def test_ik_is_collision_aware(robot, shelf):
+    world, exact, checker = shelf
+    # Reachable without obstacles, but the TCP would sit inside the middle board.
+    inside_board = hand_pose([0.62, 0.0, 0.3], approach=(0, 0, -1))
+    assert solve_ik(robot, inside_board, n_seeds=32).found
+    assert not solve_ik(robot, inside_board, checker=checker, n_seeds=32).found
+    # Same reach, free space on the lower shelf: solutions exist and are collision-free.
+    on_shelf = hand_pose([0.66, 0.05, 0.12])
+    result = solve_ik(robot, on_shelf, checker=checker, q_seed=Q_DEFAULT, n_seeds=64)
+    assert result.found
+    exact_robot = ExactRobot(robot)
+    assert all(not exact_robot.world_collisions(q, exact) for q in result.q)
+
+
+def test_ik_same_seed_same_result(robot):
+    target = hand_pose([0.5, 0.1, 0.3], approach=(0, 0, -1))
+    a = solve_ik(robot, target, n_seeds=16, rng=np.random.default_rng(7))
+    b = solve_ik(robot, target, n_seeds=16, rng=np.random.default_rng(7))
+    assert np.array_equal(a.q, b.q)
+
+
+def test_rrtconnect_into_shelf_is_collision_free_on_exact_meshes(robot, shelf):
+    world, exact, checker = shelf
+    goal_pose = hand_pose([0.68, -0.1, 0.12])
+    goals = solve_ik(robot, goal_pose, checker=checker, q_seed=Q_DEFAULT, n_seeds=64)
+    assert goals.found
+    result = plan_rrtconnect(checker, Q_DEFAULT, goals.q[:4], time_limit=20.0)
+    assert result.success, result.status
+    assert result.status == "solved"  # the straight segment hits the shelf: a real search
+    assert np.allclose(result.path[0], Q_DEFAULT)
+    assert np.allclose(result.path[-1], goals.q[result.goal_index])
+    exact_robot = ExactRobot(robot)
+    dense = densify(result.path, 0.01)
+    collisions = [exact_robot.world_collisions(q, exact, FINGER_OPEN) for q in dense]
+    assert not any(collisions), next(c for c in collisions if c)
+
+
+def test_rrtconnect_reports_unreachable_goal(robot, shelf):
+    world, exact, checker = shelf
+    q_bad = Q_DEFAULT.copy()
+    q_bad[1] = 1.7  # arm folded down into the robot table
+    result = plan_rrtconnect(checker, Q_DEFAULT, q_bad, time_limit=1.0)
+    assert not result.success and result.status == "no_valid_goal"
+
+
+def test_attachment_blocks_motion_the_bare_hand_could_make(robot, shelf):
+    world, exact, checker = shelf
+    q = solve_ik(robot, hand_pose([0.68, 0.0, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=64).q[0]
+    # A 20 cm stick held along the approach axis, from the TCP forward.
+    points_tcp = np.column_stack([np.zeros(50), np.zeros(50), np.linspace(0.0, 0.2, 50)])
+    points_hand = points_tcp + [0.0, 0.0, 0.1034]
+    T_tcp = robot.link_poses(q[None])["panda_hand_tcp"][0].numpy()
+    carrying = CollisionChecker(robot, world, attachment=Attachment.from_points(points_hand, n_spheres=10))
+    assert checker.valid(q)[0]
+    assert not carrying.valid(q)[0]
+    assert T_tcp[0, 3] + 0.2 > 0.55 + 0.32  # sanity: the stick's far end is past the back board
+
+
+def test_time_parametrisation_respects_limits_and_path(robot):
+    path = np.stack([Q_DEFAULT, Q_DEFAULT + 0.6, Q_DEFAULT + np.array([0.6, -0.2, 0.6, 0.3, 0.6, 0.1, 0.0])])
+    dt = 1 / 60
+    traj = time_parametrize(path, dt, robot.velocity_limits, robot.acceleration_limits, speed_scale=0.5)
+    assert np.allclose(traj[-1], path[-1])
+    full = np.vstack([path[:1], traj])
+    v = np.diff(full, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    assert np.all(np.abs(v) <= robot.velocity_limits * 0.5 + 1e-9)
+    assert np.all(np.abs(a) <= robot.acceleration_limits * 0.25 * 1.05 + 1e-6 / dt)
+    # Every sample lies on one of the straight segments (the checked path).
+    def on_path(q):
+        for p0, p1 in zip(path[:-1], path[1:]):
+            d = p1 - p0
+            s = np.clip(np.dot(q - p0, d) / np.dot(d, d), 0, 1)
+            if np.abs(p0 + s * d - q).max() < 1e-9:
+                return True
+        return False
+    assert all(on_path(q) for q in traj)
+    with pytest.raises(ValueError, match="speed_scale"):
+        time_parametrize(path, dt, robot.velocity_limits, robot.acceleration_limits, speed_scale=2.0)

@@ -268,8 +268,11 @@ def test_category_env_rejects_a_task_of_another_category(env):
     other = next(c for c, label in CATEGORY_LABELS.items() if label != task.target_label)
     shelf = gym.make(f"FetchBench-{other}-v0", obs_mode="state", num_objects=4)
     try:
+        loaded = shelf.unwrapped.tasks
         with pytest.raises(ValueError, match=f"this env is for {other} targets"):
             shelf.reset(options={"task": task.to_dict()})
+        assert shelf.unwrapped.tasks == loaded  # the refused task left the env as it was
+        shelf.step(torch.zeros(shelf.action_space.shape))
     finally:
         shelf.close()
 

@@ -28,7 +28,7 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from ..scenes.sapien_build import add_scene_parts
-from ..tasks.objects import load_object
+from ..tasks.objects import collision_vertices, load_object
 from ..tasks.spec import TaskSpec
 from .bodies import add_object_shapes, box_half_size
 
@@ -56,6 +56,7 @@ class BuiltTasks:
     com_local: torch.Tensor  # [B, S, 3] centre of mass in each body's frame
     valid: torch.Tensor  # [B, S] bool: the slot holds a task object (not a placeholder)
     target_index: torch.Tensor  # [B] long
+    target_radius: torch.Tensor  # [B] largest distance from the target's centre of mass to its surface
     camera_pose: dict[str, torch.Tensor]  # "left"/"right" -> [B, 7]
     base_pose: torch.Tensor  # [B, 7]
 
@@ -98,6 +99,10 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         env.add_to_state_dict_registry(merged)
         slots.append(merged)
     target = Actor.merge([per_slot[t.target_index][i] for i, t in enumerate(tasks)], name="target")
+    target_radius = [
+        float(np.linalg.norm(collision_vertices(load_object(t.target.object_id)) - com_local[i, t.target_index], axis=1).max())
+        for i, t in enumerate(tasks)
+    ]
 
     camera_mounts, camera_pose = {}, {}
     for side in ("left", "right"):
@@ -146,6 +151,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         com_local=torch.tensor(com_local, dtype=torch.float32, device=device),
         valid=torch.tensor(valid, device=device),
         target_index=torch.tensor([t.target_index for t in tasks], dtype=torch.long, device=device),
+        target_radius=torch.tensor(target_radius, dtype=torch.float32, device=device),
         camera_pose=camera_pose,
         base_pose=base_pose,
     )

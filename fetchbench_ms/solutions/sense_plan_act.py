@@ -348,6 +348,9 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     if retries < 1:
         raise ValueError(f"retries must be >= 1, got {retries}")
+    if METHODS[method]["world"] == "pointcloud" and env.unwrapped.obs_mode != "pointcloud":
+        raise ValueError(f"{method} plans in the observed point clouds: make the env with obs_mode='pointcloud' "
+                         f"(it has {env.unwrapped.obs_mode!r})")
     config = config or SolveConfig()
     config.retries = retries
     torch.set_num_threads(1)  # small batches: threads only add overhead here

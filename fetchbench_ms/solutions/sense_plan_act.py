@@ -210,12 +210,15 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     asset = load_object(task.target.object_id)
     grasps = state.timed(choose_grasps, object_grasps(task.target.object_id), rng, cfg.max_grasps)
     state.grasp_source = grasps.source
-    T_grasp_tcp = np.stack([tcp_from_hand(T) for T in _hand_poses_base(T_base_object, grasps.T_object_hand)])
-    keep = [i for i in range(len(T_grasp_tcp)) if i not in tried]
+    T_grasp_tcp = tcp_from_hand(_hand_poses_base(T_base_object, grasps.T_object_hand))  # (N, 4, 4)
+    # ``keep``: ids (in the object's grasp list) of the candidates still in play; a grasp
+    # tried in an earlier try is not tried again.
+    untried = np.array([int(i) not in tried for i in grasps.index], dtype=bool)
+    keep = [int(i) for i in grasps.index[untried]]
     if not keep:
         return "no_grasp_candidate"
-    T_grasp_tcp = T_grasp_tcp[keep]
-    T_pre_tcp = np.stack([retreat(T, cfg.pregrasp_distance) for T in T_grasp_tcp])
+    T_grasp_tcp = T_grasp_tcp[untried]
+    T_pre_tcp = retreat(T_grasp_tcp, cfg.pregrasp_distance)
 
     open_checker = CollisionChecker(robot, world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, world, exclude=("target",), margin=cfg.margin)

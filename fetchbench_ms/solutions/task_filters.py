@@ -22,7 +22,7 @@ def reachable_grasps(env, max_grasps: int = 64, n_seeds: int = 8, seed: int = 0)
     robot = panda()
     checker = CollisionChecker(robot, mesh_world(env), exclude=("target",))
     T_object_hand = object_grasps(task.target.object_id).T_object_hand
-    T_tcp = np.stack([tcp_from_hand(object_poses_base(env)[task.target_index] @ T) for T in T_object_hand])
+    T_tcp = tcp_from_hand(object_poses_base(env)[task.target_index][None] @ T_object_hand)  # (N, 4, 4)
     # The open hand alone must be free first (cheap), then the arm.
     free = np.flatnonzero(checker.hand_clearance(T_tcp @ np.linalg.inv(tcp_from_hand(np.eye(4)))) > 0)[:max_grasps]
     if len(free) == 0:

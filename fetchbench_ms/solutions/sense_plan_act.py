@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+import trimesh
 
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
@@ -281,8 +282,6 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_hand = robot.link_poses(ex.q[None])["panda_hand"][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
-        import trimesh
-
         mesh = trimesh.util.concatenate([p.copy().apply_transform(T_hand_object) for p in asset.convex_parts])
         attachment = Attachment.from_mesh(mesh, seed=int(rng.integers(2**31)))
         world = state.timed(mesh_world, env)  # objects may have shifted while grasping

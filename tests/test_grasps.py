@@ -21,7 +21,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "grasps"
 # Small primitive objects, so these tests need no catalog: id -> (kind, dimensions).
 PRIMITIVES = {
     "test/box_a": ("box", (0.05, 0.07, 0.12)),
-    "test/cylinder_b": ("cylinder", (0.03, 0.10)),
+    "test/cylinder_20": ("cylinder", (0.03, 0.10)),  # same shard as test/box_a: exercises merging
 }
 
 
@@ -85,7 +85,7 @@ def test_sampler_rejects_objects_too_wide_for_the_hand():
 
 
 def test_physics_holds_good_grasps_and_drops_bad_ones(labeller):
-    asset = primitive_asset("test/cylinder_b")
+    asset = primitive_asset("test/cylinder_20")
     candidates = sample_candidates(asset, 8, np.random.default_rng(1))
     good = candidates.T_object_hand
     # The same hands moved 7 cm out along their approach axis close on air: all must fail.
@@ -114,7 +114,12 @@ def test_physics_fails_an_object_too_heavy_to_hold(labeller):
 def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
     settings = LabelSettings(candidates_per_round=16, max_rounds=1, target_successes=8)
     ids = sorted(PRIMITIVES)
+    # Incremental: label one object, then both; the result equals labelling both at once.
+    build(tmp_path / "one_by_one", ids[:1], loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    build(tmp_path / "one_by_one", ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
     manifest = build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    for f in tmp_path.glob("shard_*.npz"):
+        assert (tmp_path / "one_by_one" / f.name).read_bytes() == f.read_bytes()
     assert sorted(i for e in manifest["shards"].values() for i in e["successes_per_object"]) == ids
     files = sorted(tmp_path.glob("shard_*.npz"))
     before = {f.name: f.read_bytes() for f in files}

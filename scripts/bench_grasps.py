@@ -27,10 +27,9 @@ def _label_some(object_ids: list[str]) -> dict:
     from fetchbench_ms.objects import catalog
 
     settings = LabelSettings()
-    labeller = physics.GraspLabeller(slots=settings.slots, config=settings.trial)
     assets = [catalog.get_object(i) for i in object_ids]  # loading is the catalog's cost, not ours
     started = time.perf_counter()
-    per_object = [label_object(labeller, asset, settings) for asset in assets]
+    per_object = [label_object(asset, settings) for asset in assets]
     return {
         "seconds": time.perf_counter() - started,
         "trials": sum(len(t.success) for t in per_object),
@@ -82,7 +81,7 @@ def library(args) -> None:
 
 def agreement(store: GraspStore, n: int, seed: int) -> None:
     """Re-run a seeded sample of stored trials (half successes, half failures) in physics."""
-    from fetchbench_ms.objects import catalog
+    from fetchbench_ms.grasps.build import object_from_source
 
     rng = np.random.default_rng(seed)
     ids = rng.choice(store.object_ids(), size=min(n // 4, len(store.object_ids())), replace=False)
@@ -91,7 +90,7 @@ def agreement(store: GraspStore, n: int, seed: int) -> None:
     started = time.perf_counter()
     for object_id in sorted(ids):
         grasps = store.load(str(object_id))
-        asset = catalog.get_object(str(object_id))
+        asset = object_from_source(str(object_id))
         ok, bad = np.flatnonzero(grasps.success), np.flatnonzero(~grasps.success)
         pick = np.concatenate([rng.choice(ok, size=min(2, len(ok)), replace=False), rng.choice(bad, size=min(2, len(bad)), replace=False)])
         result = labeller.label(asset, grasps.T_object_hand[pick])

@@ -171,3 +171,40 @@ def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
 def manifest_count(manifest: dict, object_id: str) -> int:
     return next(e["successes_per_object"][object_id] for e in manifest["shards"].values()
                 if object_id in e["successes_per_object"])
+
+
+def test_shipped_labels_hold_when_rerun_in_physics(labeller):
+    """A seeded sample of shipped labels, re-run in physics: stored successes hold again
+    (>= 90%), stored failures mostly fail again. Also checks every file's hash."""
+    from fetchbench_ms.grasps.build import object_from_source
+
+    shipped = store.GraspStore(SHIPPED)
+    assert shipped.verify() == []
+    rng = np.random.default_rng(2024)
+    ids = rng.choice(shipped.object_ids(), size=8, replace=False)
+    held = failed_again = n_success = n_failure = 0
+    for object_id in sorted(ids):
+        grasps = shipped.load(str(object_id))
+        assert len(grasps) >= 16 and grasps.T_object_hand.shape == (len(grasps), 4, 4)
+        good, bad = np.flatnonzero(grasps.success), np.flatnonzero(~grasps.success)
+        pick_good = rng.choice(good, size=min(3, len(good)), replace=False)
+        pick_bad = rng.choice(bad, size=min(1, len(bad)), replace=False)
+        result = labeller.label(object_from_source(str(object_id)), grasps.T_object_hand[np.concatenate([pick_good, pick_bad])])
+        held += int(result.success[: len(pick_good)].sum())
+        failed_again += int((~result.success[len(pick_good) :]).sum())
+        n_success += len(pick_good)
+        n_failure += len(pick_bad)
+    assert n_success >= 20 and held / n_success >= 0.9
+    assert n_failure >= 4 and failed_again / n_failure >= 0.5
+
+
+def test_kept_objects_have_enough_successes():
+    shipped = store.GraspStore(SHIPPED)
+    kept = store.objects_with_grasps(SHIPPED)
+    counts = shipped.successes_per_object()
+    assert len(kept) > 0.9 * len(counts)
+    assert all(counts[i] >= store.MIN_SUCCESSES for i in kept)
+    assert all(counts[i] < store.MIN_SUCCESSES for i in set(counts) - set(kept))
+    grasps = store.load_grasps(kept[0], SHIPPED).successful
+    assert len(grasps) >= store.MIN_SUCCESSES and grasps.success.all()
+    assert np.all((grasps.width > 0.0) & (grasps.width <= hand.MAX_OPENING + 1e-3))

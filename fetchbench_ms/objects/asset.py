@@ -68,3 +68,11 @@ class ObjectAsset:
     def collision_mesh(self) -> trimesh.Trimesh:
         """All convex parts in one mesh (not a union: parts may touch or overlap)."""
         return trimesh.util.concatenate(list(self.convex_parts))
+
+    def surface_mesh(self) -> trimesh.Trimesh:
+        """The watertight outer surface of what physics simulates: the boolean union of
+        the convex parts (manifold3d). Scans are not all watertight; this always is, so
+        ray casts and inside tests (grasp sampling) behave."""
+        if len(self.convex_parts) == 1:
+            return self.convex_parts[0].copy()
+        return trimesh.boolean.union(list(self.convex_parts), engine="manifold")

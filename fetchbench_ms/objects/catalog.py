@@ -119,14 +119,14 @@ def _source_geometry(object_id: str):
     if source == "procedural":
         category, index = key.split("/")[1], int(key.split("/")[2])
         obj = procedural.generate(category, index)
-        return category, list(obj.parts), None, (*obj.rgb, 1.0), {"params": obj.params, "draws": obj.draws}
+        return category, list(obj.parts), None, (*obj.rgb, 1.0), {"params": obj.params, "draws": obj.draws, "scale": 1.0}
     if source == "blob":
         number = int(key)
         return "blob", blobs.blob_parts(number), None, None, {"file": f"pybullet_data/random_urdfs/{key}/{key}.obj", "scale": blobs.BLOB_SCALE}
     parts = ycb_convex_parts().get(key)
     if parts is None:
         raise ValueError(f"ycb/{key} has no shipped decomposition (not fetchable: see `fetchbench objects stats`)")
-    return ycb.YCB_CATEGORIES[key], [g.hull(p) for p in parts], ycb.load_scan(key), None, {"scan": key}
+    return ycb.YCB_CATEGORIES[key], [g.hull(p) for p in parts], ycb.load_scan(key), None, {"scan": key, "scale": 1.0}
 
 
 def fingerprint(parts) -> str:
@@ -161,9 +161,12 @@ def build_object(object_id: str, with_stable_poses: bool = True) -> tuple[Object
     visual = trimesh.util.concatenate(parts) if visual is None else visual.copy()
     if metadata.get("scan"):
         visual.apply_transform(shift)
+    # Procedural parts were checked by their generator (which redraws until valid);
+    # scans and blobs are checked here. Every part comes from ``geometry.hull``.
     problems = []
-    for i, part in enumerate(parts):
-        problems += [f"part {i}: {p}" for p in g.check_part(part).problems()]
+    if parse_id(object_id)[0] != "procedural":
+        for i, part in enumerate(parts):
+            problems += [f"part {i}: {p}" for p in g.check_part(part, topology=False).problems()]
     volume, com = g.mass_properties(parts)
     width = g.grasp_width(parts)
     extents = tuple(float(e) for e in (high - low))
@@ -280,10 +283,11 @@ def clear_caches() -> None:
 @functools.lru_cache(maxsize=4)
 def _records_cached(directory: str) -> tuple[ObjectRecord, ...]:
     objects = _index_cached(directory)["objects"]
-    return tuple(
-        ObjectRecord(oid, e["category"], e["source"], e["split"], tuple(e["extents"]))
-        for oid, e in sorted(objects.items())
-    )
+    return tuple(_record(oid, e) for oid, e in sorted(objects.items()))
+
+
+def _record(object_id: str, entry: dict) -> ObjectRecord:
+    return ObjectRecord(object_id, entry["category"], entry["source"], entry["split"], tuple(entry["extents"]))
 
 
 def _check_choice(kind: str, value, valid) -> None:
@@ -309,10 +313,11 @@ def list_objects(split: str | None = None, source: str | None = None, category: 
     ]
 
 
-@functools.lru_cache(maxsize=512)
+@functools.lru_cache(maxsize=128)
 def get_object(object_id: str) -> ObjectAsset:
     """The object ``object_id``: geometry rebuilt from its source, derived values from
-    the index (checked against a fingerprint of the geometry)."""
+    the index (checked against a fingerprint of the geometry). Cached: treat the
+    returned meshes and arrays as read-only (copy before changing them)."""
     parse_id(object_id)
     if not (asset_dir() / MANIFEST_NAME).exists() and parse_id(object_id)[0] == "procedural":
         # No catalog built yet (fresh checkout before `fetchbench objects build`): a
@@ -335,7 +340,7 @@ def get_object(object_id: str) -> ObjectAsset:
         )
     poses = np.array([_pose_matrix(p) for p in entry["stable_poses"]], dtype=np.float64)
     return ObjectAsset(
-        record=asset.record,
+        record=_record(object_id, entry),  # the same record list_objects() gives
         visual_mesh=asset.visual_mesh,
         convex_parts=asset.convex_parts,
         center_of_mass=asset.center_of_mass,
@@ -381,9 +386,19 @@ def index_entry(asset: ObjectAsset) -> dict:
     }
 
 
+#: Functions ``f(stats_dict) -> None`` that add their own keys to ``stats()`` (e.g. the
+#: grasp module's counts and success rates), called in registration order.
+STATS_EXTENSIONS: list = []
+
+
+def register_stats_extension(function) -> None:
+    if function not in STATS_EXTENSIONS:
+        STATS_EXTENSIONS.append(function)
+
+
 def stats() -> dict:
-    """Counts per source, category and split (and drops per source). A plain dict, so
-    other modules (grasps) can add their own keys."""
+    """Counts per source, category and split (and drops per source), then whatever the
+    registered extensions add. A plain JSON-able dict."""
     index = load_index()
     records = _records_cached(str(asset_dir()))
     out: dict = {"total": len(records), "by_split": {}, "by_source": {}, "by_category": {}, "dropped": {}}
@@ -400,4 +415,6 @@ def stats() -> dict:
     for oid in index["dropped"]:
         source = oid.split("/")[0]
         out["dropped"][source] = out["dropped"].get(source, 0) + 1
+    for extension in STATS_EXTENSIONS:
+        extension(out)
     return out

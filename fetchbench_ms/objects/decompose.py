@@ -6,6 +6,9 @@ CoACD with a fixed seed is deterministic for the same input and parameters.
 """
 from __future__ import annotations
 
+import json
+import multiprocessing as mp
+import os
 import time
 
 import numpy as np
@@ -91,3 +94,62 @@ def unpack(arrays) -> dict[str, list[np.ndarray]]:
         out[name] = parts
         part_start = int(part_ends[i])
     return out
+
+
+# ---------------------------------------------------------------------------- many scans
+# Raw results (float64 hull vertices per scan, and seconds taken) are saved after every
+# finished scan with an atomic rename, and scans already saved are skipped: a run cut
+# off by a time limit resumes where it stopped.
+
+
+def save_raw(path: str, results: dict, seconds: dict) -> None:
+    arrays = {f"{name}/{i:03d}": part for name, parts in results.items() for i, part in enumerate(parts)}
+    arrays["__seconds__"] = np.frombuffer(json.dumps(seconds, sort_keys=True).encode(), dtype=np.uint8)
+    tmp = path + ".tmp.npz"
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def load_raw(path: str) -> tuple[dict[str, list[np.ndarray]], dict[str, float]]:
+    """Name -> part vertex arrays, and name -> seconds, from a ``decompose_many`` output."""
+    results: dict[str, list[np.ndarray]] = {}
+    with np.load(path) as data:
+        seconds = json.loads(bytes(data["__seconds__"]).decode()) if "__seconds__" in data.files else {}
+        for key in sorted(k for k in data.files if k != "__seconds__"):
+            results.setdefault(key.rsplit("/", 1)[0], []).append(np.asarray(data[key], dtype=np.float64))
+    return results, seconds
+
+
+def _work(item):
+    name, vertices, faces = item
+    parts, seconds = decompose(vertices, faces)
+    return name, parts, seconds
+
+
+def decompose_many(inputs_path: str, out_path: str, workers: int, deadline: float = float("inf"), log=print) -> dict:
+    """Decompose every scan of ``inputs_path`` (``<name>/vertices``, ``<name>/faces``)
+    into ``out_path`` over ``workers`` spawned processes; stop cleanly at ``deadline`` s."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per scan; parallel over scans
+    with np.load(inputs_path) as data:
+        names = sorted({k.rsplit("/", 1)[0] for k in data.files})
+        items = [(n, data[f"{n}/vertices"].astype(np.float64), data[f"{n}/faces"].astype(np.int64)) for n in names]
+    results, seconds = load_raw(out_path) if os.path.exists(out_path) else ({}, {})
+    todo = sorted((it for it in items if it[0] not in results), key=lambda it: -len(it[2]))
+    log(f"{len(results)} done, {len(todo)} to decompose on {workers} workers")
+    start = time.perf_counter()
+    if todo:
+        with mp.get_context("spawn").Pool(workers) as pool:
+            pending = pool.imap_unordered(_work, todo)
+            for _ in todo:
+                try:
+                    name, parts, secs = pending.next(timeout=max(deadline - (time.perf_counter() - start), 0.001))
+                except mp.TimeoutError:
+                    log(f"deadline of {deadline:.0f} s reached; stopping (resumable)")
+                    pool.terminate()
+                    break
+                results[name], seconds[name] = parts, secs
+                save_raw(out_path, results, seconds)
+                log(f"{name}: {len(parts)} parts in {secs:.1f} s (elapsed {time.perf_counter() - start:.0f} s)")
+    wall = time.perf_counter() - start
+    log(f"{len(results)} of {len(items)} scans decomposed; wall {wall:.1f} s, sum of per-scan times {sum(seconds.values()):.0f} s")
+    return {"done": len(results), "total": len(items), "wall_s": wall}

@@ -551,17 +551,18 @@ def generate(category: str, index: int) -> ProceduralObject:
         params = sample_params(cat.params, rng, owner=f"procedural category {category!r}")
         rgb_choice = int(rng.integers(len(cat.colors)))
         parts = cat.build(params)
-        problems = object_problems(parts)
+        problems = object_problems(parts, topology=False)
         if not problems:
             return ProceduralObject(category, index, params, tuple(parts), cat.colors[rgb_choice], draw)
     raise RuntimeError(f"procedural {category} #{index}: no valid draw in {_MAX_DRAWS} tries; last: {problems}")
 
 
-def object_problems(parts) -> list[str]:
-    """Every reason these parts are not a valid fetchable object (empty when valid)."""
+def object_problems(parts, topology: bool = True) -> list[str]:
+    """Every reason these parts are not a valid fetchable object (empty when valid).
+    ``topology=False``: parts come from ``geometry.hull`` (convex, watertight)."""
     out = []
     for i, part in enumerate(parts):
-        out += [f"part {i}: {p}" for p in g.check_part(part).problems()]
+        out += [f"part {i}: {p}" for p in g.check_part(part, topology=topology).problems()]
     if out:
         return out
     points = np.concatenate([p.vertices for p in parts])

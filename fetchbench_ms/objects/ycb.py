@@ -6,6 +6,7 @@ CoACD decomposition is shipped, because computing it takes minutes per scan.
 """
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -71,6 +72,7 @@ def load_scan(name: str) -> trimesh.Trimesh:
     return mesh
 
 
+@functools.lru_cache(maxsize=1)
 def decomposition_candidates() -> list[str]:
     """Scans worth decomposing: not excluded, small enough, and either narrow enough
     somewhere or hollow (so a wall may fit the hand). The final cut is made on the
@@ -84,7 +86,7 @@ def decomposition_candidates() -> list[str]:
         mesh = load_scan(name)
         if float(np.max(mesh.extents)) > g.MAX_EXTENT:
             continue
-        hull = mesh.convex_hull
+        hull = g.hull(mesh.vertices)
         solid = abs(float(mesh.volume)) > _SOLID_SHARE * float(hull.volume)
         if solid and (g.min_width(hull.vertices) > g.MAX_GRASP_WIDTH + _WIDTH_SLACK or hull.volume * g.MAX_DENSITY > g.MAX_MASS):
             continue

@@ -208,3 +208,30 @@ def test_kept_objects_have_enough_successes():
     grasps = store.load_grasps(kept[0], SHIPPED).successful
     assert len(grasps) >= store.MIN_SUCCESSES and grasps.success.all()
     assert np.all((grasps.width > 0.0) & (grasps.width <= hand.MAX_OPENING + 1e-3))
+
+
+def test_show_draws_successful_grasps_and_cli_errors(tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "mug.png"
+    assert cli_main(["grasps", "show", "procedural/mug/0000", "--out", str(out), "--max", "12", "--dir", str(SHIPPED)]) == 0
+    assert "12 grasps of procedural/mug/0000" in capsys.readouterr().out
+    rgb = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    greenish = (rgb[..., 1] > 120) & (rgb[..., 1] > rgb[..., 0] + 50) & (rgb[..., 1] > rgb[..., 2] + 50)
+    assert greenish.sum() > 200  # the hand outlines are drawn in green
+    # Bad input: one clear line, exit 2.
+    assert cli_main(["grasps", "show", "procedural/mug/9999", "--out", str(out), "--dir", str(SHIPPED)]) == 2
+    assert "no grasps for object 'procedural/mug/9999'" in capsys.readouterr().err
+    assert cli_main(["grasps", "build", "--shards", "70", "--dir", str(tmp_path)]) == 2
+    assert "valid shard indices are 0..63" in capsys.readouterr().err
+
+
+def test_objects_stats_report_grasps():
+    from fetchbench_ms.objects import catalog
+
+    stats = catalog.stats()  # importing fetchbench_ms.grasps registered the extension
+    grasps = stats["grasps"]
+    assert grasps["kept"] + grasps["dropped"] == grasps["labelled"] <= stats["total"]
+    assert 0.5 < grasps["success_rate"] < 1.0 and grasps["mean_successes_per_kept"] >= store.MIN_SUCCESSES
+    assert set(grasps["by_source"]) == set(stats["by_source"])
+    assert set(stats["grasps_by_category"]) == set(stats["by_category"])

@@ -294,3 +294,56 @@ def objects_with_grasps(directory: str | os.PathLike | None = None) -> list[str]
     """Ids of the objects with at least ``MIN_SUCCESSES`` verified grasps: the ones tasks may use."""
     store = _store(os.fspath(directory)) if directory is not None else _default_store()
     return store.kept_ids()
+
+
+def catalog_grasp_stats(records, directory: str | os.PathLike | None = None) -> dict:
+    """Grasp figures for catalog ``records``: overall and per source and category
+    (labelled, kept, dropped, trials, success rate of sampled candidates), and which
+    catalog objects have no labels yet."""
+    store = _store(os.fspath(directory)) if directory is not None else _default_store()
+    counts = store.successes_per_object()
+    trials = {}
+    for shard in sorted(int(s) for s in store.manifest["shards"]):
+        arrays = store._shard(shard)  # hash-checked
+        offsets = arrays["offsets"]
+        for k, object_id in enumerate(arrays["object_ids"]):
+            trials[str(object_id)] = int(offsets[k + 1] - offsets[k])
+
+    def summary(group) -> dict:
+        labelled = [r.object_id for r in group if r.object_id in counts]
+        kept = [i for i in labelled if counts[i] >= MIN_SUCCESSES]
+        n_trials = sum(trials.get(i, 0) for i in labelled)
+        n_success = sum(counts[i] for i in labelled)
+        return {
+            "objects": len(group),
+            "labelled": len(labelled),
+            "kept": len(kept),
+            "dropped": len(labelled) - len(kept),
+            "trials": n_trials,
+            "success_rate": round(n_success / n_trials, 4) if n_trials else 0.0,
+            "mean_successes_per_kept": round(sum(counts[i] for i in kept) / len(kept), 2) if kept else 0.0,
+        }
+
+    by = lambda key: {v: summary([r for r in records if getattr(r, key) == v]) for v in sorted({getattr(r, key) for r in records})}  # noqa: E731
+    return {
+        **summary(records),
+        "version": store.manifest["version"],
+        "by_source": by("source"),
+        "by_category": by("category"),
+        "unlabelled": sorted(r.object_id for r in records if r.object_id not in counts),
+    }
+
+
+def add_grasp_stats(out: dict) -> None:
+    """Extension of ``fetchbench objects stats`` (``catalog.register_stats_extension``)."""
+    from ..objects import catalog
+
+    try:
+        stats = catalog_grasp_stats(catalog.list_objects())
+    except (FileNotFoundError, ValueError) as error:  # no or stale library: say so, keep the object stats
+        out["grasps"] = {"error": str(error)}
+        return
+    by_category = stats.pop("by_category")
+    unlabelled = stats.pop("unlabelled")
+    out["grasps"] = {**stats, "unlabelled": len(unlabelled)}
+    out["grasps_by_category"] = {c: f"{s['kept']}/{s['objects']} kept, {s['success_rate']:.0%} of trials held" for c, s in by_category.items()}

@@ -235,3 +235,23 @@ def test_objects_stats_report_grasps():
     assert 0.5 < grasps["success_rate"] < 1.0 and grasps["mean_successes_per_kept"] >= store.MIN_SUCCESSES
     assert set(grasps["by_source"]) == set(stats["by_source"])
     assert set(stats["grasps_by_category"]) == set(stats["by_category"])
+
+
+def test_candidates_do_not_depend_on_how_the_hull_is_listed():
+    """The same shape with its triangles listed, rotated and split differently gives the
+    same candidates: labels are a function of the shape and the seed only."""
+    a = primitive_asset("test/cylinder_20")
+    mesh = a.convex_parts[0]
+    rng = np.random.default_rng(0)
+    faces = np.roll(mesh.faces[rng.permutation(len(mesh.faces))], 1, axis=1)
+    perm = rng.permutation(len(mesh.vertices))
+    inverse = np.argsort(perm)
+    shuffled = trimesh.Trimesh(mesh.vertices[perm], inverse[faces], process=False)
+    # Re-triangulate the caps from their centre-less rims (another valid triangulation).
+    other = trimesh.convex.convex_hull(mesh.vertices[perm])
+    for variant in (shuffled, other):
+        b = ObjectAsset(a.record, variant, (variant,), a.center_of_mass, a.volume, a.stable_poses, a.stable_probs)
+        np.testing.assert_array_equal(
+            sample_candidates(b, 16, np.random.default_rng(4)).T_object_hand,
+            sample_candidates(a, 16, np.random.default_rng(4)).T_object_hand,
+        )

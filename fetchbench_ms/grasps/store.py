@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, sha256_bytes, sha256_file
 
 #: Bump when the sampler, the physics test or the file layout changes: old files become stale.
-GRASPS_VERSION = 1
+GRASPS_VERSION = 2
 NUM_SHARDS = 64
 #: Objects with fewer verified successful grasps than this are dropped from the benchmark.
 MIN_SUCCESSES = 16

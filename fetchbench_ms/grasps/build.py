@@ -35,6 +35,7 @@ from .store import (
     shard_of,
     shard_summary,
     split_shard,
+    _store,
     write_manifest,
     write_shard,
 )
@@ -195,6 +196,7 @@ def build(
     log(f"{len(by_shard)} shards hold {sum(map(len, by_shard.values()))} objects; {len(wanted) - len(todo)} done, {len(todo)} to label")
 
     def finish() -> dict:
+        _store.cache_clear()  # readers in this process must see the new manifest
         entries = []
         for s in sorted(by_shard):
             path = directory / shard_name(s)

@@ -47,7 +47,9 @@ def cmd_build(args) -> int:
     if args.limit:
         ids = sorted(ids)[: args.limit]
     settings = LabelSettings(seed=args.seed, candidates_per_round=args.candidates)
-    out = args.dir or os.fspath(Path(__file__).resolve().parents[2] / "assets" / "grasps")
+    from .store import default_dir
+
+    out = args.dir or os.fspath(default_dir())
     manifest = build(out, ids, loader=args.loader, settings=settings, workers=args.workers, shards=_parse_shards(args.shards), deadline_s=args.deadline)
     done = sum(e["objects"] for e in manifest["shards"].values())
     kept = sum(len(e["kept"]) for e in manifest["shards"].values())

@@ -151,7 +151,7 @@ class GraspLabeller:
         qpos[self._finger_idx] = franka.FINGER_TRAVEL
         gripper.set_qpos(qpos)
         gripper.set_qvel(np.zeros(gripper.dof))
-        for k, joint in enumerate(self._joints[i]):
+        for joint in self._joints[i]:
             joint.set_drive_target(0.0)
             joint.set_drive_velocity_target(0.0)
         for k in self._finger_idx:

@@ -181,18 +181,21 @@ def canonical_part(part: trimesh.Trimesh) -> trimesh.Trimesh:
     Each planar facet is re-triangulated as a fan from its smallest corner, corners in
     angular order; vertices and triangles are then sorted."""
     vertices = np.round(np.asarray(part.vertices, dtype=np.float64), 9)
-    groups = [list(f) for f in part.facets]
-    in_facet = np.zeros(len(part.faces), dtype=bool)
-    for f in groups:
-        in_facet[f] = True
-    groups += [[i] for i in np.flatnonzero(~in_facet)]
+    # Facets: adjacent triangles on the same plane to 1e-9 (trimesh's ``facets`` also
+    # merges nearly coplanar ones, which would flatten curved blades when re-triangulated).
+    normals = part.face_normals
+    offsets = np.einsum("ij,ij->i", normals, part.triangles[:, 0])
+    a, b = part.face_adjacency.T
+    same_plane = (np.abs(normals[a] - normals[b]).max(axis=1) < 1e-9) & (np.abs(offsets[a] - offsets[b]) < 1e-9)
+    groups = trimesh.graph.connected_components(part.face_adjacency[same_plane], nodes=np.arange(len(part.faces)), min_len=1)
     triangles = []
     for group in groups:
         normal = part.face_normals[group[0]]
-        corners = vertices[np.unique(part.faces[group])]
-        corners = corners[np.lexsort(corners.T[::-1])]  # smallest corner first
+        corners = np.unique(vertices[np.unique(part.faces[group])], axis=0)  # sorted, no duplicates
         u = corners[-1] - corners[0]
         u = u - normal * (u @ normal)
+        if len(corners) < 3 or np.linalg.norm(u) < 1e-12:
+            continue  # a degenerate sliver: no area to sample
         u /= np.linalg.norm(u)
         ring = corners[_convex_ring(np.c_[corners @ u, corners @ np.cross(normal, u)])]
         triangles += [(ring[0], ring[i], ring[i + 1]) for i in range(1, len(ring) - 1)]
@@ -203,9 +206,9 @@ def canonical_part(part: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 def _convex_ring(points_2d: np.ndarray) -> np.ndarray:
-    """Indices of the 2D convex hull, counter-clockwise from index 0 (which must be a hull
-    corner: the lexicographically smallest point is), without interior or collinear
-    points (a cap's centre vertex, mid-edge points). Andrew's monotone chain."""
+    """Indices of the 2D convex hull, counter-clockwise from the smallest index kept,
+    without interior or collinear points (a cap's centre vertex, mid-edge points).
+    Andrew's monotone chain."""
     order = np.lexsort(points_2d.T[::-1])
     lower, upper = [], []
     for chain, sequence in ((lower, order), (upper, order[::-1])):
@@ -217,7 +220,8 @@ def _convex_ring(points_2d: np.ndarray) -> np.ndarray:
                 chain.pop()
             chain.append(int(i))
     ring = np.array(lower[:-1] + upper[:-1])
-    return np.roll(ring, -int(np.flatnonzero(ring == 0)[0]))
+    # Start at the smallest index kept (0 unless rounding dropped it as collinear).
+    return np.roll(ring, -int(np.argmin(ring)))
 
 
 def object_collision_manager(asset: ObjectAsset) -> trimesh.collision.CollisionManager:

@@ -352,3 +352,23 @@ def test_state_obs_size_is_fixed_across_tasks_with_padded_slots():
         assert sizes == {env.observation_space.shape} and padded > 0
     finally:
         env.close()
+
+
+def test_runs_under_maniskills_vector_wrapper_as_ppo_uses_it():
+    """ManiSkill's PPO baseline wraps envs in ManiSkillVectorEnv (auto-reset, metrics)."""
+    from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
+
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", reward_mode="normalized_dense",
+                   num_objects=6, max_episode_steps=3)
+    envs = ManiSkillVectorEnv(env, ignore_terminations=False, record_metrics=True)
+    try:
+        obs, _ = envs.reset(seed=1)
+        first_task = envs.base_env.tasks[0]
+        assert obs.shape == (1,) + envs.single_observation_space.shape
+        for _ in range(3):
+            obs, reward, terminated, truncated, info = envs.step(torch.zeros(envs.action_space.shape))
+            assert torch.isfinite(reward).all() and obs.shape[1] == envs.single_observation_space.shape[0]
+        assert bool(truncated[0]) and "final_info" in info  # time limit: auto-reset into a new task
+        assert envs.base_env.tasks[0] != first_task
+    finally:
+        envs.close()

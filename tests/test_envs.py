@@ -197,10 +197,25 @@ def test_pointcloud_obs_segmented_in_base_frame():
         q, p = base.agent.robot.pose.raw_pose[0, 3:], base.agent.robot.pose.raw_pose[0, :3]
         back = quaternion_apply(q.expand(int(kept.sum()), 4), pcd["xyz_base"][0, kept]) + p
         assert torch.allclose(back, world, atol=1e-4)
-        # Every kept point is 0.15-2.5 m in front of its camera.
-        for side in ("left", "right"):
-            assert obs["extra"][f"cam_pose_base_{side}"].shape == (1, 16)
+        # Every kept point is 0.15-2.5 m in front of its camera (left camera's pixels first).
+        n = 320 * 240
+        for k, side in enumerate(("left", "right")):
+            T_base_cam = obs["extra"][f"cam_pose_base_{side}"][0].reshape(4, 4).numpy()
+            points = pcd["xyz_base"][0, k * n:(k + 1) * n].numpy()[labels[k * n:(k + 1) * n] > 0]
+            depth = (points - T_base_cam[:3, 3]) @ T_base_cam[:3, 2]  # OpenCV: z is the view axis
+            assert len(depth) > 0 and depth.min() >= 0.15 - 1e-3 and depth.max() <= 2.5 + 1e-3
+        assert ((pcd["segmentation"][0, :, 0].numpy() > 0) & (labels == 0)).any()  # far floor was cropped
         assert int(obs["extra"]["target_segmentation_id"][0]) == clouds.target_segmentation_id
+        # Fixed sizes within 1.2 m, as the imitation baselines take them; same rng, same points.
+        sized = fetch_clouds(obs, max_distance=1.2, num_points={"scene": 4096, "target": 512},
+                             rng=np.random.default_rng(0))
+        assert sized.scene.shape == (4096, 3) and sized.target.shape == (512, 3)
+        assert np.linalg.norm(sized.scene, axis=1).max() <= 1.2
+        again = fetch_clouds(obs, max_distance=1.2, num_points={"scene": 4096, "target": 512},
+                             rng=np.random.default_rng(0))
+        assert np.array_equal(sized.scene, again.scene)
+        with pytest.raises(ValueError, match="valid: scene, target, robot"):
+            fetch_clouds(obs, num_points={"table": 10}, rng=np.random.default_rng(0))
         assert set(np.unique(labels)) <= {0, LABEL_ROBOT, LABEL_TARGET, LABEL_OBJECT, LABEL_FURNITURE}
     finally:
         env.close()

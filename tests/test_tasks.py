@@ -97,6 +97,13 @@ def test_bad_sampler_input_names_valid_choices(kwargs, message):
         sample_task(0, **kwargs)
 
 
+def test_bad_sampler_config_is_refused():
+    with pytest.raises(ValueError, match="num_objects must be 1..64"):
+        SamplerConfig(num_objects=0)
+    with pytest.raises(ValueError, match="valid: train, test"):
+        SamplerConfig(object_split="val")
+
+
 def test_malformed_task_dicts_are_rejected_with_the_valid_keys(task):
     d = task.to_dict()
     missing = {k: v for k, v in d.items() if k != "objects"}

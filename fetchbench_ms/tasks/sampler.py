@@ -71,6 +71,12 @@ class SamplerConfig:
     settle: bool = True
     scene_attempts: int = 20  # scenes tried before giving up (a category that no scene offers)
 
+    def __post_init__(self):
+        if not 1 <= self.num_objects <= 64:
+            raise ValueError(f"num_objects must be 1..64, got {self.num_objects}")
+        if self.object_split not in ("train", "test"):
+            raise ValueError(f"unknown object split {self.object_split!r}; valid: train, test")
+
 
 def categories() -> tuple[str, ...]:
     return tuple(CATEGORY_LABELS)

@@ -387,3 +387,25 @@ def test_runs_under_maniskills_vector_wrapper_as_ppo_uses_it():
         assert envs.base_env.tasks[0] != first_task
     finally:
         envs.close()
+
+
+OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
+             "rgb+depth+segmentation", "pointcloud")
+
+
+@pytest.mark.parametrize(
+    "obs_mode", [m if m in ("none", "rgbd") else pytest.param(m, marks=pytest.mark.slow) for m in OBS_MODES]
+)
+def test_every_obs_mode_resets_and_steps(obs_mode):
+    env = gym.make("FetchBench-v0", obs_mode=obs_mode, num_objects=4)
+    try:
+        obs, _ = env.reset(seed=2)
+        obs, reward, _, _, info = env.step(torch.zeros(env.action_space.shape))
+        assert torch.isfinite(reward).all()
+        if obs_mode not in ("state", "none"):
+            assert "extra" in obs and obs["extra"]["tcp_pose"].shape == (1, 7)
+        if obs_mode not in ("state", "state_dict", "none"):
+            cameras = obs["pointcloud"] if obs_mode == "pointcloud" else obs["sensor_data"]
+            assert ("xyzw" in cameras) if obs_mode == "pointcloud" else set(cameras) == {"left_camera", "right_camera"}
+    finally:
+        env.close()

@@ -24,13 +24,12 @@ from fetchbench_ms.grasps.store import GraspStore, default_dir
 def _label_some(object_ids: list[str]) -> dict:
     """Label ``object_ids`` in one process; time sampling+physics together, as the builder runs."""
     os.environ["OMP_NUM_THREADS"] = "1"
-    from fetchbench_ms.objects import catalog
+    from fetchbench_ms.grasps.build import object_from_source
 
     settings = LabelSettings()
-    labeller = physics.GraspLabeller(slots=settings.slots, config=settings.trial)
-    assets = [catalog.get_object(i) for i in object_ids]  # loading is the catalog's cost, not ours
+    assets = [object_from_source(i) for i in object_ids]  # building objects is the catalog's cost, not ours
     started = time.perf_counter()
-    per_object = [label_object(labeller, asset, settings) for asset in assets]
+    per_object = [label_object(asset, settings) for asset in assets]
     return {
         "seconds": time.perf_counter() - started,
         "trials": sum(len(t.success) for t in per_object),
@@ -39,11 +38,11 @@ def _label_some(object_ids: list[str]) -> dict:
 
 
 def throughput(args) -> None:
-    from fetchbench_ms.objects import catalog
-
-    records = catalog.list_objects(source=args.source) if args.source else catalog.list_objects()
+    # Objects drawn from those the shipped library labelled (all sources the build covered).
+    labelled = GraspStore(default_dir()).object_ids()
+    labelled = [i for i in labelled if not args.source or i.split("/")[0] == args.source]
     rng = np.random.default_rng(args.seed)
-    ids = sorted(r.object_id for r in rng.choice(records, size=min(args.objects, len(records)), replace=False))
+    ids = sorted(rng.choice(labelled, size=min(args.objects, len(labelled)), replace=False))
     chunks = [ids[i :: args.workers] for i in range(args.workers)]
     started = time.perf_counter()
     with multiprocessing.get_context("spawn").Pool(args.workers) as pool:
@@ -57,7 +56,7 @@ def throughput(args) -> None:
     print(f"trials: {trials}, verified successes: {sum(successes)} ({sum(successes) / max(trials, 1):.1%} of candidates)")
     print(f"mean successes per object: {np.mean(successes):.1f}; objects with < 16: {sum(s < 16 for s in successes)}")
     print(f"throughput: {trials / wall:.1f} trials/s on {args.workers} processes (wall, incl. start-up), {per_core:.1f} trials/s per busy core")
-    n_catalog = len(catalog.list_objects())
+    n_catalog = len(GraspStore(default_dir()).object_ids())
     mean_trials = trials / len(ids)
     core_hours = n_catalog * mean_trials / per_core / 3600
     print(f"projected full rebuild: {n_catalog} objects x {mean_trials:.1f} trials = {core_hours:.2f} core-hours "
@@ -74,6 +73,17 @@ def library(args) -> None:
     print(f"trials: {stats['trials']}, verified success rate of sampled candidates: {stats['success_rate']:.1%}")
     print(f"mean successful grasps per kept object: {stats['mean_successes_per_kept_object']:.1f}")
     print(f"size on disk: {size / 2**20:.2f} MiB in {sum(1 for _ in directory.iterdir())} files")
+    try:
+        from fetchbench_ms.grasps.store import catalog_grasp_stats
+        from fetchbench_ms.objects import catalog
+
+        coverage = catalog_grasp_stats(catalog.list_objects(), directory)
+        print(f"catalog objects: {coverage['objects']}, labelled: {coverage['labelled']}, kept: {coverage['kept']}, "
+              f"dropped: {coverage['dropped']}, unlabelled: {len(coverage['unlabelled'])}")
+        for source, s in coverage["by_source"].items():
+            print(f"  {source:10s} kept {s['kept']}/{s['objects']}, dropped {s['dropped']}, success rate {s['success_rate']:.1%}")
+    except FileNotFoundError as error:  # no catalog index: library figures only
+        print(f"(no catalog coverage: {error})")
     problems = store.verify()
     print(f"hash check: {'ok' if not problems else problems}")
     if args.reverify:
@@ -82,7 +92,7 @@ def library(args) -> None:
 
 def agreement(store: GraspStore, n: int, seed: int) -> None:
     """Re-run a seeded sample of stored trials (half successes, half failures) in physics."""
-    from fetchbench_ms.objects import catalog
+    from fetchbench_ms.grasps.build import object_from_source
 
     rng = np.random.default_rng(seed)
     ids = rng.choice(store.object_ids(), size=min(n // 4, len(store.object_ids())), replace=False)
@@ -91,7 +101,7 @@ def agreement(store: GraspStore, n: int, seed: int) -> None:
     started = time.perf_counter()
     for object_id in sorted(ids):
         grasps = store.load(str(object_id))
-        asset = catalog.get_object(str(object_id))
+        asset = object_from_source(str(object_id))
         ok, bad = np.flatnonzero(grasps.success), np.flatnonzero(~grasps.success)
         pick = np.concatenate([rng.choice(ok, size=min(2, len(ok)), replace=False), rng.choice(bad, size=min(2, len(bad)), replace=False)])
         result = labeller.label(asset, grasps.T_object_hand[pick])

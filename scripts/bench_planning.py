@@ -66,11 +66,18 @@ def bench_core(trials: int) -> None:
 def bench_pipeline(n_tasks: int, method: str, seed: int) -> None:
     from fetchbench_ms.solutions import run_episodes
 
-    records = run_episodes(method=method, env_id="FetchBench-v0", episodes=n_tasks, seed=seed, out_dir=None)
-    times = [r["computation_time"] for r in records]
-    ok = sum(r["success"] for r in records)
-    print(f"{method}: success {ok}/{len(records)}, computation time median {statistics.median(times):.2f} s "
-          f"(max {max(times):.2f} s)")
+    from fetchbench_ms.solutions.runner import format_summary, summarize
+
+    for reachable_only in (False, True):
+        records = run_episodes(method=method, env_id="FetchBench-v0", episodes=n_tasks, seed=seed, out_dir=None,
+                               reachable_only=reachable_only, progress=False)
+        ran = [r for r in records if "skipped" not in r]
+        times = [r["computation_time"] for r in ran]
+        ok = sum(r["success"] for r in ran)
+        which = "tasks passing the reachability filter" if reachable_only else "sampled tasks (unfiltered)"
+        print(f"{method} on {which}: success {ok}/{len(ran)} ({len(records) - len(ran)} seeds skipped), "
+              f"computation time median {statistics.median(times):.2f} s, max {max(times):.2f} s")
+        print(format_summary(summarize(records)))
 
 
 def main() -> None:

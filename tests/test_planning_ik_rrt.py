@@ -120,3 +120,15 @@ def test_time_parametrisation_respects_limits_and_path(robot):
     assert all(on_path(q) for q in traj)
     with pytest.raises(ValueError, match="speed_scale"):
         time_parametrize(path, dt, robot.velocity_limits, robot.acceleration_limits, speed_scale=2.0)
+
+
+def test_attachment_spheres_cover_the_object():
+    import trimesh
+
+    mesh = trimesh.creation.box((0.06, 0.04, 0.1))
+    attachment = Attachment.from_mesh(mesh, n_spheres=64, seed=0)
+    probe, _ = trimesh.sample.sample_surface(mesh, 3000, seed=np.random.default_rng(9))
+    d = np.linalg.norm(probe[:, None] - attachment.centers_hand[None], axis=2) - attachment.radii[None]
+    # Every surface point (not only the fitted samples) is inside a sphere.
+    assert d.min(axis=1).max() <= 0.0
+    assert attachment.radii.max() < 0.03  # and the spheres stay tight enough to carry it through a shelf

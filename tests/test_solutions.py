@@ -31,24 +31,34 @@ def test_summary_by_category():
 def test_runner_appends_and_resumes(tmp_path, monkeypatch):
     solved = []
 
-    def fake_solve(env, seed, method, retries):
+    def fake_solve(env, seed, method, retries, reset):
+        assert not reset  # the runner resets (and may filter) first
         solved.append(seed)
         return _record(seed, "on_table", seed % 2 == 0)
 
+    class FakeEnv:
+        def reset(self, seed):
+            if seed == 15:
+                raise ValueError("robot_table_size must be positive")
+
+        def close(self):
+            pass
+
     monkeypatch.setattr(runner, "solve", fake_solve)
-    monkeypatch.setattr(runner, "make_env", lambda method, env_id: type("Env", (), {"close": lambda self: None})())
+    monkeypatch.setattr(runner, "make_env", lambda method, env_id: FakeEnv())
     runner.run_episodes("ga-mesh-rrt", "FetchBench-v0", 3, 10, str(tmp_path), progress=False)
-    records = runner.run_episodes("ga-mesh-rrt", "FetchBench-v0", 5, 10, str(tmp_path), progress=False)
+    records = runner.run_episodes("ga-mesh-rrt", "FetchBench-v0", 6, 10, str(tmp_path), progress=False)
     assert solved == [10, 11, 12, 13, 14]  # the second run only did the missing seeds
-    assert [r["seed"] for r in records] == [10, 11, 12, 13, 14]
+    assert [r["seed"] for r in records] == [10, 11, 12, 13, 14, 15]
+    assert "reset failed" in records[-1]["skipped"]  # a task that cannot be built is skipped, not fatal
     lines = (tmp_path / runner.RESULTS_FILE).read_text().splitlines()
-    assert len(lines) == 5 and all(json.loads(l)["env_id"] == "FetchBench-v0" for l in lines)
+    assert len(lines) == 6 and all(json.loads(l)["env_id"] == "FetchBench-v0" for l in lines)
     summary = json.loads((tmp_path / runner.SUMMARY_FILE).read_text())
-    assert summary["all"]["success_rate"] == 0.6
+    assert summary["all"]["episodes"] == 5 and summary["all"]["success_rate"] == 0.6
     with open(tmp_path / runner.RESULTS_FILE, "a") as f:
         f.write("{not json\n")
     with pytest.raises(ValueError, match="not a JSON line"):
-        runner.run_episodes("ga-mesh-rrt", "FetchBench-v0", 6, 10, str(tmp_path), progress=False)
+        runner.run_episodes("ga-mesh-rrt", "FetchBench-v0", 7, 10, str(tmp_path), progress=False)
 
 
 def test_bad_method_is_a_clear_error(capsys):

@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 from ..objects.asset import ObjectAsset
 from ..utils.mesh_cache import mesh_file
 from . import hand as franka
+from .sampler import canonical_part
 
 DENSITY = 250.0
 OBJECT_FRICTION = 0.6
@@ -128,7 +129,9 @@ class GraspLabeller:
         for entity in self.objects:
             self.scene.remove_entity(entity)
         self.objects = []
-        part_files = [mesh_file(part) for part in asset.convex_parts]
+        # Canonical parts: the same shapes, listed the same way however the catalog's hull
+        # routine ordered them, so PhysX cooks identical meshes and labels reproduce.
+        part_files = [mesh_file(canonical_part(part)) for part in asset.convex_parts]
         for i, origin in enumerate(self.slot_origins):
             builder = self.scene.create_actor_builder()
             for path in part_files:

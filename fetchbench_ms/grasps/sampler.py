@@ -172,6 +172,54 @@ def sample_union_surface(union: ConvexUnion, parts, count: int, rng: np.random.G
     return points[outer], normals[outer]
 
 
+def canonical_part(part: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The same convex part, triangulated and ordered canonically.
+
+    Surface sampling walks triangles in order and places points from their corners, so
+    the candidates would change whenever a hull routine lists or triangulates the same
+    polytope differently; labels must be a function of the shape and the seed alone.
+    Each planar facet is re-triangulated as a fan from its smallest corner, corners in
+    angular order; vertices and triangles are then sorted."""
+    vertices = np.round(np.asarray(part.vertices, dtype=np.float64), 9)
+    groups = [list(f) for f in part.facets]
+    in_facet = np.zeros(len(part.faces), dtype=bool)
+    for f in groups:
+        in_facet[f] = True
+    groups += [[i] for i in np.flatnonzero(~in_facet)]
+    triangles = []
+    for group in groups:
+        normal = part.face_normals[group[0]]
+        corners = vertices[np.unique(part.faces[group])]
+        corners = corners[np.lexsort(corners.T[::-1])]  # smallest corner first
+        u = corners[-1] - corners[0]
+        u = u - normal * (u @ normal)
+        u /= np.linalg.norm(u)
+        ring = corners[_convex_ring(np.c_[corners @ u, corners @ np.cross(normal, u)])]
+        triangles += [(ring[0], ring[i], ring[i + 1]) for i in range(1, len(ring) - 1)]
+    corners = np.array(triangles).reshape(-1, 3)
+    unique, inverse = np.unique(corners, axis=0, return_inverse=True)  # sorted vertices
+    faces = inverse.reshape(-1, 3)
+    return trimesh.Trimesh(unique, faces[np.lexsort(faces.T[::-1])], process=False)
+
+
+def _convex_ring(points_2d: np.ndarray) -> np.ndarray:
+    """Indices of the 2D convex hull, counter-clockwise from index 0 (which must be a hull
+    corner: the lexicographically smallest point is), without interior or collinear
+    points (a cap's centre vertex, mid-edge points). Andrew's monotone chain."""
+    order = np.lexsort(points_2d.T[::-1])
+    lower, upper = [], []
+    for chain, sequence in ((lower, order), (upper, order[::-1])):
+        for i in sequence:
+            while len(chain) >= 2:
+                a, b = points_2d[chain[-2]], points_2d[chain[-1]]
+                if (b[0] - a[0]) * (points_2d[i][1] - a[1]) - (b[1] - a[1]) * (points_2d[i][0] - a[0]) > 1e-15:
+                    break
+                chain.pop()
+            chain.append(int(i))
+    ring = np.array(lower[:-1] + upper[:-1])
+    return np.roll(ring, -int(np.flatnonzero(ring == 0)[0]))
+
+
 def object_collision_manager(asset: ObjectAsset) -> trimesh.collision.CollisionManager:
     manager = trimesh.collision.CollisionManager()
     for i, part in enumerate(asset.convex_parts):
@@ -181,7 +229,8 @@ def object_collision_manager(asset: ObjectAsset) -> trimesh.collision.CollisionM
 
 def sample_candidates(asset: ObjectAsset, n: int, rng: np.random.Generator, config: SamplerConfig = SamplerConfig()) -> Candidates:
     """Up to ``n`` collision-free antipodal candidates on ``asset`` (fewer if the object has few)."""
-    union = ConvexUnion(asset.convex_parts)
+    parts = tuple(canonical_part(p) for p in asset.convex_parts)
+    union = ConvexUnion(parts)
     manager = object_collision_manager(asset)
     # The hand's BVH is built once and moved per pose (rebuilding it per query dominates otherwise).
     hand = trimesh.collision.CollisionManager()
@@ -189,7 +238,7 @@ def sample_candidates(asset: ObjectAsset, n: int, rng: np.random.Generator, conf
     cos_cone = np.cos(config.cone_half_angle)
     kept_T, kept_w, kept_c = [], [], []
     for _ in range(config.max_rounds):
-        points, normals = sample_union_surface(union, asset.convex_parts, n * config.oversample, rng)
+        points, normals = sample_union_surface(union, parts, n * config.oversample, rng)
         inward = -normals
         closing = _directions_in_cone(inward, config.cone_half_angle, rng)
         t, exit_normal, valid = union.ray_exit(points, closing)

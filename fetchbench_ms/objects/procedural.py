@@ -133,8 +133,7 @@ def _food_bag(p):
         pts.append(np.stack([xs.ravel() * w / 2, ys.ravel() * (h / 2 - seal), sign * np.maximum(bulge.ravel() * t / 2, 0.0015)], axis=1))
     body = g.hull(np.concatenate(pts))
     seals = [g.box((w, seal, 0.003), (0.0, s * (h / 2 - seal / 2), 0.0)) for s in (1.0, -1.0)]
-    # Lying on its wide face: thickness along z.
-    return [g.transformed(m, np.eye(4)) for m in [body, *seals]]
+    return [body, *seals]  # lying on its wide face: thickness along z
 
 
 def _handle(length, width, thickness, x0):
@@ -363,7 +362,7 @@ def _flashlight(p):
     return [g.transformed(m, turn) for m in parts]
 
 
-def _pan_lid_knob(p):  # pill bottle: small cylinder with a wider cap
+def _pill_bottle(p):  # small cylinder with a slightly wider cap
     r, h = p["radius"], p["height"]
     return [g.frustum(r, r, 0.0, h, n=20), g.frustum(r + 0.0015, r + 0.0015, h, h + p["cap_height"], n=20)]
 
@@ -509,7 +508,7 @@ _register("flashlight", [
 ], _flashlight, _PALETTE_DARK + _PALETTE_BRIGHT, "flashlight / torch")
 _register("pill_bottle", [
     P("radius", 0.014, 0.026, "radius"), P("height", 0.05, 0.1, "height"), P("cap_height", 0.01, 0.018, "cap height"),
-], _pan_lid_knob, ((0.9, 0.55, 0.15), (0.95, 0.95, 0.95), (0.3, 0.5, 0.8)), "pill / spice bottle")
+], _pill_bottle, ((0.9, 0.55, 0.15), (0.95, 0.95, 0.95), (0.3, 0.5, 0.8)), "pill / spice bottle")
 
 
 # ----------------------------------------------------------------------------- objects

@@ -1,2 +1,20 @@
-"""Planning stack: Panda sphere model + batched FK, collision worlds (primitives, point
-clouds), collision-aware IK, OMPL RRTConnect and time parametrisation."""
+"""Planning stack, all in the robot base frame:
+
+- ``robot``: the Panda from ManiSkill's URDF, batched FK, fitted collision spheres, self pairs;
+- ``world``: collision worlds answering batched signed distances (exact primitives, convex
+  parts as half-spaces, point clouds as a 5 mm distance field), in named groups;
+- ``checker``: configuration validity (limits, self, world, a carried object);
+- ``ik``: batched multi-seed collision-aware damped-least-squares IK;
+- ``rrt``: OMPL RRTConnect with batched edge checks, simplification, dense re-check;
+- ``timing``: trapezoidal time parametrisation to joint-position targets;
+- ``exact``: python-fcl checks on the real link meshes, to validate plans.
+"""
+from .checker import Attachment, CollisionChecker
+from .ik import IKResult, solve_ik
+from .robot import Q_DEFAULT, PandaModel, panda
+from .rrt import PlanResult, plan_rrtconnect
+from .timing import time_parametrize
+from .world import CollisionWorld, PointCloudField
+
+__all__ = ["Attachment", "CollisionChecker", "CollisionWorld", "IKResult", "PandaModel", "PlanResult",
+           "PointCloudField", "Q_DEFAULT", "panda", "plan_rrtconnect", "solve_ik", "time_parametrize"]

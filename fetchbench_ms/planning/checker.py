@@ -19,11 +19,13 @@ class Attachment:
     radii: np.ndarray  # (M,)
 
     @classmethod
-    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 96, seed: int = 0) -> "Attachment":
+    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 96, seed: int = 0,
+                    margin: float = 0.003) -> "Attachment":
         """Spheres on object points (surface samples or observed cloud), hand frame.
 
         Farthest-point picks ``n_spheres`` centres; each radius is the distance to the
-        farthest point it is the nearest centre of, so every point is covered.
+        farthest point it is the nearest centre of, plus ``margin`` for the surface between
+        samples, so every point is covered.
         """
         points = np.asarray(points_hand, dtype=float).reshape(-1, 3)
         if len(points) == 0:
@@ -38,7 +40,7 @@ class Attachment:
         owner = np.argmin(np.linalg.norm(points[:, None] - centers[None], axis=2), axis=1)
         radii = np.array([np.linalg.norm(points[owner == i] - centers[i], axis=1).max(initial=0.0)
                           for i in range(len(centers))])
-        return cls(centers, np.maximum(radii, 0.005))
+        return cls(centers, np.maximum(radii, 0.002) + margin)
 
     @classmethod
     def from_mesh(cls, mesh_hand: trimesh.Trimesh, n_samples: int = 2000, n_spheres: int = 96,
@@ -62,7 +64,7 @@ class CollisionChecker:
         world_links = tuple(l for l in WORLD_LINKS if l not in ignore_links)
         self.world_mask = torch.as_tensor(robot.sphere_mask(world_links))
         self.radii = torch.as_tensor(robot.spheres.radii)
-        self.pairs = torch.as_tensor(robot.self_collision_pairs)
+        self._init_self_pairs(robot)
         self.n_checked = 0
         # Sphere self-collision is a broad phase: the inflated spheres of the wrist and
         # fingers overlap the forearm's in many valid poses (about a third of IK
@@ -70,14 +72,54 @@ class CollisionChecker:
         # decided on the exact meshes (python-fcl).
         self.exact_self = exact_self_collision
         self._exact = None
-        self._pair_links = (torch.as_tensor(robot.spheres.link_index[robot.self_collision_pairs[:, 0]]),
-                            torch.as_tensor(robot.spheres.link_index[robot.self_collision_pairs[:, 1]]))
         if attachment is not None:
             self.att_c = torch.as_tensor(attachment.centers_hand, dtype=torch.float64)
             self.att_r = torch.as_tensor(attachment.radii, dtype=torch.float64)
             # The carried object may touch the hand and fingers, not the rest of the arm.
             self.att_arm_mask = torch.as_tensor(robot.sphere_mask(("panda_link0", "panda_link1", "panda_link2",
                                                                    "panda_link3", "panda_link4")))
+
+    def _init_self_pairs(self, robot: PandaModel) -> None:
+        """Self-collision pairs grouped by link pair, with a bounding sphere per link so
+        that far-apart link pairs (most of them, in most configurations) cost one distance."""
+        sp = robot.spheres
+        n_links = len(sp.links)
+        centers = torch.as_tensor(sp.centers_link)
+        self.link_bound_c = torch.zeros(n_links, 3, dtype=torch.float64)
+        self.link_bound_r = torch.zeros(n_links, dtype=torch.float64)
+        for l in range(n_links):
+            m = torch.as_tensor(sp.link_index == l)
+            c = centers[m].mean(dim=0)
+            self.link_bound_c[l] = c
+            self.link_bound_r[l] = ((centers[m] - c).norm(dim=1) + self.radii[m]).max()
+        la = sp.link_index[robot.self_collision_pairs[:, 0]]
+        lb = sp.link_index[robot.self_collision_pairs[:, 1]]
+        link_pairs = sorted(set(zip(la.tolist(), lb.tolist())))
+        self.link_pairs = torch.as_tensor(link_pairs, dtype=torch.long).reshape(-1, 2)
+        blocks = [robot.self_collision_pairs[(la == p) & (lb == q)] for p, q in link_pairs]
+        width = max((len(b) for b in blocks), default=1)
+        table = np.zeros((len(blocks), width, 2), dtype=np.int64)
+        valid = np.zeros((len(blocks), width), dtype=bool)
+        for i, b in enumerate(blocks):
+            table[i, : len(b)] = b
+            valid[i, : len(b)] = True
+        self.pair_table, self.pair_valid = torch.as_tensor(table), torch.as_tensor(valid)
+
+    def _self_clearance(self, poses, centers) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, P) clearance per link pair: the bounding-sphere distance where that is
+        positive, else the smallest sphere-pair distance of the pair."""
+        links = self.robot.spheres.links
+        T = torch.stack([poses[l] for l in links], dim=1)  # (B, L, 4, 4)
+        bound = torch.einsum("blij,lj->bli", T[..., :3, :3], self.link_bound_c) + T[..., :3, 3]
+        a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
+        pair_clear = (bound[:, a] - bound[:, b]).norm(dim=2) - self.link_bound_r[a] - self.link_bound_r[b]
+        ib, ip = torch.nonzero(pair_clear < self.margin, as_tuple=True)
+        if len(ib):
+            sa, sb = self.pair_table[ip, :, 0], self.pair_table[ip, :, 1]  # (N, W)
+            d = (centers[ib[:, None], sa] - centers[ib[:, None], sb]).norm(dim=2) - self.radii[sa] - self.radii[sb]
+            d = torch.where(self.pair_valid[ip], d, torch.full_like(d, float("inf")))
+            pair_clear[ib, ip] = d.amin(dim=1)
+        return pair_clear
 
     def clearance(self, q) -> torch.Tensor:
         """Smallest signed clearance per config (B,): < 0 means collision (ignoring limits)."""
@@ -91,11 +133,10 @@ class CollisionChecker:
         r_world = self.radii[self.world_mask].repeat(B)
         d = self.world.distance(c_world, horizon, self.exclude) - r_world
         clear = d.reshape(B, -1).amin(dim=1)
-        a, b = self.pairs[:, 0], self.pairs[:, 1]
-        d_self = (centers[:, a] - centers[:, b]).norm(dim=2) - self.radii[a] - self.radii[b]
-        self_clear = d_self.amin(dim=1)
+        pair_clear = self._self_clearance(poses, centers)
+        self_clear = pair_clear.amin(dim=1)
         if self.exact_self:
-            self_clear = self._exact_self_clearance(poses, d_self, self_clear)
+            self_clear = self._exact_self_clearance(poses, pair_clear, self_clear)
         clear = torch.minimum(clear, self_clear)
         if self.attachment is not None:
             T = poses["panda_hand"]
@@ -126,7 +167,7 @@ class CollisionChecker:
         d = self.world.distance(c_base.reshape(-1, 3), horizon, self.exclude).reshape(len(T_base_hand), -1)
         return (d - self.radii[idx][None]).amin(dim=1).numpy()
 
-    def _exact_self_clearance(self, poses, d_self, self_clear) -> torch.Tensor:
+    def _exact_self_clearance(self, poses, pair_clear, self_clear) -> torch.Tensor:
         """For configs whose spheres touch: -1 if a flagged link pair's meshes collide, else +inf."""
         flagged = torch.nonzero(self_clear < self.margin, as_tuple=True)[0]
         if len(flagged) == 0:
@@ -136,12 +177,14 @@ class CollisionChecker:
 
             self._exact = ExactRobot(self.robot, links=self.robot.spheres.links)
         links = self.robot.spheres.links
+        T_np = torch.stack([poses[l][flagged] for l in links], dim=1).numpy()  # (F, L, 4, 4)
+        close = (pair_clear[flagged] < self.margin).numpy()
+        link_pairs = self.link_pairs.numpy()
         out = self_clear.clone()
-        for i in flagged.tolist():
-            hit = d_self[i] < self.margin
-            pairs = set(zip(self._pair_links[0][hit].tolist(), self._pair_links[1][hit].tolist()))
-            for l in {links[k] for pair in pairs for k in pair}:
-                self._exact.set_link_pose(l, poses[l][i].numpy())
+        for k, i in enumerate(flagged.tolist()):
+            pairs = link_pairs[close[k]]
+            for l in np.unique(pairs):
+                self._exact.set_link_pose(links[l], T_np[k, l])
             collides = any(self._exact.link_pair_collides(links[p], links[q]) for p, q in pairs)
             out[i] = -1.0 if collides else float("inf")
         return out

@@ -16,6 +16,8 @@ from .robot import PandaModel
 
 POS_TOL = 0.002  # m
 ROT_TOL = 0.02  # rad
+STALL_WINDOW = 15  # iterations
+STALL_RATIO = 0.7
 
 
 @dataclass(frozen=True)
@@ -76,7 +78,10 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
     lo, hi = torch.as_tensor(q_min), torch.as_tensor(q_max)
     eye = torch.eye(6, dtype=torch.float64)
     active = torch.ones(len(q), dtype=torch.bool)
-    for _ in range(max_iters):
+    # Seeds stuck at a joint limit or in a local minimum stop early: every STALL_WINDOW
+    # iterations a seed must have cut its error by STALL_RATIO or it is dropped.
+    err_then = torch.full((len(q),), float("inf"), dtype=torch.float64)
+    for iteration in range(max_iters):
         idx = torch.nonzero(active, as_tuple=True)[0]
         if len(idx) == 0:
             break
@@ -87,6 +92,11 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
         e_rot = rotation_error(T_t[idx, :3, :3], T[:, :3, :3])
         done = (e_pos.norm(dim=1) < pos_tol * 0.5) & (e_rot.norm(dim=1) < rot_tol * 0.5)
         err = torch.cat([e_pos, e_rot], 1)
+        if iteration % STALL_WINDOW == 0:
+            err_now = e_pos.norm(dim=1) + 0.1 * e_rot.norm(dim=1)
+            stalled = (err_now > STALL_RATIO * err_then[idx]) & ~done
+            err_then[idx] = err_now
+            active[idx[stalled]] = False
         J = robot.tcp_jacobian(qa, poses)
         JJt = J @ J.transpose(1, 2) + (damping ** 2) * eye
         dq = (J.transpose(1, 2) @ torch.linalg.solve(JJt, err[..., None]))[..., 0]

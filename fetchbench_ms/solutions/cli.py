@@ -13,8 +13,13 @@ def cmd_eval(args) -> int:
 
     if args.env not in ENV_IDS:
         raise ValueError(f"unknown env id {args.env!r}; valid: {', '.join(ENV_IDS)}")
-    records = run_episodes(args.method, args.env, args.episodes, args.seed, args.out, retries=args.retries)
-    print(format_summary(summarize(records)))
+    records = run_episodes(args.method, args.env, args.episodes, args.seed, args.out, retries=args.retries,
+                           reachable_only=args.reachable_only)
+    skipped = [r for r in records if "skipped" in r]
+    for r in skipped:
+        print(f"seed {r['seed']} skipped: {r['skipped']}")
+    summary = summarize(records)
+    print(format_summary(summary) if summary else "no episode ran")
     return 0
 
 
@@ -25,5 +30,7 @@ def add_commands(subparsers) -> None:
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=0, help="episodes use seeds seed .. seed+episodes-1")
     p.add_argument("--retries", type=int, default=1, help="tries per episode (FetchBench's --retries 5)")
+    p.add_argument("--reachable-only", action="store_true",
+                   help="skip tasks failing FetchBench's reachability filter (no collision-free grasp IK)")
     p.add_argument("--out", default=None, help="directory for episodes.jsonl and summary.json (resumable)")
     p.set_defaults(func=cmd_eval)

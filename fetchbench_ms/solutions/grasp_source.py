@@ -24,6 +24,7 @@ STANDIN_CANDIDATES = 128
 class GraspCandidates:
     T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame
     source: str  # "annotated" or "antipodal-standin"
+    index: np.ndarray | None = None  # (N,) positions in the object's full grasp list
 
 
 @functools.lru_cache(maxsize=256)
@@ -45,17 +46,18 @@ def object_grasps(object_id: str) -> GraspCandidates:
 def choose_grasps(grasps: GraspCandidates, rng: np.random.Generator, max_grasps: int) -> GraspCandidates:
     """A seeded random order (no grasp is better than another among verified ones), at most ``max_grasps``."""
     order = rng.permutation(len(grasps.T_object_hand))[:max_grasps]
-    return GraspCandidates(grasps.T_object_hand[order], grasps.source)
+    return GraspCandidates(grasps.T_object_hand[order], grasps.source, order)
 
 
 def tcp_from_hand(T_hand: np.ndarray) -> np.ndarray:
+    """TCP pose(s) of hand pose(s) ((4, 4) or (N, 4, 4))."""
     offset = np.eye(4)
     offset[2, 3] = TCP_OFFSET
     return T_hand @ offset
 
 
 def retreat(T_tcp: np.ndarray, distance: float) -> np.ndarray:
-    """The pose ``distance`` back along the hand's approach axis (its z)."""
+    """The pose(s) ``distance`` back along the hand's approach axis (its z); (4, 4) or (N, 4, 4)."""
     back = np.eye(4)
     back[2, 3] = -distance
     return T_tcp @ back

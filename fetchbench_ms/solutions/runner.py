@@ -37,15 +37,21 @@ def read_results(path: Path) -> list[dict]:
 
 
 def run_episodes(method: str, env_id: str, episodes: int, seed: int, out_dir: str | None, retries: int = 1,
-                 progress: bool = True) -> list[dict]:
-    """Episodes with seeds ``seed .. seed + episodes - 1``; returns every record (old and new)."""
+                 progress: bool = True, reachable_only: bool = False) -> list[dict]:
+    """Episodes with seeds ``seed .. seed + episodes - 1``; returns every record (old and new).
+
+    A seed whose task cannot be built (the env's reset raises) or, with
+    ``reachable_only``, fails FetchBench's reachability filter is recorded with a
+    ``skipped`` reason and left out of the summary.
+    """
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     path = Path(out_dir) / RESULTS_FILE if out_dir else None
     done = {}
     if path is not None:
         for r in read_results(path):
-            if (r.get("method"), r.get("env_id"), r.get("retries")) == (method, env_id, retries):
+            if (r.get("method"), r.get("env_id"), r.get("retries"), r.get("reachable_only", False)) == \
+                    (method, env_id, retries, reachable_only):
                 done[r["seed"]] = r
     seeds = [s for s in range(seed, seed + episodes) if s not in done]
     env = make_env(method, env_id) if seeds else None
@@ -54,13 +60,14 @@ def run_episodes(method: str, env_id: str, episodes: int, seed: int, out_dir: st
     records = [done[s] for s in range(seed, seed + episodes) if s in done]
     bar = tqdm(total=episodes, initial=len(records), disable=not progress, desc=method, unit="ep")
     for s in seeds:
-        record = solve(env, seed=s, method=method, retries=retries)
-        record.update(env_id=env_id, retries=retries)
+        record = _episode(env, s, method, retries, reachable_only)
+        record.update(env_id=env_id, retries=retries, reachable_only=reachable_only)
         if path is not None:
             append_jsonl_atomic(path, record)
         records.append(record)
         bar.update(1)
-        bar.set_postfix(success=f"{sum(r['success'] for r in records)}/{len(records)}")
+        run = [r for r in records if "skipped" not in r]
+        bar.set_postfix(success=f"{sum(r['success'] for r in run)}/{len(run)}")
     bar.close()
     if env is not None:
         env.close()
@@ -70,9 +77,25 @@ def run_episodes(method: str, env_id: str, episodes: int, seed: int, out_dir: st
     return records
 
 
+def _episode(env, seed: int, method: str, retries: int, reachable_only: bool) -> dict:
+    try:
+        env.reset(seed=seed)
+    except (ValueError, KeyError, RuntimeError) as error:  # a task the sampler cannot build
+        return {"seed": seed, "method": method, "skipped": f"reset failed: {error}"}
+    if reachable_only:
+        from .task_filters import is_reachable
+
+        if not is_reachable(env):
+            return {"seed": seed, "method": method, "skipped": "no collision-free IK for any grasp"}
+    return solve(env, seed=seed, method=method, retries=retries, reset=False)
+
+
 def summarize(records: list[dict]) -> dict:
     """Per category and overall: episodes, success rate, median computation time, C-space
-    length, phase rates and failure counts."""
+    length, phase rates and failure counts (skipped seeds left out)."""
+    records = [r for r in records if "skipped" not in r]
+    if not records:
+        return {}
     groups: dict[str, list[dict]] = {}
     for r in records:
         groups.setdefault(r["category"], []).append(r)

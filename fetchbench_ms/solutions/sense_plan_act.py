@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+import trimesh
 
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
@@ -210,12 +211,15 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     asset = load_object(task.target.object_id)
     grasps = state.timed(choose_grasps, object_grasps(task.target.object_id), rng, cfg.max_grasps)
     state.grasp_source = grasps.source
-    T_grasp_tcp = np.stack([tcp_from_hand(T) for T in _hand_poses_base(T_base_object, grasps.T_object_hand)])
-    keep = [i for i in range(len(T_grasp_tcp)) if i not in tried]
+    T_grasp_tcp = tcp_from_hand(_hand_poses_base(T_base_object, grasps.T_object_hand))  # (N, 4, 4)
+    # ``keep``: ids (in the object's grasp list) of the candidates still in play; a grasp
+    # tried in an earlier try is not tried again.
+    untried = np.array([int(i) not in tried for i in grasps.index], dtype=bool)
+    keep = [int(i) for i in grasps.index[untried]]
     if not keep:
         return "no_grasp_candidate"
-    T_grasp_tcp = T_grasp_tcp[keep]
-    T_pre_tcp = np.stack([retreat(T, cfg.pregrasp_distance) for T in T_grasp_tcp])
+    T_grasp_tcp = T_grasp_tcp[untried]
+    T_pre_tcp = retreat(T_grasp_tcp, cfg.pregrasp_distance)
 
     open_checker = CollisionChecker(robot, world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, world, exclude=("target",), margin=cfg.margin)
@@ -278,8 +282,6 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_hand = robot.link_poses(ex.q[None])["panda_hand"][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
-        import trimesh
-
         mesh = trimesh.util.concatenate([p.copy().apply_transform(T_hand_object) for p in asset.convex_parts])
         attachment = Attachment.from_mesh(mesh, seed=int(rng.integers(2**31)))
         world = state.timed(mesh_world, env)  # objects may have shifted while grasping
@@ -348,6 +350,9 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     if retries < 1:
         raise ValueError(f"retries must be >= 1, got {retries}")
+    if METHODS[method]["world"] == "pointcloud" and env.unwrapped.obs_mode != "pointcloud":
+        raise ValueError(f"{method} plans in the observed point clouds: make the env with obs_mode='pointcloud' "
+                         f"(it has {env.unwrapped.obs_mode!r})")
     config = config or SolveConfig()
     config.retries = retries
     torch.set_num_threads(1)  # small batches: threads only add overhead here

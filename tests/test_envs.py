@@ -197,10 +197,25 @@ def test_pointcloud_obs_segmented_in_base_frame():
         q, p = base.agent.robot.pose.raw_pose[0, 3:], base.agent.robot.pose.raw_pose[0, :3]
         back = quaternion_apply(q.expand(int(kept.sum()), 4), pcd["xyz_base"][0, kept]) + p
         assert torch.allclose(back, world, atol=1e-4)
-        # Every kept point is 0.15-2.5 m in front of its camera.
-        for side in ("left", "right"):
-            assert obs["extra"][f"cam_pose_base_{side}"].shape == (1, 16)
+        # Every kept point is 0.15-2.5 m in front of its camera (left camera's pixels first).
+        n = 320 * 240
+        for k, side in enumerate(("left", "right")):
+            T_base_cam = obs["extra"][f"cam_pose_base_{side}"][0].reshape(4, 4).numpy()
+            points = pcd["xyz_base"][0, k * n:(k + 1) * n].numpy()[labels[k * n:(k + 1) * n] > 0]
+            depth = (points - T_base_cam[:3, 3]) @ T_base_cam[:3, 2]  # OpenCV: z is the view axis
+            assert len(depth) > 0 and depth.min() >= 0.15 - 1e-3 and depth.max() <= 2.5 + 1e-3
+        assert ((pcd["segmentation"][0, :, 0].numpy() > 0) & (labels == 0)).any()  # far floor was cropped
         assert int(obs["extra"]["target_segmentation_id"][0]) == clouds.target_segmentation_id
+        # Fixed sizes within 1.2 m, as the imitation baselines take them; same rng, same points.
+        sized = fetch_clouds(obs, max_distance=1.2, num_points={"scene": 4096, "target": 512},
+                             rng=np.random.default_rng(0))
+        assert sized.scene.shape == (4096, 3) and sized.target.shape == (512, 3)
+        assert np.linalg.norm(sized.scene, axis=1).max() <= 1.2
+        again = fetch_clouds(obs, max_distance=1.2, num_points={"scene": 4096, "target": 512},
+                             rng=np.random.default_rng(0))
+        assert np.array_equal(sized.scene, again.scene)
+        with pytest.raises(ValueError, match="valid: scene, target, robot"):
+            fetch_clouds(obs, num_points={"table": 10}, rng=np.random.default_rng(0))
         assert set(np.unique(labels)) <= {0, LABEL_ROBOT, LABEL_TARGET, LABEL_OBJECT, LABEL_FURNITURE}
     finally:
         env.close()
@@ -350,5 +365,47 @@ def test_state_obs_size_is_fixed_across_tasks_with_padded_slots():
             # Placeholders are parked and ignored by the evaluation.
             env.step(torch.zeros(env.action_space.shape))
         assert sizes == {env.observation_space.shape} and padded > 0
+    finally:
+        env.close()
+
+
+def test_runs_under_maniskills_vector_wrapper_as_ppo_uses_it():
+    """ManiSkill's PPO baseline wraps envs in ManiSkillVectorEnv (auto-reset, metrics)."""
+    from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
+
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", reward_mode="normalized_dense",
+                   num_objects=6, max_episode_steps=3)
+    envs = ManiSkillVectorEnv(env, ignore_terminations=False, record_metrics=True)
+    try:
+        obs, _ = envs.reset(seed=1)
+        first_task = envs.base_env.tasks[0]
+        assert obs.shape == (1,) + envs.single_observation_space.shape
+        for _ in range(3):
+            obs, reward, terminated, truncated, info = envs.step(torch.zeros(envs.action_space.shape))
+            assert torch.isfinite(reward).all() and obs.shape[1] == envs.single_observation_space.shape[0]
+        assert bool(truncated[0]) and "final_info" in info  # time limit: auto-reset into a new task
+        assert envs.base_env.tasks[0] != first_task
+    finally:
+        envs.close()
+
+
+OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
+             "rgb+depth+segmentation", "pointcloud")
+
+
+@pytest.mark.parametrize(
+    "obs_mode", [m if m in ("none", "rgbd") else pytest.param(m, marks=pytest.mark.slow) for m in OBS_MODES]
+)
+def test_every_obs_mode_resets_and_steps(obs_mode):
+    env = gym.make("FetchBench-v0", obs_mode=obs_mode, num_objects=4)
+    try:
+        obs, _ = env.reset(seed=2)
+        obs, reward, _, _, info = env.step(torch.zeros(env.action_space.shape))
+        assert torch.isfinite(reward).all()
+        if obs_mode not in ("state", "none"):
+            assert "extra" in obs and obs["extra"]["tcp_pose"].shape == (1, 7)
+        if obs_mode not in ("state", "state_dict", "none"):
+            cameras = obs["pointcloud"] if obs_mode == "pointcloud" else obs["sensor_data"]
+            assert ("xyzw" in cameras) if obs_mode == "pointcloud" else set(cameras) == {"left_camera", "right_camera"}
     finally:
         env.close()

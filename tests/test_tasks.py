@@ -45,6 +45,10 @@ def test_sampled_task_follows_the_rules(task):
     yaw = 2 * np.arctan2(task.robot_base_quat_wxyz[3], task.robot_base_quat_wxyz[0])
     along, across = x * np.cos(yaw) + y * np.sin(yaw), -x * np.sin(yaw) + y * np.cos(yaw)
     assert abs(along) <= task.robot_table_size[0] / 2 and abs(across) <= task.robot_table_size[1] / 2
+    assert task.extra["cameras_cover_supports"]
+    # Cameras mirror each other about the camera target's centre line and look towards it.
+    cy = scene.camera_target.center[1]
+    assert task.camera_left.position[1] - cy == pytest.approx(cy - task.camera_right.position[1])
     region = scene.robot_region
     assert region.x_range[0] <= task.robot_base_position[0] <= region.x_range[1]
     for placement in task.objects:
@@ -91,6 +95,13 @@ def test_fixed_scene_type_is_respected():
 def test_bad_sampler_input_names_valid_choices(kwargs, message):
     with pytest.raises(ValueError, match=message):
         sample_task(0, **kwargs)
+
+
+def test_bad_sampler_config_is_refused():
+    with pytest.raises(ValueError, match="num_objects must be 1..64"):
+        SamplerConfig(num_objects=0)
+    with pytest.raises(ValueError, match="valid: train, test"):
+        SamplerConfig(object_split="val")
 
 
 def test_malformed_task_dicts_are_rejected_with_the_valid_keys(task):

@@ -99,17 +99,49 @@ def _np(x):
     return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
 
 
-def fetch_clouds(obs: dict, env_index: int = 0) -> FetchClouds:
-    """The fused scene / target / robot clouds of sub-scene ``env_index`` of a point-cloud obs."""
+def fetch_clouds(
+    obs: dict,
+    env_index: int = 0,
+    max_distance: float | None = None,
+    num_points: dict[str, int] | None = None,
+    rng: np.random.Generator | None = None,
+) -> FetchClouds:
+    """The fused scene / target / robot clouds of sub-scene ``env_index`` of a point-cloud obs.
+
+    ``max_distance``: keep only points within this distance of the base origin (the
+    imitation baselines use 1.2 m). ``num_points``: fixed cloud sizes, e.g.
+    ``{"scene": 16384, "target": 2048, "robot": 4096}``, drawn uniformly with ``rng``
+    (without replacement; with replacement when a cloud has fewer points; an empty cloud
+    stays empty).
+    """
     if not isinstance(obs, dict) or "pointcloud" not in obs or "fetch_label" not in obs["pointcloud"]:
         raise ValueError("fetch_clouds needs an observation of a FetchBench env made with obs_mode='pointcloud'")
     points = _np(obs["pointcloud"]["xyz_base"][env_index]).astype(np.float32)
     labels = _np(obs["pointcloud"]["fetch_label"][env_index])
-    scene_mask = (labels == LABEL_FURNITURE) | (labels == LABEL_OBJECT)
+    if max_distance is not None:
+        labels = np.where(np.linalg.norm(points, axis=1) <= max_distance, labels, LABEL_NONE)
+    masks = {
+        "scene": (labels == LABEL_FURNITURE) | (labels == LABEL_OBJECT),
+        "target": labels == LABEL_TARGET,
+        "robot": labels == LABEL_ROBOT,
+    }
+    if num_points:
+        unknown = sorted(set(num_points) - set(masks))
+        if unknown:
+            raise ValueError(f"unknown clouds {unknown} in num_points; valid: {', '.join(masks)}")
+        if rng is None:
+            raise ValueError("fetch_clouds with num_points needs an explicit rng (numpy Generator)")
+    picks = {}
+    for name, mask in masks.items():
+        index = np.flatnonzero(mask)
+        n = (num_points or {}).get(name)
+        if n is not None and len(index) > 0:
+            index = np.sort(rng.choice(index, size=n, replace=len(index) < n))
+        picks[name] = index
     return FetchClouds(
-        scene=points[scene_mask],
-        target=points[labels == LABEL_TARGET],
-        robot=points[labels == LABEL_ROBOT],
-        scene_labels=labels[scene_mask].astype(np.uint8),
+        scene=points[picks["scene"]],
+        target=points[picks["target"]],
+        robot=points[picks["robot"]],
+        scene_labels=labels[picks["scene"]].astype(np.uint8),
         target_segmentation_id=int(_np(obs["extra"]["target_segmentation_id"][env_index])),
     )

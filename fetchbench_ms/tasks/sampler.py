@@ -71,6 +71,12 @@ class SamplerConfig:
     settle: bool = True
     scene_attempts: int = 20  # scenes tried before giving up (a category that no scene offers)
 
+    def __post_init__(self):
+        if not 1 <= self.num_objects <= 64:
+            raise ValueError(f"num_objects must be 1..64, got {self.num_objects}")
+        if self.object_split not in ("train", "test"):
+            raise ValueError(f"unknown object split {self.object_split!r}; valid: train, test")
+
 
 def categories() -> tuple[str, ...]:
     return tuple(CATEGORY_LABELS)
@@ -136,8 +142,8 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
     if robot is None:
         return None
     base_position, base_quat, table_center, table_size = robot
-    cameras = _sample_cameras(rng, scene, base_position, config)
-    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements)}
+    cameras, covered = _sample_cameras(rng, scene, base_position, config)
+    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements), "cameras_cover_supports": covered}
     if config.settle:
         from ..envs.settle import settle_placements  # the one simulator step of sampling
 
@@ -357,13 +363,14 @@ def _covers_heights(eye, target, z_lo, z_hi, fov_y) -> bool:
     return True
 
 
-def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, CameraPose]:
+def _sample_cameras(rng, scene, base_position, config) -> tuple[tuple[CameraPose, CameraPose], bool]:
+    """The camera pair, and whether it covers the supports' heights (else the last try)."""
     region = scene.camera_target
     center, half = np.asarray(region.center), np.asarray(region.half_size)
     heights = [s.height for s in scene.support_surfaces]
     z_lo, z_hi = min(heights), max(heights) + 0.1
     fov_y = 2 * math.atan(math.tan(config.camera_fov_x / 2) / config.camera_aspect)
-    best = None
+    best, covered = None, False
     for _ in range(config.camera_tries):
         target = center + rng.uniform(-0.3, 0.3, size=3) * half
         eye = np.array([
@@ -371,14 +378,15 @@ def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, Came
             center[1] + rng.uniform(0.9, 1.3),
             target[2] + rng.uniform(0.3, 0.7),
         ])
-        eye_right = eye * [1, 1, 1]
+        eye_right = eye.copy()
         eye_right[1] = 2 * center[1] - eye[1]
         target_right = target.copy()
         target_right[1] = 2 * center[1] - target[1]
         best = (eye, target, eye_right, target_right)
-        if _covers_heights(eye, target, z_lo, z_hi, fov_y) and _covers_heights(eye_right, target_right, z_lo, z_hi, fov_y):
+        covered = _covers_heights(eye, target, z_lo, z_hi, fov_y) and _covers_heights(eye_right, target_right, z_lo, z_hi, fov_y)
+        if covered:
             break
     eye, target, eye_right, target_right = best
     left = CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
     right = CameraPose(tuple(float(v) for v in eye_right), look_at_quat(eye_right, target_right), config.camera_fov_x)
-    return left, right
+    return (left, right), covered

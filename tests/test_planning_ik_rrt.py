@@ -132,3 +132,13 @@ def test_attachment_spheres_cover_the_object():
     # Every surface point (not only the fitted samples) is inside a sphere.
     assert d.min(axis=1).max() <= 0.0
     assert attachment.radii.max() < 0.03  # and the spheres stay tight enough to carry it through a shelf
+
+
+def test_hand_clearance_without_ik(robot, shelf):
+    world, exact, checker = shelf
+    inside_board = hand_pose([0.62, 0.0, 0.3], approach=(0, 0, -1))
+    above_shelf = hand_pose([0.62, 0.0, 0.75], approach=(0, 0, -1))
+    to_hand = np.linalg.inv(hand_pose([0, 0, 0.1034], approach=(0, 0, 1)))  # TCP -> hand
+    clear = checker.hand_clearance(np.stack([inside_board, above_shelf]) @ to_hand)
+    assert clear[0] < 0 < clear[1]
+    assert checker.hand_clearance(np.zeros((0, 4, 4))).shape == (0,)

@@ -153,6 +153,8 @@ class CollisionChecker:
         link7) placed at each ``T_base_hand`` (N, 4, 4), without IK: a cheap filter for grasp
         candidates before the arm is solved for."""
         T_base_hand = torch.as_tensor(np.asarray(T_base_hand, float)).reshape(-1, 4, 4)
+        if len(T_base_hand) == 0:
+            return np.zeros(0)
         links = ("panda_link7",) + HAND_LINKS
         poses = self.robot.link_poses(torch.zeros(1, 7, dtype=torch.float64), self.finger)
         T_hand_base = torch.linalg.inv(poses["panda_hand"][0])

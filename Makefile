@@ -1,16 +1,28 @@
-# The two commands of the README. Both set up what they need first (idempotent).
-.PHONY: setup demo test test-slow bench
+# The README's two commands are `make demo` and `make test`; both set up what they need
+# first (scripts/setup.sh: venv, editable install, software Vulkan if needed; idempotent).
+# FETCHBENCH_VENV picks another virtual environment (default .venv).
+.PHONY: setup demo test test-slow bench gallery
 
-PY := .venv/bin/python
+VENV ?= $(or $(FETCHBENCH_VENV),.venv)
+PY := $(VENV)/bin/python
+# Parallel test workers (pytest-xdist); `loadfile` keeps a file's tests on one worker so
+# expensive one-off set-ups (the renderer's shader compilation) happen once per file.
+TEST_WORKERS ?= 2
 
 setup:
-	@bash scripts/setup.sh
+	@FETCHBENCH_VENV=$(VENV) bash scripts/setup.sh
 
 demo: setup
 	@$(PY) -m fetchbench_ms demo
 
 test: setup
-	@$(PY) -m pytest -q -n 2 --dist loadfile
+	@$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-slow: setup
-	@$(PY) -m pytest -q -m slow
+	@$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m slow
+
+bench: setup
+	@$(PY) scripts/bench_scenes.py
+
+gallery: setup
+	@$(PY) scripts/make_gallery.py

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from .scenes.cli import seed_arg
 from .utils.io import atomic_write_text, canonical_json
 
 
@@ -48,7 +49,7 @@ def _size(text: str) -> tuple[int, int]:
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("demo", help="the main job: scene gallery and statistics (make demo)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the pictured instances")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the pictured instances")
     p.add_argument("--stat-seeds", type=int, default=8, help="seeds the statistics average over")
     p.add_argument("--size", default="320x240", help="picture size WIDTHxHEIGHT")
     p.set_defaults(func=lambda a: run_demo(a.out, a.seed, a.stat_seeds, *_size(a.size)))

@@ -8,6 +8,7 @@ tests grow with the library.
 from __future__ import annotations
 
 import os
+import tempfile
 
 import pytest
 
@@ -22,8 +23,8 @@ from fetchbench_ms.scenes import (
     scene_types,
 )
 
-# Keep SAPIEN's mesh cache out of the user's home during tests.
-os.environ.setdefault("FETCHBENCH_CACHE", os.path.join(os.path.dirname(__file__), "..", ".cache", "test"))
+# Keep the mesh cache (content-addressed, so safe to share between runs) out of the home folder.
+os.environ.setdefault("FETCHBENCH_CACHE", os.path.join(tempfile.gettempdir(), "fetchbench_ms_test_cache"))
 
 #: Seeds every registered type is tested at (the default run; slow tests use more).
 SEEDS = (0, 1, 2)

@@ -6,17 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from _dev_scenes import ensure_registered
-
-ensure_registered()
-
-import fetchbench_ms  # noqa: E402,F401
-from fetchbench_ms.envs import ENV_IDS, control_modes, fetch_clouds, make, settle_and_hold  # noqa: E402
-from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET  # noqa: E402
-from fetchbench_ms.tasks import CATEGORY_LABELS, TaskSpec  # noqa: E402
-from fetchbench_ms.tasks.suite import TaskSuite  # noqa: E402
-from mani_skill.utils.geometry.rotation_conversions import quaternion_apply  # noqa: E402
-from mani_skill.utils.structs.pose import Pose  # noqa: E402
+import fetchbench_ms  # noqa: F401
+from fetchbench_ms.envs import ENV_IDS, control_modes, fetch_clouds, make, settle_and_hold
+from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET
+from fetchbench_ms.tasks import CATEGORY_LABELS, TaskSpec
+from fetchbench_ms.tasks.suite import TaskSuite
+from mani_skill.utils.geometry.rotation_conversions import quaternion_apply
+from mani_skill.utils.structs.pose import Pose
 
 FAST_IDS = ("FetchBench-v0", "FetchBench-Basket-v0", "FetchBench-LargeShelf-v0")
 
@@ -250,6 +246,8 @@ def test_bad_reset_options_name_valid_values(env, tmp_path):
     good = env.unwrapped.tasks[0].to_dict()
     with pytest.raises(ValueError, match="unknown scene type 'Sofa'; valid: CellShelfDesk"):
         env.reset(options={"task": {**good, "scene_type": "Sofa"}})
+    with pytest.raises(ValueError, match="objects from 'catalog/v0'.*resample the task"):
+        env.reset(options={"task": {**good, "object_source": "catalog/v0"}})
     with pytest.raises(ValueError, match="needs a task suite"):
         env.reset(options={"task_id": "t0"})
     suite = tmp_path / "suite.json"
@@ -270,8 +268,11 @@ def test_category_env_rejects_a_task_of_another_category(env):
     other = next(c for c, label in CATEGORY_LABELS.items() if label != task.target_label)
     shelf = gym.make(f"FetchBench-{other}-v0", obs_mode="state", num_objects=4)
     try:
+        loaded = shelf.unwrapped.tasks
         with pytest.raises(ValueError, match=f"this env is for {other} targets"):
             shelf.reset(options={"task": task.to_dict()})
+        assert shelf.unwrapped.tasks == loaded  # the refused task left the env as it was
+        shelf.step(torch.zeros(shelf.action_space.shape))
     finally:
         shelf.close()
 
@@ -291,5 +292,63 @@ def test_every_control_mode_steps(mode):
             _, reward, _, _, _ = env.step(env.action_space.sample())
         assert torch.isfinite(reward).all()
         assert not torch.allclose(start, env.unwrapped.agent.robot.get_qpos())  # the arm moved
+    finally:
+        env.close()
+
+
+def _close_gripper_on_target_in_free_space(env):
+    """Swing the arm out over the robot's side (free space), put the target between the open
+    fingers (its thinnest axis across them), close the gripper for 1.5 s."""
+    from fetchbench_ms.tasks.objects import load_object
+    from mani_skill.utils.geometry.rotation_conversions import matrix_to_quaternion, quaternion_to_matrix
+
+    base = env.unwrapped
+    q = torch.tensor(base.tasks[0].robot_init_qpos[:7], dtype=torch.float32)
+    q[0] = 2.2  # turn the arm to the robot's left-back: the TCP ends at x < 0, z ~ 0.6 m in the base frame
+    for _ in range(30):
+        env.step(torch.cat([q, torch.tensor([1.0])])[None])  # gripper action 1 = open
+    k = int(base.built.target_index[0])
+    thin = int(np.argmin(load_object(base.tasks[0].target.object_id).record.extents))
+    R_tcp_object = torch.zeros(3, 3)
+    R_tcp_object[0, (thin + 1) % 3] = R_tcp_object[1, thin] = 1
+    R_tcp_object[2, (thin + 2) % 3] = -1  # (a swap of two axes: flip the third to keep a rotation)
+    q_object = matrix_to_quaternion(quaternion_to_matrix(base.agent.tcp.pose.q)[0] @ R_tcp_object)[None]
+    pose = Pose.create_from_pq(p=base.agent.tcp.pose.p - quaternion_apply(q_object, base.built.com_local[:, k]), q=q_object)
+    for i in range(30):
+        if i < 10:  # hold it in place until the fingers reach it
+            base.target.set_pose(pose)
+            base.target.set_linear_velocity(torch.zeros(1, 3))
+            base.target.set_angular_velocity(torch.zeros(1, 3))
+        _, _, _, _, info = env.step(torch.cat([q, torch.tensor([-1.0])])[None])
+    return info
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
+    try:
+        env.reset(seed=seed)
+        info = _close_gripper_on_target_in_free_space(env)
+        assert info["is_grasped"]
+        info = settle_and_hold(env)  # 10 s, gripper squeezing
+        assert info["success"] and info["is_grasped"]
+        assert float(info["target_com_base"][0, 0]) < 0.0 and float(info["target_height"]) > 0.5
+    finally:
+        env.close()
+
+
+def test_state_obs_size_is_fixed_across_tasks_with_padded_slots():
+    env = gym.make("FetchBench-v0", obs_mode="state", num_objects=15)
+    try:
+        sizes, padded = set(), 0
+        for seed in (0, 1, 2, 3):
+            obs, _ = env.reset(seed=seed)
+            sizes.add(obs.shape)
+            base = env.unwrapped
+            assert len(base.object_slots) == 15
+            padded += int((~base.built.valid[0]).sum())
+            # Placeholders are parked and ignored by the evaluation.
+            env.step(torch.zeros(env.action_space.shape))
+        assert sizes == {env.observation_space.shape} and padded > 0
     finally:
         env.close()

@@ -21,7 +21,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "grasps"
 # Small primitive objects, so these tests need no catalog: id -> (kind, dimensions).
 PRIMITIVES = {
     "test/box_a": ("box", (0.05, 0.07, 0.12)),
-    "test/cylinder_b": ("cylinder", (0.03, 0.10)),
+    "test/cylinder_20": ("cylinder", (0.03, 0.10)),  # same shard as test/box_a: exercises merging
 }
 
 
@@ -85,7 +85,7 @@ def test_sampler_rejects_objects_too_wide_for_the_hand():
 
 
 def test_physics_holds_good_grasps_and_drops_bad_ones(labeller):
-    asset = primitive_asset("test/cylinder_b")
+    asset = primitive_asset("test/cylinder_20")
     candidates = sample_candidates(asset, 8, np.random.default_rng(1))
     good = candidates.T_object_hand
     # The same hands moved 7 cm out along their approach axis close on air: all must fail.
@@ -114,7 +114,12 @@ def test_physics_fails_an_object_too_heavy_to_hold(labeller):
 def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
     settings = LabelSettings(candidates_per_round=16, max_rounds=1, target_successes=8)
     ids = sorted(PRIMITIVES)
+    # Incremental: label one object, then both; the result equals labelling both at once.
+    build(tmp_path / "one_by_one", ids[:1], loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    build(tmp_path / "one_by_one", ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
     manifest = build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    for f in tmp_path.glob("shard_*.npz"):
+        assert (tmp_path / "one_by_one" / f.name).read_bytes() == f.read_bytes()
     assert sorted(i for e in manifest["shards"].values() for i in e["successes_per_object"]) == ids
     files = sorted(tmp_path.glob("shard_*.npz"))
     before = {f.name: f.read_bytes() for f in files}
@@ -166,3 +171,87 @@ def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
 def manifest_count(manifest: dict, object_id: str) -> int:
     return next(e["successes_per_object"][object_id] for e in manifest["shards"].values()
                 if object_id in e["successes_per_object"])
+
+
+def test_shipped_labels_hold_when_rerun_in_physics(labeller):
+    """A seeded sample of shipped labels, re-run in physics: stored successes hold again
+    (>= 90%), stored failures mostly fail again. Also checks every file's hash."""
+    from fetchbench_ms.grasps.build import object_from_source
+
+    shipped = store.GraspStore(SHIPPED)
+    assert shipped.verify() == []
+    rng = np.random.default_rng(2024)
+    ids = rng.choice(shipped.object_ids(), size=8, replace=False)
+    held = failed_again = n_success = n_failure = 0
+    for object_id in sorted(ids):
+        grasps = shipped.load(str(object_id))
+        assert len(grasps) >= 16 and grasps.T_object_hand.shape == (len(grasps), 4, 4)
+        good, bad = np.flatnonzero(grasps.success), np.flatnonzero(~grasps.success)
+        pick_good = rng.choice(good, size=min(3, len(good)), replace=False)
+        pick_bad = rng.choice(bad, size=min(1, len(bad)), replace=False)
+        result = labeller.label(object_from_source(str(object_id)), grasps.T_object_hand[np.concatenate([pick_good, pick_bad])])
+        held += int(result.success[: len(pick_good)].sum())
+        failed_again += int((~result.success[len(pick_good) :]).sum())
+        n_success += len(pick_good)
+        n_failure += len(pick_bad)
+    assert n_success >= 20 and held / n_success >= 0.9
+    assert n_failure >= 4 and failed_again / n_failure >= 0.5
+
+
+def test_kept_objects_have_enough_successes():
+    shipped = store.GraspStore(SHIPPED)
+    kept = store.objects_with_grasps(SHIPPED)
+    counts = shipped.successes_per_object()
+    assert len(kept) > 0.9 * len(counts)
+    assert all(counts[i] >= store.MIN_SUCCESSES for i in kept)
+    assert all(counts[i] < store.MIN_SUCCESSES for i in set(counts) - set(kept))
+    grasps = store.load_grasps(kept[0], SHIPPED).successful
+    assert len(grasps) >= store.MIN_SUCCESSES and grasps.success.all()
+    assert np.all((grasps.width > 0.0) & (grasps.width <= hand.MAX_OPENING + 1e-3))
+
+
+def test_show_draws_successful_grasps_and_cli_errors(tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "mug.png"
+    assert cli_main(["grasps", "show", "procedural/mug/0000", "--out", str(out), "--max", "12", "--dir", str(SHIPPED)]) == 0
+    assert "12 grasps of procedural/mug/0000" in capsys.readouterr().out
+    rgb = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    greenish = (rgb[..., 1] > 120) & (rgb[..., 1] > rgb[..., 0] + 50) & (rgb[..., 1] > rgb[..., 2] + 50)
+    assert greenish.sum() > 200  # the hand outlines are drawn in green
+    # Bad input: one clear line, exit 2.
+    assert cli_main(["grasps", "show", "procedural/mug/9999", "--out", str(out), "--dir", str(SHIPPED)]) == 2
+    assert "no grasps for object 'procedural/mug/9999'" in capsys.readouterr().err
+    assert cli_main(["grasps", "build", "--shards", "70", "--dir", str(tmp_path)]) == 2
+    assert "valid shard indices are 0..63" in capsys.readouterr().err
+
+
+def test_objects_stats_report_grasps():
+    from fetchbench_ms.objects import catalog
+
+    stats = catalog.stats()  # importing fetchbench_ms.grasps registered the extension
+    grasps = stats["grasps"]
+    assert grasps["kept"] + grasps["dropped"] == grasps["labelled"] <= stats["total"]
+    assert 0.5 < grasps["success_rate"] < 1.0 and grasps["mean_successes_per_kept"] >= store.MIN_SUCCESSES
+    assert set(grasps["by_source"]) == set(stats["by_source"])
+    assert set(stats["grasps_by_category"]) == set(stats["by_category"])
+
+
+def test_candidates_do_not_depend_on_how_the_hull_is_listed():
+    """The same shape with its triangles listed, rotated and split differently gives the
+    same candidates: labels are a function of the shape and the seed only."""
+    a = primitive_asset("test/cylinder_20")
+    mesh = a.convex_parts[0]
+    rng = np.random.default_rng(0)
+    faces = np.roll(mesh.faces[rng.permutation(len(mesh.faces))], 1, axis=1)
+    perm = rng.permutation(len(mesh.vertices))
+    inverse = np.argsort(perm)
+    shuffled = trimesh.Trimesh(mesh.vertices[perm], inverse[faces], process=False)
+    # Re-triangulate the caps from their centre-less rims (another valid triangulation).
+    other = trimesh.convex.convex_hull(mesh.vertices[perm])
+    for variant in (shuffled, other):
+        b = ObjectAsset(a.record, variant, (variant,), a.center_of_mass, a.volume, a.stable_poses, a.stable_probs)
+        np.testing.assert_array_equal(
+            sample_candidates(b, 16, np.random.default_rng(4)).T_object_hand,
+            sample_candidates(a, 16, np.random.default_rng(4)).T_object_hand,
+        )

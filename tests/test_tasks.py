@@ -7,14 +7,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from _dev_scenes import ensure_registered
-
-ensure_registered()
-
-from fetchbench_ms.scenes import SCENE_TYPES  # noqa: E402
-from fetchbench_ms.tasks import CATEGORY_LABELS, SamplerConfig, TaskSpec, sample_task  # noqa: E402
-from fetchbench_ms.tasks.objects import collision_vertices, load_object  # noqa: E402
-from fetchbench_ms.tasks.suite import TaskSuite, load_suite  # noqa: E402
+from fetchbench_ms.scenes import SCENE_TYPES
+from fetchbench_ms.tasks import CATEGORY_LABELS, SamplerConfig, TaskSpec, sample_task
+from fetchbench_ms.tasks.objects import collision_vertices, load_object
+from fetchbench_ms.tasks.suite import TaskSuite, load_suite
 
 
 @pytest.fixture(scope="module")
@@ -43,9 +39,12 @@ def test_sampled_task_follows_the_rules(task):
     assert task.scene_type in SCENE_TYPES
     lo = np.array(task.robot_table_center) - np.array(task.robot_table_size) / 2
     hi = np.array(task.robot_table_center) + np.array(task.robot_table_size) / 2
-    # The base stands on the robot table's top, inside its footprint (base faces +x, yaw 0 here).
-    assert hi[2] == pytest.approx(task.robot_base_position[2])
-    assert lo[0] <= task.robot_base_position[0] <= hi[0] and lo[1] <= task.robot_base_position[1] <= hi[1]
+    # The base stands on the robot table's top (at least a 1 cm plate), inside its footprint.
+    assert hi[2] == pytest.approx(max(task.robot_base_position[2], 0.01))
+    x, y, _ = np.array(task.robot_base_position) - np.array(task.robot_table_center)
+    yaw = 2 * np.arctan2(task.robot_base_quat_wxyz[3], task.robot_base_quat_wxyz[0])
+    along, across = x * np.cos(yaw) + y * np.sin(yaw), -x * np.sin(yaw) + y * np.cos(yaw)
+    assert abs(along) <= task.robot_table_size[0] / 2 and abs(across) <= task.robot_table_size[1] / 2
     region = scene.robot_region
     assert region.x_range[0] <= task.robot_base_position[0] <= region.x_range[1]
     for placement in task.objects:
@@ -128,3 +127,13 @@ def test_suite_round_trip_lookup_and_corruption(tmp_path, task):
     path.write_text(path.read_text().replace('"mini"', '"edited"'))
     with pytest.raises(ValueError, match="corrupt"):
         load_suite(path)
+
+
+def test_cli_samples_a_task_to_json_and_rejects_bad_categories(tmp_path, capsys):
+    from fetchbench_ms.cli import main
+
+    out = tmp_path / "task.json"
+    assert main(["tasks", "sample", "--seed", "7", "-o", str(out)]) == 0
+    assert TaskSpec.from_dict(json.loads(out.read_text())) == sample_task(7)
+    assert main(["tasks", "sample", "--seed", "7", "--category", "Drawers"]) == 2
+    assert "valid: Table, Shelf, Drawer, Basket" in capsys.readouterr().err

@@ -11,11 +11,12 @@ from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import common, sapien_utils
-from mani_skill.utils.geometry.rotation_conversions import quaternion_apply
+from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from ..scenes import SCENE_TYPES
+from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, sample_task
 from ..tasks.spec import CATEGORY_LABELS, TaskSpec
 from . import pointcloud
@@ -31,6 +32,10 @@ SUCCESS_CRITERIA = {
 }
 CAMERA_RESOLUTIONS = ((320, 240), (640, 480))
 HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
+# Farthest a finger pad can be from the TCP (the pads span ~2 cm along the hand axis
+# around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
+# this, the fingers cannot touch it.
+FINGER_REACH = 0.08  # m
 DENSE_REWARD_MAX = 6.0
 
 
@@ -189,6 +194,8 @@ class FetchBenchEnv(BaseEnv):
                 seed = [int(s) for s in np.atleast_1d(self._batched_main_rng.randint(2**31))]
             tasks = [self._sample_task(int(s)) for s in self._episode_seeds(seed)]
         if tasks is not None and not partial and tasks != self._tasks:
+            for task in tasks:  # before anything is torn down: a refused task leaves the env as it was
+                self._check_task(task)
             options["reconfigure"] = True
             self._pending_tasks = tasks
         return super().reset(seed=seed, options=options)
@@ -224,6 +231,7 @@ class FetchBenchEnv(BaseEnv):
         return [t if isinstance(t, TaskSpec) else TaskSpec.from_dict(t) for t in tasks]
 
     def _check_task(self, task: TaskSpec) -> None:
+        check_object_source(task.object_source)
         if self.scene_type is not None and task.scene_type != self.scene_type:
             raise ValueError(f"task is in a {task.scene_type} scene but this env is for {self.scene_type} scenes")
         if self.category is not None and task.target_label != CATEGORY_LABELS[self.category]:
@@ -231,15 +239,13 @@ class FetchBenchEnv(BaseEnv):
                              f"({CATEGORY_LABELS[self.category]})")
 
     def _load_agent(self, options: dict):
-        for task in self._pending_tasks:
-            self._check_task(task)
         base = torch.tensor([list(t.robot_base_position) + list(t.robot_base_quat_wxyz) for t in self._pending_tasks])
         super()._load_agent(options, Pose.create(base))
 
     def _load_scene(self, options: dict):
         self._tasks = self._pending_tasks
         self._scene_specs = [t.scene() for t in self._tasks]
-        self.built = build_tasks(self, self._tasks, self._scene_specs)
+        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects)
         self.object_slots = self.built.slots
         self.target = self.built.target
 
@@ -255,7 +261,10 @@ class FetchBenchEnv(BaseEnv):
         self.segmentation_lut = pointcloud.segmentation_lut(
             max_id, robot_ids, self.target.per_scene_id, object_ids, furniture_ids, self.num_envs, self.device
         )
+        # Displacements are measured from the task's (settled) start poses.
         self._initial_com_world = self._com_world(b.initial_pose)
+        # The base is the articulation's fixed root, placed by the task: its frame is constant.
+        self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
@@ -267,23 +276,40 @@ class FetchBenchEnv(BaseEnv):
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
-            # Displacements are measured from the task's (settled) start poses.
-            self._initial_com_world[env_idx] = self._com_world(b.initial_pose)[env_idx]
 
     # ------------------------------------------------------------------ evaluation
     def _com_world(self, raw_pose: torch.Tensor) -> torch.Tensor:
         """[B, S, 3] centres of mass of the object slots from their raw poses [B, S, 7]."""
-        return raw_pose[..., :3] + quaternion_apply(raw_pose[..., 3:], self.built.com_local)
+        R = quaternion_to_matrix(raw_pose[..., 3:])  # [B, S, 3, 3]
+        return raw_pose[..., :3] + (R @ self.built.com_local[..., None])[..., 0]
 
     def _objects_raw_pose(self) -> torch.Tensor:
-        return torch.stack([slot.pose.raw_pose for slot in self.object_slots], dim=1)
+        """[B, S, 7] poses of the object slots."""
+        if self.gpu_sim_enabled:
+            return torch.stack([slot.pose.raw_pose for slot in self.object_slots], dim=1)
+        # CPU (one sub-scene): read the bodies directly; building a ManiSkill Pose per
+        # slot costs more than the whole physics step.
+        poses = [slot._objs[0].pose for slot in self.object_slots]
+        raw = np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32)
+        return torch.from_numpy(raw)[None]
+
+    def _is_grasping(self, target_com_world: torch.Tensor) -> torch.Tensor:
+        """The Panda's grasp test (both fingers push on the target). On CPU it reads every
+        contact of the scene, which costs more than the physics step with ~15 resting
+        objects, so it is skipped while the TCP is too far for the fingers to touch."""
+        if not self.gpu_sim_enabled:
+            reach = self.built.target_radius + FINGER_REACH
+            if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
+                return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        return self.agent.is_grasping(self.target)
 
     def evaluate(self):
         b = self.built
-        com_world = self._com_world(self._objects_raw_pose())
+        raw_pose = self._objects_raw_pose()
+        com_world = self._com_world(raw_pose)
         rows = torch.arange(self.num_envs, device=self.device)
         target_com_world = com_world[rows, b.target_index]
-        target_com_base = pointcloud.world_to_base(target_com_world[:, None], self.agent.robot.pose.raw_pose)[:, 0]
+        target_com_base = pointcloud.world_to_frame(target_com_world[:, None], *self._world_base)[:, 0]
         moved = torch.linalg.norm(com_world - self._initial_com_world, dim=-1)
         others = b.valid.clone()
         others[rows, b.target_index] = False
@@ -295,8 +321,9 @@ class FetchBenchEnv(BaseEnv):
             lifted, retrieved = target_com_base[:, 2] > c["min_height"], target_com_base[:, 0] < c["max_x"]
         undisturbed = max_others_moved < c["max_others_moved"]
         return dict(
+            objects_pose=raw_pose,
             success=lifted & retrieved & undisturbed,
-            is_grasped=self.agent.is_grasping(self.target),
+            is_grasped=self._is_grasping(target_com_world),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],
@@ -311,11 +338,11 @@ class FetchBenchEnv(BaseEnv):
     def _get_obs_extra(self, info: dict):
         obs = dict(
             tcp_pose=self.agent.tcp.pose.raw_pose,
-            base_pose=self.agent.robot.pose.raw_pose,
+            base_pose=self.built.base_pose,
             is_grasped=info["is_grasped"],
         )
         if self.obs_mode_struct.state or self.obs_mode in ("state", "state_dict"):
-            raw = self._objects_raw_pose()
+            raw = info["objects_pose"]
             obs.update(
                 target_pose=self.target.pose.raw_pose,
                 target_com_base=info["target_com_base"],
@@ -337,7 +364,7 @@ class FetchBenchEnv(BaseEnv):
         obs = super().get_obs(info, unflattened=True)
         if self._obs_mode == "pointcloud":
             pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
-            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, self.agent.robot.pose.raw_pose, pixels)
+            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
         return obs if unflattened else self._flatten_raw_obs(obs)
 
     # ------------------------------------------------------------------ rewards

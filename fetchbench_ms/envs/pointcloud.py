@@ -49,13 +49,19 @@ def segmentation_lut(num_ids: int, robot_ids, target_ids, object_ids, furniture_
 
 def world_to_base(points_world: torch.Tensor, base_pose_raw: torch.Tensor) -> torch.Tensor:
     """[B, N, 3] world points into the frame of the base pose [B, 7] (p, q wxyz)."""
-    from mani_skill.utils.geometry.rotation_conversions import quaternion_apply, quaternion_invert
+    from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 
-    q_inv = quaternion_invert(base_pose_raw[:, 3:])[:, None, :].expand(-1, points_world.shape[1], -1)
-    return quaternion_apply(q_inv, points_world - base_pose_raw[:, None, :3])
+    return world_to_frame(points_world, base_pose_raw[:, :3], quaternion_to_matrix(base_pose_raw[:, 3:]))
 
 
-def add_fetch_pointcloud(obs: dict, lut: torch.Tensor, base_pose_raw: torch.Tensor, camera_pixels: dict) -> None:
+def world_to_frame(points_world: torch.Tensor, p_world_frame: torch.Tensor, R_world_frame: torch.Tensor) -> torch.Tensor:
+    """[B, N, 3] world points into a frame given by its origin [B, 3] and rotation [B, 3, 3]."""
+    # p_frame = R^T (p_world - t); as row vectors: (p_world - t) @ R
+    return (points_world - p_world_frame[:, None, :]) @ R_world_frame
+
+
+def add_fetch_pointcloud(obs: dict, lut: torch.Tensor, p_world_base: torch.Tensor, R_world_base: torch.Tensor,
+                         camera_pixels: dict) -> None:
     """Add ``xyz_base`` and ``fetch_label`` to ``obs["pointcloud"]`` (in place).
 
     ``camera_pixels``: camera uid -> pixel count, in sensor order (ManiSkill concatenates
@@ -74,7 +80,7 @@ def add_fetch_pointcloud(obs: dict, lut: torch.Tensor, base_pose_raw: torch.Tens
         start += n
     in_range = (depth >= DEPTH_RANGE[0]) & (depth <= DEPTH_RANGE[1]) & (xyzw[..., 3] > 0)
     labels = torch.where(in_range, labels, torch.zeros_like(labels))
-    pcd["xyz_base"] = world_to_base(xyzw[..., :3], base_pose_raw).float()
+    pcd["xyz_base"] = world_to_frame(xyzw[..., :3], p_world_base, R_world_base).float()
     pcd["fetch_label"] = labels
 
 

@@ -5,8 +5,8 @@ simulator (one sub-scene) and the GPU simulator (``num_envs`` sub-scenes, each w
 different procedural scene and different objects):
 
 - object slots: every sub-scene gets the same number of dynamic object actors (the
-  largest object count among the tasks; shorter tasks are padded with small parked
-  placeholder boxes), built per sub-scene with ``set_scene_idxs`` and merged across
+  env's object count, or the largest among the tasks if larger; shorter tasks are padded
+  with small parked placeholder boxes without visuals), built per sub-scene with ``set_scene_idxs`` and merged across
   sub-scenes into one ``Actor`` per slot (``object_0`` ... ``object_{S-1}``), so state
   names are stable and every state leaf has batch size ``num_envs``;
 - the target: a second merged view over the target slot of each sub-scene;
@@ -28,7 +28,7 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from ..scenes.sapien_build import add_scene_parts
-from ..tasks.objects import load_object
+from ..tasks.objects import collision_vertices, load_object
 from ..tasks.spec import TaskSpec
 from .bodies import add_object_shapes, box_half_size
 
@@ -37,8 +37,10 @@ ROBOT_TABLE_RGBA = (0.35, 0.35, 0.38, 1.0)
 
 
 def placeholder_position(slot: int) -> list[float]:
-    """Where an unused object slot is parked: on the floor, far from everything."""
-    return [-20.0 - 0.1 * slot, 20.0, PLACEHOLDER_HALF_SIZE]
+    """Where an unused object slot is parked: on the floor behind the robot and its table,
+    out of the cameras' views, and within 2.5 m of the origin (on GPU, sub-scenes are
+    5 m apart in one physics scene: anything further would reach a neighbour)."""
+    return [-1.8, -1.8 + 0.05 * slot, PLACEHOLDER_HALF_SIZE]
 
 
 @dataclass
@@ -54,14 +56,17 @@ class BuiltTasks:
     com_local: torch.Tensor  # [B, S, 3] centre of mass in each body's frame
     valid: torch.Tensor  # [B, S] bool: the slot holds a task object (not a placeholder)
     target_index: torch.Tensor  # [B] long
+    target_radius: torch.Tensor  # [B] largest distance from the target's centre of mass to its surface
     camera_pose: dict[str, torch.Tensor]  # "left"/"right" -> [B, 7]
     base_pose: torch.Tensor  # [B, 7]
 
 
-def build_tasks(env, tasks: list[TaskSpec], scene_specs) -> BuiltTasks:
+def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> BuiltTasks:
+    """Build ``tasks[i]`` into sub-scene i. ``min_slots`` pads the object slots to a fixed
+    count, so state observations keep their size from task to task."""
     scene = env.scene
     num_envs = len(tasks)
-    num_slots = max(len(t.objects) for t in tasks)
+    num_slots = max([min_slots] + [len(t.objects) for t in tasks])
     device = env.device
 
     initial_pose = np.zeros((num_envs, num_slots, 7))
@@ -94,6 +99,10 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs) -> BuiltTasks:
         env.add_to_state_dict_registry(merged)
         slots.append(merged)
     target = Actor.merge([per_slot[t.target_index][i] for i, t in enumerate(tasks)], name="target")
+    target_radius = [
+        float(np.linalg.norm(collision_vertices(load_object(t.target.object_id)) - com_local[i, t.target_index], axis=1).max())
+        for i, t in enumerate(tasks)
+    ]
 
     camera_mounts, camera_pose = {}, {}
     for side in ("left", "right"):
@@ -142,6 +151,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs) -> BuiltTasks:
         com_local=torch.tensor(com_local, dtype=torch.float32, device=device),
         valid=torch.tensor(valid, device=device),
         target_index=torch.tensor([t.target_index for t in tasks], dtype=torch.long, device=device),
+        target_radius=torch.tensor(target_radius, dtype=torch.float32, device=device),
         camera_pose=camera_pose,
         base_pose=base_pose,
     )

@@ -16,7 +16,11 @@ Modules: ``hand`` (geometry from ManiSkill's URDF), ``sampler`` (antipodal candi
 ``physics`` (the SAPIEN labeller), ``store`` (files, hashes, ``load_grasps``,
 ``objects_with_grasps``), ``build`` (resumable parallel builder), ``show`` (pictures).
 """
+from ..objects import catalog as _catalog
 from .hand import MAX_OPENING, TCP_OFFSET
-from .store import Grasps, load_grasps, objects_with_grasps
+from .store import Grasps, add_grasp_stats, load_grasps, objects_with_grasps
+
+# `fetchbench objects stats` (and catalog.stats()) report grasp counts once this package is loaded.
+_catalog.register_stats_extension(add_grasp_stats)
 
 __all__ = ["Grasps", "load_grasps", "objects_with_grasps", "TCP_OFFSET", "MAX_OPENING"]

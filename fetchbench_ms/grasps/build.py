@@ -29,10 +29,12 @@ from .sampler import SamplerConfig, sample_candidates
 from .store import (
     GRASPS_VERSION,
     ObjectTrials,
+    encode_trials,
     read_shard_arrays,
     shard_name,
     shard_of,
     shard_summary,
+    split_shard,
     write_manifest,
     write_shard,
 )
@@ -44,7 +46,7 @@ class LabelSettings:
 
     seed: int = 0
     candidates_per_round: int = 32
-    max_rounds: int = 3
+    max_rounds: int = 5
     #: Stop drawing more rounds once an object has this many verified successes.
     target_successes: int = 24
     slots: int = 16
@@ -67,10 +69,14 @@ def object_rng(seed: int, object_id: str) -> np.random.Generator:
     return np.random.default_rng([seed, int(sha256_bytes(object_id.encode())[:15], 16)])
 
 
-def label_object(labeller: physics.GraspLabeller, asset, settings: LabelSettings) -> ObjectTrials:
+def label_object(asset, settings: LabelSettings) -> ObjectTrials:
     """Sample and verify rounds of candidates on one object until it has
-    ``target_successes`` successes or ``max_rounds`` rounds are spent."""
+    ``target_successes`` successes or ``max_rounds`` rounds are spent.
+
+    Each object gets a fresh scene (40 ms), so its labels are a function of the object
+    and the settings alone, whatever was labelled before in the same process."""
     rng = object_rng(settings.seed, asset.object_id)
+    labeller = physics.GraspLabeller(slots=settings.slots, config=settings.trial, object_friction=settings.object_friction)
     labeller.set_object(asset, density=settings.density)
     poses, success, width = [], [], []
     for _ in range(settings.max_rounds):
@@ -99,26 +105,39 @@ def resolve_loader(spec: str) -> Callable:
     return getattr(importlib.import_module(module), name)
 
 
-def shard_meta(shard: int, object_ids: list[str], settings: LabelSettings) -> dict:
-    return {
-        "shard": shard,
-        "settings_digest": settings.digest(),
-        "objects_digest": sha256_bytes("\n".join(sorted(object_ids)).encode())[:16],
-    }
+def shard_meta(shard: int, settings: LabelSettings) -> dict:
+    return {"shard": shard, "settings_digest": settings.digest()}
 
 
 def label_shard(directory: str, shard: int, object_ids: list[str], loader: str | Callable, settings: LabelSettings) -> dict:
-    """Label every object of one shard and write its file; runs in a worker process.
+    """Label the objects of one shard that its file lacks and write the merged file; runs
+    in a worker process. Labels already in an intact file made with the same settings are
+    kept bit for bit (each object's labels depend on nothing else), so adding objects to
+    the catalog labels only the new ones.
 
     ``loader`` maps an object id to its ``ObjectAsset``: a function (module-level, so that
     ``spawn`` can pickle it) or its ``"package.module:function"`` name."""
     started = time.perf_counter()
     load = resolve_loader(loader) if isinstance(loader, str) else loader
-    labeller = physics.GraspLabeller(slots=settings.slots, object_friction=settings.object_friction, config=settings.trial)
-    trials = [label_object(labeller, load(object_id), settings) for object_id in sorted(object_ids)]
-    path = write_shard(Path(directory), shard, trials, shard_meta(shard, object_ids, settings))
-    return {"shard": shard, "path": str(path), "seconds": time.perf_counter() - started,
-            "trials": int(sum(len(t.success) for t in trials)), "objects": len(trials)}
+    path = Path(directory) / shard_name(shard)
+    meta = shard_meta(shard, settings)
+    objects, skipped = {}, set()
+    existing = _read_if_same_settings(path, meta)
+    if existing is not None:
+        objects = split_shard(existing)
+        skipped = set(json.loads(str(existing["meta"])).get("skipped", []))
+    labelled = 0
+    for object_id in sorted(set(object_ids) - set(objects) - skipped):
+        try:
+            asset = load(object_id)
+        except ValueError:  # not fetchable by the catalog's own limits: nothing to label
+            skipped.add(object_id)
+            continue
+        trials = label_object(asset, settings)
+        objects[object_id] = encode_trials(trials)
+        labelled += len(trials.success)
+    write_shard(Path(directory), shard, objects, {**meta, "skipped": sorted(skipped)})
+    return {"shard": shard, "seconds": time.perf_counter() - started, "trials": labelled, "objects": len(objects)}
 
 
 def _worker_init() -> None:
@@ -127,14 +146,26 @@ def _worker_init() -> None:
         os.environ[var] = "1"
 
 
-def _shard_is_current(path: Path, meta: dict) -> bool:
+def _read_if_same_settings(path: Path, meta: dict) -> dict[str, np.ndarray] | None:
+    """The shard's arrays if the file reads back intact (zip CRCs) and was made with these
+    settings; None otherwise (a truncated, foreign or stale file is relabelled)."""
     if not path.exists():
-        return False
+        return None
     try:
         stored = read_shard_arrays(path)
-    except Exception:  # a truncated or foreign file is simply rebuilt
+    except Exception:
+        return None
+    stored_meta = json.loads(str(stored["meta"]))
+    return stored if {k: stored_meta.get(k) for k in meta} == meta else None
+
+
+def _shard_is_current(path: Path, meta: dict, object_ids: list[str]) -> bool:
+    """Intact, same settings, and covering every wanted object (labelled or skipped)."""
+    stored = _read_if_same_settings(path, meta)
+    if stored is None:
         return False
-    return json.loads(str(stored["meta"])) == meta
+    covered = set(map(str, stored["object_ids"])) | set(json.loads(str(stored["meta"])).get("skipped", []))
+    return covered >= set(object_ids)
 
 
 def build(
@@ -160,15 +191,15 @@ def build(
     for object_id in sorted(set(object_ids)):
         by_shard.setdefault(shard_of(object_id), []).append(object_id)
     wanted = sorted(by_shard) if shards is None else sorted(set(shards) & set(by_shard))
-    todo = [s for s in wanted if not _shard_is_current(directory / shard_name(s), shard_meta(s, by_shard[s], settings))]
+    todo = [s for s in wanted if not _shard_is_current(directory / shard_name(s), shard_meta(s, settings), by_shard[s])]
     log(f"{len(by_shard)} shards hold {sum(map(len, by_shard.values()))} objects; {len(wanted) - len(todo)} done, {len(todo)} to label")
 
     def finish() -> dict:
         entries = []
         for s in sorted(by_shard):
             path = directory / shard_name(s)
-            if _shard_is_current(path, shard_meta(s, by_shard[s], settings)):
-                entries.append(shard_summary(path))
+            if _shard_is_current(path, shard_meta(s, settings), by_shard[s]):
+                entries.append(shard_summary(path, by_shard[s]))
         return write_manifest(directory, settings.as_dict(), entries)
 
     slowest = 0.0
@@ -217,3 +248,15 @@ def catalog_object_ids() -> list[str]:
 
     return [record.object_id for record in catalog.list_objects()]
 
+
+
+def object_from_source(object_id: str):
+    """An object rebuilt from its source without the catalog index (no stable poses: grasps
+    do not need them). For batch machines that carry the code but not the shipped index;
+    the geometry is the one ``catalog.get_object`` checks against the index fingerprint."""
+    from ..objects import catalog
+
+    asset, problems = catalog.build_object(object_id, with_stable_poses=False)
+    if problems:
+        raise ValueError(f"object {object_id!r} is not fetchable: {'; '.join(problems)}")
+    return asset

@@ -36,15 +36,19 @@ def cmd_build(args) -> int:
 
     if args.source and args.source not in SOURCES:
         raise ValueError(f"unknown source {args.source!r}; valid: {', '.join(SOURCES)}")
-    from ..objects import catalog
+    if args.ids_file:
+        ids = [line.strip() for line in Path(args.ids_file).read_text().splitlines() if line.strip()]
+        ids = [i for i in ids if not args.source or i.split("/")[0] == args.source]
+    else:
+        from ..objects import catalog
 
-    records = catalog.list_objects(source=args.source) if args.source else catalog.list_objects()
-    ids = [r.object_id for r in records]
+        records = catalog.list_objects(source=args.source) if args.source else catalog.list_objects()
+        ids = [r.object_id for r in records]
     if args.limit:
         ids = sorted(ids)[: args.limit]
     settings = LabelSettings(seed=args.seed, candidates_per_round=args.candidates)
     out = args.dir or os.fspath(Path(__file__).resolve().parents[2] / "assets" / "grasps")
-    manifest = build(out, ids, settings=settings, workers=args.workers, shards=_parse_shards(args.shards), deadline_s=args.deadline)
+    manifest = build(out, ids, loader=args.loader, settings=settings, workers=args.workers, shards=_parse_shards(args.shards), deadline_s=args.deadline)
     done = sum(e["objects"] for e in manifest["shards"].values())
     kept = sum(len(e["kept"]) for e in manifest["shards"].values())
     print(f"{done}/{len(ids)} objects labelled, {kept} kept (>= {manifest['min_successes']} successes) in {out}")
@@ -101,6 +105,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (0 = in this process)")
     p.add_argument("--shards", default=None, help="only these shard indices, e.g. '0-15' or '3,7'")
     p.add_argument("--source", default=None, help="only objects of this source (ycb, blob, procedural)")
+    p.add_argument("--ids-file", default=None, help="label the ids listed in this file (one a line) instead of the catalog's")
+    p.add_argument("--loader", default="fetchbench_ms.objects.catalog:get_object",
+                   help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasps.build:object_from_source needs no catalog index)")
     p.add_argument("--limit", type=int, default=0, help="only the first N object ids (sorted), for trials")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--candidates", type=int, default=32, help="candidates per sampling round")

@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, sha256_bytes, sha256_file
 
 #: Bump when the sampler, the physics test or the file layout changes: old files become stale.
-GRASPS_VERSION = 1
+GRASPS_VERSION = 2
 NUM_SHARDS = 64
 #: Objects with fewer verified successful grasps than this are dropped from the benchmark.
 MIN_SUCCESSES = 16
@@ -81,24 +81,46 @@ class ObjectTrials:
     width: np.ndarray  # (N,)
 
 
-def encode_shard(trials: list[ObjectTrials], meta: dict) -> bytes:
-    """The bytes of one shard file; deterministic for the same input (no timestamps)."""
-    trials = sorted(trials, key=lambda t: t.object_id)
-    counts = [len(t.success) for t in trials]
-    T = np.concatenate([t.T_object_hand for t in trials]) if trials else np.zeros((0, 4, 4))
+def encode_trials(trials: ObjectTrials) -> dict[str, np.ndarray]:
+    """One object's trials in the stored dtypes (quaternions wxyz with w >= 0)."""
+    T = trials.T_object_hand
     quat_xyzw = Rotation.from_matrix(T[:, :3, :3]).as_quat() if len(T) else np.zeros((0, 4))
     quat_wxyz = quat_xyzw[:, [3, 0, 1, 2]]
     quat_wxyz *= np.where(quat_wxyz[:, :1] < 0, -1.0, 1.0)  # one sign per rotation
-    arrays = {
-        "meta": np.array(canonical_json(meta)),
-        "object_ids": np.array([t.object_id for t in trials], dtype=np.str_),
-        "offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+    return {
         "quat_wxyz": quat_wxyz.astype(np.float16),
         "position": T[:, :3, 3].astype(np.float32),
-        "success": np.concatenate([t.success for t in trials]).astype(np.uint8) if trials else np.zeros(0, np.uint8),
-        "width": np.concatenate([t.width for t in trials]).astype(np.float16) if trials else np.zeros(0, np.float16),
+        "success": np.asarray(trials.success).astype(np.uint8),
+        "width": np.asarray(trials.width).astype(np.float16),
     }
+
+
+TRIAL_FIELDS = ("quat_wxyz", "position", "success", "width")
+
+
+def encode_shard(objects: dict[str, dict[str, np.ndarray]], meta: dict) -> bytes:
+    """The bytes of one shard file from each object's encoded trials (``encode_trials``);
+    deterministic for the same input (objects sorted by id, no timestamps)."""
+    ids = sorted(objects)
+    counts = [len(objects[i]["success"]) for i in ids]
+    arrays = {
+        "meta": np.array(canonical_json(meta)),
+        "object_ids": np.array(ids, dtype=np.str_),
+        "offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+    }
+    empty = encode_trials(ObjectTrials("", np.zeros((0, 4, 4)), np.zeros(0, bool), np.zeros(0)))
+    for field in TRIAL_FIELDS:
+        arrays[field] = np.concatenate([objects[i][field] for i in ids]) if ids else empty[field]
     return _npz_bytes(arrays)
+
+
+def split_shard(arrays: dict[str, np.ndarray]) -> dict[str, dict[str, np.ndarray]]:
+    """Inverse of ``encode_shard``: each object's encoded trials, bit for bit."""
+    offsets = arrays["offsets"]
+    return {
+        str(object_id): {field: arrays[field][offsets[k] : offsets[k + 1]] for field in TRIAL_FIELDS}
+        for k, object_id in enumerate(arrays["object_ids"])
+    }
 
 
 def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
@@ -115,9 +137,9 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     return buffer.getvalue()
 
 
-def write_shard(directory: Path, shard: int, trials: list[ObjectTrials], meta: dict) -> Path:
+def write_shard(directory: Path, shard: int, objects: dict[str, dict[str, np.ndarray]], meta: dict) -> Path:
     path = Path(directory) / shard_name(shard)
-    atomic_write_bytes(path, encode_shard(trials, meta))
+    atomic_write_bytes(path, encode_shard(objects, meta))
     return path
 
 
@@ -126,22 +148,27 @@ def read_shard_arrays(path: Path) -> dict[str, np.ndarray]:
         return {key: data[key] for key in data.files}
 
 
-def shard_summary(path: Path, min_successes: int = MIN_SUCCESSES) -> dict:
-    """Manifest entry of one shard file: hash, counts and the ids that keep enough grasps."""
+def shard_summary(path: Path, object_ids=None, min_successes: int = MIN_SUCCESSES) -> dict:
+    """Manifest entry of one shard file: hash, counts and the ids that keep enough grasps.
+
+    ``object_ids`` limits the entry to the objects the catalog lists now (a shard may
+    also hold labels of objects the catalog has since dropped)."""
     arrays = read_shard_arrays(path)
     offsets, success = arrays["offsets"], arrays["success"].astype(bool)
-    per_object = np.add.reduceat(success, offsets[:-1]) if len(success) else np.zeros(len(offsets) - 1, int)
-    per_object = np.where(np.diff(offsets) == 0, 0, per_object)
     ids = [str(x) for x in arrays["object_ids"]]
+    counts = np.diff(offsets)
+    per_object = [int(success[a:b].sum()) for a, b in zip(offsets[:-1], offsets[1:])]
+    wanted = None if object_ids is None else set(object_ids)
+    listed = [k for k, i in enumerate(ids) if wanted is None or i in wanted]
     return {
         "file": path.name,
         "sha256": sha256_file(path),
         "meta": json.loads(str(arrays["meta"])),
-        "objects": len(ids),
-        "trials": int(len(success)),
-        "successes": int(success.sum()),
-        "successes_per_object": {i: int(n) for i, n in zip(ids, per_object)},
-        "kept": [i for i, n in zip(ids, per_object) if n >= min_successes],
+        "objects": len(listed),
+        "trials": int(sum(counts[k] for k in listed)),
+        "successes": int(sum(per_object[k] for k in listed)),
+        "successes_per_object": {ids[k]: per_object[k] for k in listed},
+        "kept": [ids[k] for k in listed if per_object[k] >= min_successes],
     }
 
 
@@ -267,3 +294,56 @@ def objects_with_grasps(directory: str | os.PathLike | None = None) -> list[str]
     """Ids of the objects with at least ``MIN_SUCCESSES`` verified grasps: the ones tasks may use."""
     store = _store(os.fspath(directory)) if directory is not None else _default_store()
     return store.kept_ids()
+
+
+def catalog_grasp_stats(records, directory: str | os.PathLike | None = None) -> dict:
+    """Grasp figures for catalog ``records``: overall and per source and category
+    (labelled, kept, dropped, trials, success rate of sampled candidates), and which
+    catalog objects have no labels yet."""
+    store = _store(os.fspath(directory)) if directory is not None else _default_store()
+    counts = store.successes_per_object()
+    trials = {}
+    for shard in sorted(int(s) for s in store.manifest["shards"]):
+        arrays = store._shard(shard)  # hash-checked
+        offsets = arrays["offsets"]
+        for k, object_id in enumerate(arrays["object_ids"]):
+            trials[str(object_id)] = int(offsets[k + 1] - offsets[k])
+
+    def summary(group) -> dict:
+        labelled = [r.object_id for r in group if r.object_id in counts]
+        kept = [i for i in labelled if counts[i] >= MIN_SUCCESSES]
+        n_trials = sum(trials.get(i, 0) for i in labelled)
+        n_success = sum(counts[i] for i in labelled)
+        return {
+            "objects": len(group),
+            "labelled": len(labelled),
+            "kept": len(kept),
+            "dropped": len(labelled) - len(kept),
+            "trials": n_trials,
+            "success_rate": round(n_success / n_trials, 4) if n_trials else 0.0,
+            "mean_successes_per_kept": round(sum(counts[i] for i in kept) / len(kept), 2) if kept else 0.0,
+        }
+
+    by = lambda key: {v: summary([r for r in records if getattr(r, key) == v]) for v in sorted({getattr(r, key) for r in records})}  # noqa: E731
+    return {
+        **summary(records),
+        "version": store.manifest["version"],
+        "by_source": by("source"),
+        "by_category": by("category"),
+        "unlabelled": sorted(r.object_id for r in records if r.object_id not in counts),
+    }
+
+
+def add_grasp_stats(out: dict) -> None:
+    """Extension of ``fetchbench objects stats`` (``catalog.register_stats_extension``)."""
+    from ..objects import catalog
+
+    try:
+        stats = catalog_grasp_stats(catalog.list_objects())
+    except (FileNotFoundError, ValueError) as error:  # no or stale library: say so, keep the object stats
+        out["grasps"] = {"error": str(error)}
+        return
+    by_category = stats.pop("by_category")
+    unlabelled = stats.pop("unlabelled")
+    out["grasps"] = {**stats, "unlabelled": len(unlabelled)}
+    out["grasps_by_category"] = {c: f"{s['kept']}/{s['objects']} kept, {s['success_rate']:.0%} of trials held" for c, s in by_category.items()}

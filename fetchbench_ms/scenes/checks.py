@@ -10,7 +10,8 @@ can show every defect of a scene at once:
   (rays cast down through points of the polygon hit that part at the surface height),
   and nothing intrudes into the space above the polygon up to min(free_height, 8 cm)
   (drawer and basket walls may stand at the polygon's edges).
-- ``free_height_problems``: every surface has >= 8 cm of clear space above it.
+- ``free_height_problems``: every surface has >= 8 cm of clear space above it, and the
+  space up to the free height it claims is really clear.
 - ``reachability_problems``: on average over robot base poses sampled in the robot
   region, at least half of each surface's area lies in the Franka's reachable band
   (0.25-0.85 m horizontally from the base, 0.0-1.3 m above it).
@@ -42,6 +43,8 @@ REACH_RADIUS = (0.25, 0.85)
 REACH_HEIGHT = (0.0, 1.3)
 #: Share of every surface's area that must be reachable (averaged over base poses).
 MIN_REACHABLE_FRACTION = 0.5
+#: Drawer and basket walls may stand this far inside a support polygon's edges (m).
+WALL_MARGIN = 0.005
 #: Clearance kept around the robot base's footprint (m): the base link's radius is ~0.1 m.
 ROBOT_BASE_RADIUS = 0.1
 #: Height above the base that must be free of furniture in the robot region (m): the
@@ -129,7 +132,9 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
         return [f"surface {surface.name!r}: supporting part {surface.supporting_part!r} does not exist"]
     mesh = part_mesh(part)
     points = _probe_points(surface, inset=2 * tolerance)
-    start_z = surface.height + 0.01
+    # Rays start above the whole part, so they meet its top face first even when the
+    # surface is wrongly placed inside the part.
+    start_z = max(surface.height, float(mesh.bounds[1, 2])) + 0.01
     origins = np.column_stack([points, np.full(len(points), start_z)])
     directions = np.tile([0.0, 0.0, -1.0], (len(points), 1))
     hits, ray_ids, _ = mesh.ray.intersects_location(origins, directions, multiple_hits=False)
@@ -143,8 +148,7 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
             f"surface {surface.name!r}: {int(missing.sum())}/{len(points)} points of its polygon are not above "
             f"part {part.name!r} (e.g. ({x:.3f}, {y:.3f}))"
         )
-    off = np.abs(top_z - surface.height) > tolerance
-    off &= ~missing
+    off = np.abs(top_z - surface.height) > tolerance  # False where nothing was hit (NaN)
     if off.any():
         worst = int(np.nanargmax(np.where(off, np.abs(top_z - surface.height), -np.inf)))
         problems.append(
@@ -155,14 +159,21 @@ def _surface_on_part_problems(spec: SceneSpec, surface: SupportSurface, toleranc
 
 
 def _intrusion_problems(
-    spec: SceneSpec, surface: SupportSurface, depth_tolerance: float, wall_margin: float
+    spec: SceneSpec,
+    surface: SupportSurface,
+    bottom: float,
+    top: float,
+    depth_tolerance: float,
+    wall_margin: float,
+    space: str = "the space above it",
 ) -> list[str]:
-    # The probe is the polygon (shrunk a little, more where walls line its edges) lifted
-    # 1 mm off the surface, up to the height objects need.
+    """Parts reaching into the polygon's prism between z = ``bottom`` and ``top``."""
+    # The probe is the polygon shrunk a little (more where walls line its edges).
     inset = wall_margin if surface.wall_top is not None else depth_tolerance
     polygon = surface.polygon.buffer(-inset, join_style="mitre")
-    top = surface.height + min(surface.free_height, MIN_FREE_HEIGHT)
-    prisms = polygon_prisms(polygon, surface.height + depth_tolerance, top)
+    if top <= bottom:
+        return []
+    prisms = polygon_prisms(polygon, bottom, top)
     if not prisms:
         return [f"surface {surface.name!r}: nothing left of its polygon after a {inset * 1000:.0f} mm inset"]
     identity = fcl.Transform(np.eye(3), np.zeros(3))
@@ -173,8 +184,8 @@ def _intrusion_problems(
         depth = max(_collision_depth(obj, probe) for probe in probes)
         if depth > depth_tolerance:
             problems.append(
-                f"surface {surface.name!r}: part {part.name!r} intrudes {depth * 1000:.1f} mm into the "
-                f"space above it (up to z={top:.3f})"
+                f"surface {surface.name!r}: part {part.name!r} intrudes {depth * 1000:.1f} mm into "
+                f"{space} (z {bottom:.3f}-{top:.3f})"
             )
     return problems
 
@@ -183,7 +194,7 @@ def support_problems(
     spec: SceneSpec,
     height_tolerance: float = SURFACE_HEIGHT_TOLERANCE,
     depth_tolerance: float = PENETRATION_TOLERANCE,
-    wall_margin: float = 0.005,
+    wall_margin: float = WALL_MARGIN,
 ) -> list[str]:
     """Each surface lies on its supporting part's top face and has clear space above it."""
     problems = []
@@ -195,7 +206,9 @@ def support_problems(
             problems.append(f"surface {surface.name!r}: polygon is not valid (self-intersecting?)")
             continue
         problems += _surface_on_part_problems(spec, surface, height_tolerance)
-        problems += _intrusion_problems(spec, surface, depth_tolerance, wall_margin)
+        # The space objects need, from 1 mm above the surface.
+        top = surface.height + min(surface.free_height, MIN_FREE_HEIGHT)
+        problems += _intrusion_problems(spec, surface, surface.height + depth_tolerance, top, depth_tolerance, wall_margin)
         if surface.wall_top is not None and surface.wall_top <= surface.height:
             problems.append(f"surface {surface.name!r}: wall top {surface.wall_top:.3f} is not above it")
     if not spec.support_surfaces:
@@ -203,12 +216,26 @@ def support_problems(
     return problems
 
 
-def free_height_problems(spec: SceneSpec, min_free_height: float = MIN_FREE_HEIGHT) -> list[str]:
-    return [
-        f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m"
-        for s in spec.support_surfaces
-        if s.free_height < min_free_height
-    ]
+def free_height_problems(
+    spec: SceneSpec,
+    min_free_height: float = MIN_FREE_HEIGHT,
+    depth_tolerance: float = PENETRATION_TOLERANCE,
+    wall_margin: float = WALL_MARGIN,
+) -> list[str]:
+    """Every surface has >= ``min_free_height`` of space, and the free height it claims is
+    really clear (above the first 8 cm, which ``support_problems`` covers) up to 1 mm
+    below its end: task samplers trust it to fit objects."""
+    problems = []
+    for s in spec.support_surfaces:
+        if s.free_height < min_free_height:
+            problems.append(f"surface {s.name!r}: free height {s.free_height:.3f} m < {min_free_height} m")
+        if not s.polygon.is_valid:
+            continue  # support_problems reports it
+        bottom = s.height + min(s.free_height, MIN_FREE_HEIGHT)
+        top = s.height + s.free_height - depth_tolerance
+        space = f"its claimed free height of {s.free_height:.3f} m"
+        problems += _intrusion_problems(spec, s, bottom, top, depth_tolerance, wall_margin, space)
+    return problems
 
 
 def sample_base_positions(spec: SceneSpec, n: int = 32, seed: int = 0) -> np.ndarray:

@@ -22,6 +22,17 @@ def parse_overrides(items: list[str] | None) -> dict[str, float]:
     return overrides
 
 
+def seed_arg(text: str) -> int:
+    """argparse type of a generator seed: an integer >= 0."""
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a seed is an integer >= 0, got {text!r}") from None
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"a seed is an integer >= 0, got {seed}")
+    return seed
+
+
 def _spec(args):
     from .registry import generate
 
@@ -30,7 +41,7 @@ def _spec(args):
 
 def _add_instance_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("type", help="scene type (see `fetchbench scenes list`)")
-    parser.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
+    parser.add_argument("--seed", type=seed_arg, default=0, help="generator seed (default 0)")
     parser.add_argument("--set", action="append", metavar="NAME=VALUE", help="fix one parameter (repeatable)")
 
 
@@ -180,6 +191,6 @@ def add_commands(subparsers) -> None:
 
     p = sub.add_parser("stats", help="per-type statistics over seeds")
     p.add_argument("types", nargs="*", help="types (default: all)")
-    p.add_argument("--seeds", type=int, default=8, help="number of seeds (0..N-1)")
+    p.add_argument("--seeds", type=seed_arg, default=8, help="number of seeds (0..N-1), >= 1")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_stats)

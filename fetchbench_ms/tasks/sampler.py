@@ -24,15 +24,18 @@ Every draw comes from one ``numpy.random.Generator`` seeded by ``seed``.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 
+import fcl
 import numpy as np
 import trimesh
-from shapely.geometry import MultiPoint, Point
+from scipy.spatial import ConvexHull
+from shapely.geometry import Point, Polygon
 
 from ..scenes import SCENE_TYPES, generate, get_scene_type
-from .objects import collision_vertices, load_object, object_ids
+from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
 SAMPLER_VERSION = "1"
@@ -51,6 +54,7 @@ RESTITUTION_RANGE = (0.0, 0.1)
 ROBOT_TABLE_X_RANGE = (0.4, 0.7)  # m
 ROBOT_TABLE_Y_RANGE = (0.6, 1.0)  # m
 ROBOT_TABLE_FRONT = 0.12  # m the table reaches in front of the base (the Panda's base is ~0.1 m in radius)
+ROBOT_TABLE_MIN_HEIGHT = 0.01  # m: a base standing on the floor gets a 1 cm plate it sinks into
 
 
 @dataclass(frozen=True)
@@ -122,7 +126,7 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
     scene = generate(scene_type, scene_seed)
     if target_label is not None and not scene.surfaces(target_label):
         return None
-    world = _furniture_collision(scene)
+    world = _BoxWorld(scene)
     placements = _place_objects(rng, scene, world, ids, config, target_label)
     if target_label is not None and not any(p.support_label == target_label for p in placements):
         return None
@@ -157,25 +161,61 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
         camera_left=cameras[0],
         camera_right=cameras[1],
         robot_init_qpos=DEFAULT_QPOS,
+        object_source=object_source(),
         extra=extra,
     )
 
 
 # ----------------------------------------------------------------------------- objects
-def _furniture_collision(scene) -> trimesh.collision.CollisionManager:
-    """The furniture as exact primitives in an FCL collision manager."""
-    world = trimesh.collision.CollisionManager()
-    for part in scene.parts:
-        if part.shape == "box":
-            mesh = trimesh.creation.box(extents=part.size)
-        elif part.shape == "cylinder":
-            mesh = trimesh.creation.cylinder(radius=part.size[0], height=part.size[1])
-        elif part.shape == "capsule":
-            mesh = trimesh.creation.capsule(radius=part.size[0], height=part.size[1])
-        else:
-            mesh = trimesh.Trimesh(np.asarray(part.mesh_vertices)).convex_hull
-        world.add_object(f"part:{part.name}", mesh, transform=part.transform())
-    return world
+class _BoxWorld:
+    """Furniture primitives plus the boxes of placed objects, for exact overlap tests (FCL)."""
+
+    def __init__(self, scene):
+        self.manager = fcl.DynamicAABBTreeCollisionManager()
+        self.objects = []
+        for part in scene.parts:
+            if part.shape == "box":
+                geometry = fcl.Box(*part.size)
+            elif part.shape == "cylinder":
+                geometry = fcl.Cylinder(part.size[0], part.size[1])
+            elif part.shape == "capsule":
+                geometry = fcl.Capsule(part.size[0], part.size[1])
+            else:
+                hull = trimesh.Trimesh(np.asarray(part.mesh_vertices)).convex_hull
+                geometry = fcl.BVHModel()
+                geometry.beginModel(len(hull.vertices), len(hull.faces))
+                geometry.addSubModel(hull.vertices, hull.faces)
+                geometry.endModel()
+            T = part.transform()
+            self._add(fcl.CollisionObject(geometry, fcl.Transform(T[:3, :3], T[:3, 3])))
+
+    def _add(self, obj) -> None:
+        self.objects.append(obj)  # FCL keeps raw pointers: the Python objects must stay alive
+        self.manager.registerObject(obj)
+        self.manager.update()
+
+    @staticmethod
+    def box(size, rotation, center):
+        return fcl.CollisionObject(fcl.Box(*size), fcl.Transform(np.asarray(rotation, float), np.asarray(center, float)))
+
+    def hits(self, obj) -> bool:
+        request = fcl.CollisionRequest()
+        data = fcl.CollisionData(request, fcl.CollisionResult())
+        self.manager.collide(obj, data, fcl.defaultCollisionCallback)
+        return data.result.is_collision
+
+    def add(self, obj) -> None:
+        self._add(obj)
+
+
+@functools.lru_cache(maxsize=4096)
+def _rest_geometry(object_id: str, pose_index: int):
+    """For one stable pose: vertices in the support frame, their box, and the 2D hull of the footprint."""
+    asset = load_object(object_id)
+    T = asset.stable_poses[pose_index]
+    v = collision_vertices(asset) @ T[:3, :3].T + T[:3, 3]
+    hull_xy = v[ConvexHull(v[:, :2]).vertices, :2]
+    return v.min(axis=0), v.max(axis=0), hull_xy
 
 
 def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectPlacement]:
@@ -188,16 +228,17 @@ def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectP
         asset = load_object(ids[int(id_index)])
         # With a category, the first object goes on that label so the task has a target there.
         forced = target_label if (k == 0 and target_label is not None) else None
-        placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced, name=f"object:{k}")
+        placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced)
         if placed is not None:
             placements.append(placed)
     return placements
 
 
-def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label, name):
-    vertices = collision_vertices(asset)
+def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label):
     stable_p = asset.stable_probs / asset.stable_probs.sum()
     max_extent = float(max(asset.record.extents))
+    eroded = {}
+    c = config.clearance
     for _ in range(config.placement_attempts):
         label = forced_label or labels[int(rng.choice(len(labels), p=label_p))]
         surfaces = scene.surfaces(label)
@@ -205,39 +246,35 @@ def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label, 
         surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
         pose_index = int(rng.choice(len(stable_p), p=stable_p))
         yaw = float(rng.uniform(0.0, 2 * math.pi))
-        point = _sample_in_polygon(rng, surface.polygon.buffer(-config.erosion * max_extent))
+        if surface.name not in eroded:
+            eroded[surface.name] = surface.polygon.buffer(-config.erosion * max_extent)
+        point = _sample_in_polygon(rng, eroded[surface.name])
         if point is None:
             continue
+        lo, hi, hull_xy = _rest_geometry(asset.object_id, pose_index)
+        if hi[2] - lo[2] + config.drop_height + c > surface.free_height:
+            continue
+        # Turn by the yaw about the box centre's vertical, put that centre over the point.
         R_yaw = _rot_z(yaw)
+        center_xy = (lo[:2] + hi[:2]) / 2
+        footprint = (hull_xy - center_xy) @ R_yaw[:2, :2].T + point
+        if not surface.polygon.contains(Polygon(footprint)):
+            continue
+        # The stable pose's box, grown by the clearance except at the bottom (it must not
+        # touch its own support), must not touch furniture or the objects placed so far.
+        box_lo = lo - [c, c, -0.5 * config.drop_height]
+        box_hi = hi + [c, c, c]
+        z_shift = surface.height + config.drop_height - lo[2]
+        box_center = np.array([point[0], point[1], (box_lo[2] + box_hi[2]) / 2 + z_shift])
+        box = world.box(box_hi - box_lo, R_yaw, box_center)
+        if world.hits(box):
+            continue
+        world.add(box)
         T_support_object = asset.stable_poses[pose_index]
-        T_rest = np.eye(4)
-        T_rest[:3, :3] = R_yaw @ T_support_object[:3, :3]
-        T_rest[:3, 3] = R_yaw @ T_support_object[:3, 3]
-        v_rest = vertices @ T_rest[:3, :3].T + T_rest[:3, 3]
-        lo, hi = v_rest.min(axis=0), v_rest.max(axis=0)
-        if hi[2] - lo[2] + config.drop_height + config.clearance > surface.free_height:
-            continue
-        shift = np.array([point[0] - (lo[0] + hi[0]) / 2, point[1] - (lo[1] + hi[1]) / 2,
-                          surface.height + config.drop_height - lo[2]])
-        footprint = MultiPoint((v_rest[:, :2] + shift[:2]).tolist()).convex_hull
-        if not surface.polygon.contains(footprint):
-            continue
-        T_world_object = T_rest.copy()
-        T_world_object[:3, 3] += shift
-        # The object's box in the yawed frame (the stable pose's AABB turned by the yaw),
-        # grown by the clearance except at the bottom, which must not touch its support.
-        v_stable = vertices @ T_support_object[:3, :3].T + T_support_object[:3, 3]
-        s_lo, s_hi = v_stable.min(axis=0), v_stable.max(axis=0)
-        c = config.clearance
-        box_lo = s_lo - [c, c, -0.5 * config.drop_height]
-        box_hi = s_hi + [c, c, c]
-        box_T = np.eye(4)
-        box_T[:3, :3] = R_yaw
-        box_T[:3, 3] = R_yaw @ ((box_lo + box_hi) / 2) + shift
-        box = trimesh.creation.box(extents=box_hi - box_lo)
-        if world.in_collision_single(box, transform=box_T):
-            continue
-        world.add_object(name, box, transform=box_T)
+        T_world_object = np.eye(4)
+        T_world_object[:3, :3] = R_yaw @ T_support_object[:3, :3]
+        offset = np.array([center_xy[0], center_xy[1], 0.0])
+        T_world_object[:3, 3] = R_yaw @ (T_support_object[:3, 3] - offset) + [point[0], point[1], z_shift]
         position, quat = matrix_to_pose(T_world_object)
         friction = float(rng.uniform(*FRICTION_RANGE))
         return ObjectPlacement(
@@ -272,7 +309,7 @@ def _rot_z(yaw: float) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- robot
-def _sample_robot(rng, scene, world, tries: int = 20):
+def _sample_robot(rng, scene, world: _BoxWorld, tries: int = 20):
     region = scene.robot_region
     for _ in range(tries):
         x = float(rng.uniform(*region.x_range))
@@ -283,15 +320,13 @@ def _sample_robot(rng, scene, world, tries: int = 20):
         size_y = float(rng.uniform(*ROBOT_TABLE_Y_RANGE))
         R = _rot_z(yaw)
         # Table top at the base height (the base stands on it), front edge just ahead of the base.
+        height = max(z, ROBOT_TABLE_MIN_HEIGHT)
         center = np.array([x, y, 0.0]) + R @ np.array([ROBOT_TABLE_FRONT - size_x / 2, 0.0, 0.0])
-        center[2] = z / 2
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = center
-        if world.in_collision_single(trimesh.creation.box(extents=(size_x, size_y, z)), transform=T):
+        center[2] = height / 2
+        if world.hits(world.box((size_x, size_y, height), R, center)):
             continue
         quat = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-        return (x, y, z), quat, tuple(float(v) for v in center), (size_x, size_y, z)
+        return (x, y, z), quat, tuple(float(v) for v in center), (size_x, size_y, height)
     return None
 
 
@@ -333,7 +368,7 @@ def _sample_cameras(rng, scene, base_position, config) -> tuple[CameraPose, Came
         target = center + rng.uniform(-0.3, 0.3, size=3) * half
         eye = np.array([
             base_position[0] + rng.uniform(-0.3, 0.1),
-            center[1] + rng.uniform(0.6, 1.0),
+            center[1] + rng.uniform(0.9, 1.3),
             target[2] + rng.uniform(0.3, 0.7),
         ])
         eye_right = eye * [1, 1, 1]

@@ -147,6 +147,7 @@ class TaskSpec:
     camera_left: CameraPose
     camera_right: CameraPose
     robot_init_qpos: tuple[float, ...] = DEFAULT_QPOS
+    object_source: str = ""  # tasks.objects.object_source() when sampled; checked on load
     seed: int | None = None  # the sampler seed that produced this task (None if hand-made)
     version: str = TASK_SPEC_VERSION
     extra: dict = field(default_factory=dict)  # free-form, JSON-safe (e.g. sampler statistics)
@@ -154,7 +155,7 @@ class TaskSpec:
     KEYS = (
         "version", "seed", "scene_type", "scene_seed", "scene_params", "scene_hash", "objects",
         "target_index", "robot_base_position", "robot_base_quat_wxyz", "robot_table_center",
-        "robot_table_size", "camera_left", "camera_right", "robot_init_qpos", "extra",
+        "robot_table_size", "camera_left", "camera_right", "robot_init_qpos", "object_source", "extra",
     )
 
     def __post_init__(self):
@@ -209,6 +210,7 @@ class TaskSpec:
             "camera_left": self.camera_left.to_dict(),
             "camera_right": self.camera_right.to_dict(),
             "robot_init_qpos": list(self.robot_init_qpos),
+            "object_source": self.object_source,
             "extra": self.extra,
         }
 
@@ -228,7 +230,7 @@ class TaskSpec:
             return cls(
                 scene_type=d["scene_type"],
                 scene_seed=int(d["scene_seed"]),
-                scene_params={str(k): float(v) for k, v in dict(d["scene_params"]).items()},
+                scene_params=_scene_params(d["scene_params"]),
                 scene_hash=str(d["scene_hash"]),
                 objects=tuple(ObjectPlacement.from_dict(o) for o in d["objects"]),
                 target_index=int(d["target_index"]),
@@ -239,6 +241,7 @@ class TaskSpec:
                 camera_left=CameraPose.from_dict(d["camera_left"]),
                 camera_right=CameraPose.from_dict(d["camera_right"]),
                 robot_init_qpos=_floats(d["robot_init_qpos"], 9),
+                object_source=str(d["object_source"]),
                 seed=None if d["seed"] is None else int(d["seed"]),
                 version=d["version"],
                 extra=dict(d["extra"]),
@@ -251,6 +254,16 @@ class TaskSpec:
 
     def content_hash(self) -> str:
         return sha256_bytes(self.to_json().encode())
+
+
+def _scene_params(params) -> dict:
+    """Parameter values as given (ints stay ints: the scene hash is over their JSON form)."""
+    if not isinstance(params, dict):
+        raise ValueError("task 'scene_params' must be a dict of parameter name -> number")
+    for name, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"task scene parameter {name!r} = {value!r} is not a number")
+    return dict(params)
 
 
 def pose_matrix(position, quat_wxyz) -> np.ndarray:

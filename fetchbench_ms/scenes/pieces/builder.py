@@ -36,6 +36,9 @@ REACH_MARGIN = 0.05
 #: links occupy: furniture in that column in front of the base sets where the region ends.
 ROBOT_CLEARANCE = 0.12
 ROBOT_SHOULDER_HEIGHT = 0.4
+#: Half the widest robot table of the original (y size up to 1.0 m): its top is just under
+#: the base and it may reach a little in front of it.
+ROBOT_TABLE_HALF_WIDTH = 0.5
 #: Smallest piece of a split support polygon that is kept (m^2): smaller slivers hold no object.
 MIN_SURFACE_AREA = 0.012
 #: Version of the generators: bump when any type's geometry for a given seed changes.
@@ -305,8 +308,8 @@ def robot_region(surfaces: tuple[SupportSurface, ...], v: Mapping[str, float], p
     edge, y around their middle, z below the lowest one.
 
     Two adjustments keep it usable: x is measured from whatever furniture stands in front
-    of the robot below its shoulders (a desk edge in front of shelves standing on it, drawer
-    handles) when that is nearer than the supports; z is clamped so the highest support
+    of the robot below its shoulders or beside it below its table (a desk edge in front of
+    shelves standing on it, drawer handles) when that is nearer than the supports; z is clamped so the highest support
     stays within the arm's reach above the lowest base and the base stays above the floor.
     """
     (x_min, y_min), (x_max, y_max) = _surface_bounds(surfaces)
@@ -318,13 +321,13 @@ def robot_region(surfaces: tuple[SupportSurface, ...], v: Mapping[str, float], p
     z_lo = z_hi - v["robot.z_span"]
     z_lo = max(z_lo, highest - (REACH_ABOVE_BASE - REACH_MARGIN), 0.0)
     z_hi = max(z_hi, z_lo)
-    # Parts in the column in front of the base: within the base's footprint sideways and
-    # below the arm's first links (the clearance the robot-region check asks for).
+    # Parts in front of the base: in its column (base footprint, up to the arm's first
+    # links), and in the wider box of the robot table (up to its top, just under the base).
+    y_lo_part, y_hi_part = part_bounds[:, 0, 1], part_bounds[:, 1, 1]
+    z_lo_part = part_bounds[:, 0, 2]
     in_way = (
-        (part_bounds[:, 0, 1] < y_hi + ROBOT_CLEARANCE)
-        & (part_bounds[:, 1, 1] > y_lo - ROBOT_CLEARANCE)
-        & (part_bounds[:, 0, 2] < z_hi + ROBOT_SHOULDER_HEIGHT)
-    )
+        (y_lo_part < y_hi + ROBOT_CLEARANCE) & (y_hi_part > y_lo - ROBOT_CLEARANCE) & (z_lo_part < z_hi + ROBOT_SHOULDER_HEIGHT)
+    ) | ((y_lo_part < y_hi + ROBOT_TABLE_HALF_WIDTH) & (y_hi_part > y_lo - ROBOT_TABLE_HALF_WIDTH) & (z_lo_part < z_hi))
     x_front = min(x_min, float(part_bounds[in_way, 0, 0].min())) if in_way.any() else x_min
     x_hi = x_front - v["robot.x_gap"]
     return RobotRegion(

@@ -13,7 +13,7 @@ from ..params import ParamSpec
 from .builder import SceneBuilder, material, material_params, rect
 
 MAX_ROWS = 4
-MAX_COLS = 2
+MAX_COLS = 3
 
 
 def dresser_params(
@@ -55,13 +55,13 @@ def dresser_params(
 
 @dataclass(frozen=True)
 class DresserInfo:
+    """Outer extent of a built dresser (its top included)."""
+
     x0: float
     x1: float
     y0: float
     y1: float
     z_top: float
-    top_part: str
-    inner_y: tuple[float, float]
 
 
 def build_dresser(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float = 0.0) -> DresserInfo:
@@ -112,7 +112,7 @@ def build_dresser(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float
             xf = x0 - pull
             b.box_between(f"{label}_front", (xf, cy0 + gap, zb + gap), (xf + tf, cy1 - gap, zt - gap), fronts)
             _handle(b, v, f"{label}_handle", xf, (cy0 + cy1) / 2, zb + gap + v["handle_height"] * (zt - zb - 2 * gap), handles, cy1 - cy0)
-    return DresserInfo(x0 - oh, x0 + D, ya - oh, yb + oh, z_top, f"{name}_top", (yi0, yi1))
+    return DresserInfo(x0 - oh, x0 + D, ya - oh, yb + oh, z_top)
 
 
 def _open_box(b, name, x_start, x_carcass, depth, span_y, z_floor, z_wall_top, wall, mat) -> None:

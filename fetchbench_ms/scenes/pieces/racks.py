@@ -30,7 +30,7 @@ def rack_params() -> tuple[ParamSpec, ...]:
         ParamSpec("post_inset", 0.0, 0.015, "m", "posts set in from the board corners"),
         ParamSpec("post_extension", 0.0, 0.08, "m", "how far the posts rise above the top board"),
         ParamSpec("foot_style", 0, 1, "count", "0 plain post ends, 1 capsule levelling feet", kind="int"),
-        *layer_basket_params(1, 3),
+        *layer_basket_params(1, 3, MAX_RACK_LAYERS),
         *material_params("post", "metal"),
         *material_params("board", "metal"),
     )
@@ -72,8 +72,8 @@ def build_rack(b: SceneBuilder, v, name: str, x0: float, y0: float) -> None:
 # --------------------------------------------------------------------------- triangle corner shelf
 def triangle_shelf_params() -> tuple[ParamSpec, ...]:
     return (
-        ParamSpec("leg_a", 0.24, 0.34, "m", "length of the triangle's first straight edge"),
-        ParamSpec("leg_b", 0.22, 0.3, "m", "length of the triangle's second straight edge"),
+        ParamSpec("leg_a", 0.27, 0.36, "m", "length of the triangle's first straight edge"),
+        ParamSpec("leg_b", 0.24, 0.32, "m", "length of the triangle's second straight edge"),
         ParamSpec("bulge", 0.0, 0.06, "m", "outward bulge of the front (curved) edge"),
         ParamSpec("n_boards", 2, 3, "count", "number of boards", kind="int"),
         ParamSpec("gap", 0.14, 0.24, "m", "clear height between boards"),
@@ -147,8 +147,9 @@ def cube_wall_params() -> tuple[ParamSpec, ...]:
             ParamSpec(f"col_{k}_stack_gap", 0.1, 0.2, "m", f"gap between the cubes of column {k}"),
             ParamSpec(f"col_{k}_board", 0, 1, "count", f"1: the lower cube of column {k} has a middle board", kind="int"),
             ParamSpec(f"col_{k}_board_frac", 0.4, 0.6, "1", f"height of that middle board as a share of the cube"),
-            ParamSpec(f"col_{k}_spacing", 0.02, 0.15, "m", f"gap between column {k} and the next"),
         ]
+        if k < MAX_CUBE_COLUMNS - 1:
+            specs.append(ParamSpec(f"col_{k}_spacing", 0.02, 0.15, "m", f"gap between column {k} and the next"))
     specs += list(material_params("cube", "paint"))
     return tuple(specs)
 

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from shapely import affinity
@@ -87,38 +87,39 @@ def shelf_unit_params(
         ]
     specs += [ParamSpec(f"gap_{k}", *gap, "m", f"clear height of compartment {k}") for k in range(n_layers[1])]
     if max_baskets:
-        specs += list(layer_basket_params(min_baskets, max_baskets))
+        specs += list(layer_basket_params(min_baskets, max_baskets, n_layers[1]))
     specs += list(material_params("carcass", "wood"))
     specs += list(material_params("back", "paint"))
     return tuple(specs)
 
 
-def layer_basket_params(min_baskets: int, max_baskets: int, kind: str = "wicker") -> tuple[ParamSpec, ...]:
+def layer_basket_params(min_baskets: int, max_baskets: int, max_layers: int, kind: str = "wicker") -> tuple[ParamSpec, ...]:
     """Baskets standing on the boards of a shelf (see ``place_baskets``)."""
-    specs = [
-        ParamSpec("n_baskets", min_baskets, max_baskets, "count", "number of baskets on the shelves", kind="int"),
+    specs = []
+    if max_baskets > min_baskets:  # otherwise the count is fixed
+        specs.append(ParamSpec("n_baskets", min_baskets, max_baskets, "count", "number of baskets on the shelves", kind="int"))
+    specs += [
         ParamSpec("basket_width_frac", 0.3, 0.5, "1", "basket width as a share of the inner width"),
         ParamSpec("basket_depth_frac", 0.65, 0.92, "1", "basket depth as a share of the board depth"),
         ParamSpec("basket_height_frac", 0.3, 0.55, "1", "basket height as a share of its compartment"),
     ]
     for k in range(max_baskets):
         specs += [
-            ParamSpec(f"basket_{k}_layer", 0, 4, "count", f"board of basket {k} (modulo the reachable ones)", kind="int"),
+            ParamSpec(f"basket_{k}_layer", 0, max_layers - 1, "count", f"board of basket {k} (modulo the reachable ones)", kind="int"),
             ParamSpec(f"basket_{k}_pos", 0.0, 1.0, "1", f"sideways position of basket {k} in its free span"),
         ]
     return (*specs, *basket_params(kind))
 
 
-@dataclass
+@dataclass(frozen=True)
 class ShelfUnitInfo:
+    """Outer extent of a built bookcase / cabinet."""
+
     x0: float
     x1: float
     y0: float
     y1: float
     z_top: float
-    inner_y: tuple[float, float]
-    layers: list[tuple[str, float, float]] = field(default_factory=list)  # (board part, z top, clear gap)
-    board_x: tuple[float, float] = (0.0, 0.0)
 
 
 def build_shelf_unit(
@@ -155,7 +156,7 @@ def build_shelf_unit(
     if plinth > 0.005:
         ps = v["plinth_setback"]
         b.box_between(f"{name}_plinth", (x0 + ps, yi0, z0), (x0 + ps + 0.018, yi1, z0 + plinth), carcass)
-    info = ShelfUnitInfo(x0, x0 + D, ya, yb, z_top, (yi0, yi1), layers, (bx0, x_back))
+    info = ShelfUnitInfo(x0, x0 + D, ya, yb, z_top)
     # Supports: every compartment within reach of the lowest one, and the top if it is too.
     lowest = layers[0][1]
     reachable = [layer for layer in layers if layer[1] - lowest <= MAX_SUPPORT_SPAN]
@@ -172,7 +173,8 @@ def place_baskets(b: SceneBuilder, v, name: str, layers, x_span, y_span, label: 
     x_span x y_span minus its baskets."""
     (x0, x1), (y0, y1) = x_span, y_span
     occupied: dict[int, list[tuple[float, float]]] = {}
-    for k in range(int(v.get("n_baskets", 0))):
+    n_baskets = int(v["n_baskets"]) if "n_baskets" in v else sum(1 for key in v if key.startswith("basket_") and key.endswith("_layer"))
+    for k in range(n_baskets):
         li = int(v[f"basket_{k}_layer"]) % len(layers)
         board, zb, gap = layers[li]
         bw = v["basket_width_frac"] * (y1 - y0)

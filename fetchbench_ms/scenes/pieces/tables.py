@@ -1,11 +1,10 @@
 """Tables and things that hang on walls: desks, round tables, walls, floating wall shelves."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from shapely.geometry import Point, Polygon
+from shapely.geometry import Polygon
 
 from ..params import ParamSpec
 from .builder import SceneBuilder, material, material_params, rect
@@ -87,7 +86,7 @@ def build_desk(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float = 
 # --------------------------------------------------------------------------- round table
 def round_table_params() -> tuple[ParamSpec, ...]:
     return (
-        ParamSpec("radius", 0.3, 0.4, "m", "table top radius"),
+        ParamSpec("radius", 0.28, 0.38, "m", "table top radius"),
         ParamSpec("height", 0.55, 0.78, "m", "height of the table top surface"),
         ParamSpec("top_thickness", 0.02, 0.05, "m", "table top thickness"),
         ParamSpec("leg_style", 0, 1, "count", "0 central pedestal on a foot disc, 1 separate legs", kind="int"),
@@ -167,6 +166,3 @@ def build_wall_shelf(b: SceneBuilder, v, name: str, x_wall: float, depth: float,
         b.box_between(f"{name}_bracket_{side}", (x_wall - arm, yc - bt / 2, z_top - t - bh), (x_wall, yc + bt / 2, z_top - t), material(v, "bracket"))
     return board
 
-
-def disc_polygon_at(x: float, y: float, r: float) -> Polygon:
-    return Point(x, y).buffer(r, 32)

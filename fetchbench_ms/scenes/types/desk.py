@@ -6,6 +6,7 @@ from ..params import prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.tables import build_desk, desk_params
 from ..registry import SceneType, register_scene_type
+from ..spec import SceneSpec
 
 PARAMS = (
     *prefixed("desk", desk_params(width=(0.9, 1.25), depth=(0.55, 0.72))),
@@ -13,7 +14,7 @@ PARAMS = (
 )
 
 
-def build(values) -> "SceneSpec":  # noqa: F821
+def build(values) -> SceneSpec:
     b = SceneBuilder()
     top = build_desk(b, sub_params(values, "desk"), "desk", 0.0, 0.0)
     b.surface("desk_top", "on_table", top.polygon.buffer(-0.01, join_style="mitre"), top.z, top.part)

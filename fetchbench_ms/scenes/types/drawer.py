@@ -8,7 +8,7 @@ from ..pieces.drawers import build_dresser, dresser_params
 from ..registry import SceneType, register_scene_type
 
 PARAMS = (
-    *prefixed("dresser", dresser_params(width=(0.6, 1.0), depth=(0.38, 0.5))),
+    *prefixed("dresser", dresser_params(width=(0.7, 1.1), depth=(0.4, 0.52), cols=(1, 3), pull=(0.6, 0.85))),
     *robot_params(z_drop=(0.0, 0.15), z_span=(0.03, 0.1)),
 )
 

@@ -10,10 +10,10 @@ from ..pieces.storage import build_shelf_unit, shelf_unit_params
 from ..registry import SceneType, register_scene_type
 
 PARAMS = (
-    *prefixed("dresser", dresser_params(width=(0.6, 0.95), depth=(0.34, 0.42), rows=(2, 3), row_height=(0.14, 0.24), pull=(0.5, 0.7))),
+    *prefixed("dresser", dresser_params(width=(0.7, 1.0), depth=(0.34, 0.42), rows=(2, 3), cols=(2, 3), row_height=(0.14, 0.24), pull=(0.5, 0.7))),
     *prefixed(
         "hutch",
-        shelf_unit_params(width=(0.5, 0.95), depth=(0.24, 0.32), n_layers=(1, 2), gap=(0.22, 0.3), plinth=None, max_baskets=1),
+        shelf_unit_params(width=(0.4, 0.75), depth=(0.24, 0.32), n_layers=(1, 2), gap=(0.22, 0.3), plinth=None, max_baskets=1),
     ),
     ParamSpec("hutch.slide", 0.0, 1.0, "1", "sideways position of the hutch on the chest (share of the free width)"),
     ParamSpec("hutch.front_inset", 0.0, 0.04, "m", "hutch set back from the chest's front edge"),

@@ -1,0 +1,78 @@
+"""Record a scripted FetchBench episode and convert it with the replay tool."""
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import h5py
+import numpy as np
+import pytest
+import torch
+
+import fetchbench_ms  # noqa: F401
+from fetchbench_ms import replay_trajectory
+from mani_skill.utils.wrappers import RecordEpisode
+
+STEPS = 12
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    """A scripted pd_joint_pos episode: swing the arm, then close the gripper."""
+    out = tmp_path_factory.mktemp("demo")
+    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
+    env = RecordEpisode(env, output_dir=str(out), trajectory_name="demo", save_video=False,
+                        source_type="scripted", source_desc="test swing")
+    env.reset(seed=3)
+    q0 = env.unwrapped.agent.robot.get_qpos()[0, :7].clone()
+    dq = torch.tensor([0.4, 0.3, 0.0, 0.3, 0.0, -0.3, 0.2])
+    for t in range(STEPS):
+        gripper = 0.04 if t < STEPS - 4 else -0.01
+        action = torch.cat([q0 + dq * min(1.0, (t + 1) / (STEPS - 4)), torch.tensor([gripper])])
+        env.step(action[None])
+    env.close()
+    return out / "demo.h5"
+
+
+def _states(path):
+    with h5py.File(path, "r") as f:
+        traj = f["traj_0"]
+        actors = {k: traj["env_states/actors"][k][:] for k in traj["env_states/actors"]}
+        robot = traj["env_states/articulations/panda"][:]
+        return actors, robot, traj["success"][:]
+
+
+@pytest.mark.slow  # ~50 s: renders and stores 2 x 76,800 points per step
+def test_replay_to_pointcloud_obs_matches_states(demo):
+    replay_trajectory.main(["--traj-path", str(demo), "-o", "pointcloud", "--save-traj", "--allow-failure"])
+    out = demo.parent / "demo.pointcloud.pd_joint_pos.physx_cpu.h5"
+    actors, robot, success = _states(demo)
+    r_actors, r_robot, r_success = _states(out)
+    assert set(actors) == set(r_actors) and any(k.startswith("object_") for k in actors)
+    for name in actors:
+        np.testing.assert_allclose(r_actors[name], actors[name], atol=1e-5, err_msg=name)
+    np.testing.assert_allclose(r_robot, robot, atol=1e-5)
+    assert np.array_equal(success, r_success)
+    with h5py.File(out, "r") as f:
+        pcd = f["traj_0/obs/pointcloud"]
+        assert pcd["xyz_base"].shape[1:] == (2 * 320 * 240, 3)
+        assert pcd["fetch_label"].shape[0] == STEPS + 1
+    meta = json.loads((demo.parent / "demo.pointcloud.pd_joint_pos.physx_cpu.json").read_text())
+    assert meta["env_info"]["env_id"] == "FetchBench-v0"
+
+
+def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
+    replay_trajectory.main(["--traj-path", str(demo), "-c", "pd_joint_delta_pos", "--save-traj", "--allow-failure"])
+    out = demo.parent / "demo.state.pd_joint_delta_pos.physx_cpu.h5"
+    actors, robot, success = _states(demo)
+    r_actors, r_robot, r_success = _states(out)
+    for name in actors:
+        if name.startswith("object_"):
+            # Object poses at the end (positions) agree to a millimetre.
+            np.testing.assert_allclose(r_actors[name][-1, :3], actors[name][-1, :3], atol=1e-3, err_msg=name)
+    # The converted arm ends where the original did (joint positions, 9 after the 13 root values).
+    np.testing.assert_allclose(r_robot[-1, 13:20], robot[-1, 13:20], atol=0.02)
+    assert bool(r_success[-1]) == bool(success[-1])
+    with h5py.File(out, "r") as f:
+        actions = f["traj_0/actions"][:]
+    assert actions.shape[1] == 8 and np.abs(actions).max() <= 1.0 + 1e-6  # normalised delta actions

@@ -82,9 +82,15 @@ def easy_table_task(env, seed: int = 5) -> dict:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method,obs_mode", [("ga-mesh-rrt", "none"), ("ga-ptd-rrt", "pointcloud")])
-def test_easy_table_task_succeeds_end_to_end(method, obs_mode):
+def test_easy_table_task_succeeds_end_to_end(method, obs_mode, tmp_path, monkeypatch):
     from fetchbench_ms.envs import make
     from fetchbench_ms.solutions import solve
+    from fetchbench_ms.solutions.grasp_source import object_grasps
+
+    # Grasps: the antipodal stand-in (an empty grasp store), so this tests the pipeline
+    # whatever the state of the shipped labels (a stale store fails loudly by design).
+    monkeypatch.setenv("FETCHBENCH_GRASPS_DIR", str(tmp_path))
+    object_grasps.cache_clear()
 
     env = make("FetchBench-Table-v0", obs_mode=obs_mode, control_mode="pd_joint_pos")
     task = easy_table_task(env)

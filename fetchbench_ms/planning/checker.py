@@ -7,6 +7,7 @@ import numpy as np
 import torch
 import trimesh
 
+from .spheres import fit_balls
 from .robot import FINGER_OPEN, HAND_LINKS, WORLD_LINKS, PandaModel
 from .world import CollisionWorld
 
@@ -19,34 +20,30 @@ class Attachment:
     radii: np.ndarray  # (M,)
 
     @classmethod
-    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 96, seed: int = 0,
+    def from_points(cls, points_hand: np.ndarray, n_spheres: int = 64, seed: int = 0,
                     margin: float = 0.003) -> "Attachment":
-        """Spheres on object points (surface samples or observed cloud), hand frame.
-
-        Farthest-point picks ``n_spheres`` centres; each radius is the distance to the
-        farthest point it is the nearest centre of, plus ``margin`` for the surface between
-        samples, so every point is covered.
-        """
+        """Balls covering object points (the observed cloud, or samples of the solid), hand
+        frame: k-means clusters with their enclosing balls grown by ``margin`` (for the
+        surface between samples), so every point is covered and, given interior samples,
+        balls sit inside the object rather than on its skin."""
         points = np.asarray(points_hand, dtype=float).reshape(-1, 3)
         if len(points) == 0:
             raise ValueError("cannot attach an object with no points")
-        rng = np.random.default_rng(seed)
-        chosen = [int(rng.integers(len(points)))]
-        d = np.linalg.norm(points - points[chosen[0]], axis=1)
-        for _ in range(min(n_spheres, len(points)) - 1):
-            chosen.append(int(np.argmax(d)))
-            d = np.minimum(d, np.linalg.norm(points - points[chosen[-1]], axis=1))
-        centers = points[chosen]
-        owner = np.argmin(np.linalg.norm(points[:, None] - centers[None], axis=2), axis=1)
-        radii = np.array([np.linalg.norm(points[owner == i] - centers[i], axis=1).max(initial=0.0)
-                          for i in range(len(centers))])
-        return cls(centers, np.maximum(radii, 0.002) + margin)
+        centers, radii = fit_balls(points, n_spheres, margin, np.random.default_rng(seed))
+        return cls(centers, radii)
 
     @classmethod
-    def from_mesh(cls, mesh_hand: trimesh.Trimesh, n_samples: int = 2000, n_spheres: int = 96,
-                  seed: int = 0) -> "Attachment":
-        points, _ = trimesh.sample.sample_surface(mesh_hand, n_samples, seed=np.random.default_rng(seed))
-        return cls.from_points(np.concatenate([points, mesh_hand.vertices]), n_spheres, seed)
+    def from_convex_parts(cls, parts_hand, n_samples: int = 3000, n_spheres: int = 64,
+                          seed: int = 0) -> "Attachment":
+        """Balls covering an object's convex parts (hand frame): surface and interior samples."""
+        rng = np.random.default_rng(seed)
+        area = np.array([p.area for p in parts_hand])
+        points = []
+        for part, share in zip(parts_hand, area / area.sum()):
+            n = max(50, int(n_samples * share))
+            surface, _ = trimesh.sample.sample_surface(part, n, seed=rng)
+            points += [part.vertices, surface, trimesh.sample.volume_mesh(part, n // 2, seed=rng)]
+        return cls.from_points(np.concatenate(points), n_spheres, seed)
 
 
 class CollisionChecker:
@@ -153,6 +150,8 @@ class CollisionChecker:
         link7) placed at each ``T_base_hand`` (N, 4, 4), without IK: a cheap filter for grasp
         candidates before the arm is solved for."""
         T_base_hand = torch.as_tensor(np.asarray(T_base_hand, float)).reshape(-1, 4, 4)
+        if len(T_base_hand) == 0:
+            return np.zeros(0)
         links = ("panda_link7",) + HAND_LINKS
         poses = self.robot.link_poses(torch.zeros(1, 7, dtype=torch.float64), self.finger)
         T_hand_base = torch.linalg.inv(poses["panda_hand"][0])

@@ -70,22 +70,30 @@ def sample_link_points(mesh: trimesh.Trimesh, seed: int, surface_count: int = 80
     return np.concatenate(parts, axis=0)
 
 
-def fit_spheres(link: str, mesh: trimesh.Trimesh, margin: float = DEFAULT_MARGIN, seed: int = 0,
-                n_spheres: int | None = None) -> LinkSpheres:
-    points = sample_link_points(mesh, seed)
-    if n_spheres is None:
-        n_spheres = int(np.clip(np.ceil(mesh.extents.max() / SPHERE_SPACING) + 1, 2, 10))
-    rng = np.random.default_rng(seed)
-    _, labels = kmeans2(points, n_spheres, iter=30, minit="++", rng=rng)
+def fit_balls(points: np.ndarray, n_balls: int, margin: float, rng: np.random.Generator,
+              iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """``n_balls`` balls covering ``points``: k-means clusters, each with its minimum
+    enclosing ball grown by ``margin``. Returns (centers (k, 3), radii (k,))."""
+    n_balls = min(n_balls, len(points))
+    _, labels = kmeans2(points, n_balls, iter=iterations, minit="++", rng=rng)
     centers, radii = [], []
-    for j in range(n_spheres):
+    for j in range(n_balls):
         members = points[labels == j]
         if len(members) == 0:
             continue
         c, r = minimum_enclosing_ball(members)
         centers.append(c)
         radii.append(r + margin)
-    return LinkSpheres(link, np.asarray(centers), np.asarray(radii))
+    return np.asarray(centers).reshape(-1, 3), np.asarray(radii)
+
+
+def fit_spheres(link: str, mesh: trimesh.Trimesh, margin: float = DEFAULT_MARGIN, seed: int = 0,
+                n_spheres: int | None = None) -> LinkSpheres:
+    points = sample_link_points(mesh, seed)
+    if n_spheres is None:
+        n_spheres = int(np.clip(np.ceil(mesh.extents.max() / SPHERE_SPACING) + 1, 2, 10))
+    centers, radii = fit_balls(points, n_spheres, margin, np.random.default_rng(seed))
+    return LinkSpheres(link, centers, radii)
 
 
 def _to_json(fitted: list[LinkSpheres]) -> dict:

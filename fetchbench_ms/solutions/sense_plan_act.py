@@ -18,12 +18,12 @@ executor down, so steps go through ``BaseEnv._step_action`` (the simulation part
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-import trimesh
 
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
@@ -54,6 +54,9 @@ class SolveConfig:
     # original's step list: the grasp pose sits millimetres from the furniture, and
     # RRTConnect often fails to leave such a pocket within the budget. () = the original.
     retreat_distances: tuple = (0.10, 0.06, 0.03)
+    # If the carried object still touches its support after the lift: lift this much more
+    # (first that frees it). () = the original.
+    extra_lifts: tuple = (0.02, 0.04, 0.06)
     close_seconds: float = 1.5
     max_grasps: int = 128  # candidates drawn (annotated grasps, or antipodal stand-ins)
     ik_grasps: int = 24  # candidates whose open hand is collision-free go to IK, at most
@@ -282,8 +285,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_hand = robot.link_poses(ex.q[None])["panda_hand"][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
-        mesh = trimesh.util.concatenate([p.copy().apply_transform(T_hand_object) for p in asset.convex_parts])
-        attachment = Attachment.from_mesh(mesh, seed=int(rng.integers(2**31)))
+        parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
+        attachment = Attachment.from_convex_parts(parts_hand, seed=int(rng.integers(2**31)))
         world = state.timed(mesh_world, env)  # objects may have shifted while grasping
     else:
         T_hand_grasp = T_grasp_tcp[chosen] @ np.linalg.inv(tcp_from_hand(np.eye(4)))
@@ -295,6 +298,20 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     # The fingers wrap the object: the attachment spheres stand for both there.
     carry = CollisionChecker(robot, world, finger=finger, exclude=("target",), attachment=attachment,
                              margin=cfg.margin, ignore_links=("panda_leftfinger", "panda_rightfinger"))
+    if not carry.valid(ex.q)[0]:
+        # The carried object's balls still touch what it stood on (they bulge ~1 cm past
+        # its faces, or it slipped a little): lift further, checking the arm alone.
+        arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
+                                    ignore_links=("panda_leftfinger", "panda_rightfinger"))
+        for extra in cfg.extra_lifts:
+            T_up = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
+            T_up[2, 3] += extra
+            path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(
+                robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy(), T_up, 3), arm_only)
+            if path is not None and carry.valid(path[-1])[0]:
+                ex.follow(path, cfg.approach_speed_scale)
+                state.notes.append(f"lifted {extra:.2f} m more")
+                break
     T_tcp = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy()
     for distance in cfg.retreat_distances:
         path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(T_tcp, retreat(T_tcp, distance), 4),
@@ -353,8 +370,7 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
     if METHODS[method]["world"] == "pointcloud" and env.unwrapped.obs_mode != "pointcloud":
         raise ValueError(f"{method} plans in the observed point clouds: make the env with obs_mode='pointcloud' "
                          f"(it has {env.unwrapped.obs_mode!r})")
-    config = config or SolveConfig()
-    config.retries = retries
+    config = dataclasses.replace(config or SolveConfig(), retries=retries)
     torch.set_num_threads(1)  # small batches: threads only add overhead here
     t_wall = time.perf_counter()
     if reset:

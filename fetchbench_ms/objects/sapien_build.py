@@ -13,6 +13,7 @@ import sapien
 import trimesh
 
 from ..utils.mesh_cache import mesh_file
+from ..utils.sapien_scene import new_scene
 from .asset import ObjectAsset
 
 #: Material defaults: the middle of FetchBench's per-object randomisation ranges.
@@ -47,7 +48,7 @@ def drop_on_plane(asset: ObjectAsset, pose_index: int = 0, drop_height: float = 
     """Drop ``asset`` in stable pose ``pose_index`` from ``drop_height`` onto a plane and
     simulate; return (actor, tilt in degrees between the start and end z axes, end
     height minus resting height in m). A stable pose leaves both small."""
-    scene = sapien.Scene()
+    scene = new_scene()
     scene.set_timestep(timestep)
     scene.add_ground(0.0)
     T_start = asset.stable_poses[pose_index].copy()

@@ -12,7 +12,9 @@ def main() -> int:
         import numpy as np
         import sapien
 
-        scene = sapien.Scene()
+        from fetchbench_ms.utils.sapien_scene import new_scene
+
+        scene = new_scene()
         camera = scene.add_camera("check", 32, 32, 1.0, 0.01, 10.0)
         scene.update_render()
         camera.take_picture()

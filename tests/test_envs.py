@@ -345,8 +345,14 @@ def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
         env.reset(seed=seed)
         info = _close_gripper_on_target_in_free_space(env)
         assert info["is_grasped"]
+        # The env's one-pass grasp test agrees with ManiSkill's Panda.is_grasping.
+        base = env.unwrapped
+        assert bool(base.agent.is_grasping(base.target)) and bool(base.evaluate()["is_grasped"])
         info = settle_and_hold(env)  # 10 s, gripper squeezing
         assert info["success"] and info["is_grasped"]
+        l_force, r_force = base._finger_forces_cpu()
+        np.testing.assert_allclose(l_force, base.scene.get_pairwise_contact_forces(base.agent.finger1_link, base.target), atol=1e-4)
+        np.testing.assert_allclose(r_force, base.scene.get_pairwise_contact_forces(base.agent.finger2_link, base.target), atol=1e-4)
         assert float(info["target_com_base"][0, 0]) < 0.0 and float(info["target_height"]) > 0.5
     finally:
         env.close()

@@ -294,14 +294,46 @@ class FetchBenchEnv(BaseEnv):
         return torch.from_numpy(raw)[None]
 
     def _is_grasping(self, target_com_world: torch.Tensor) -> torch.Tensor:
-        """The Panda's grasp test (both fingers push on the target). On CPU it reads every
-        contact of the scene, which costs more than the physics step with ~15 resting
-        objects, so it is skipped while the TCP is too far for the fingers to touch."""
-        if not self.gpu_sim_enabled:
-            reach = self.built.target_radius + FINGER_REACH
-            if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
-                return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        return self.agent.is_grasping(self.target)
+        """The Panda's grasp test: both fingers push on the target (>= 0.5 N, within 85 deg
+        of their closing direction), as ``Panda.is_grasping``.
+
+        On CPU that test walks the scene's contact list in Python twice (once per finger),
+        which with ~15 resting objects costs more than the physics step. Here it is
+        skipped while the TCP is too far for the fingers to touch the target, and the two
+        fingers' forces come from one pass (``_finger_forces_cpu``), about 2x faster."""
+        if self.gpu_sim_enabled:
+            return self.agent.is_grasping(self.target)
+        reach = self.built.target_radius + FINGER_REACH
+        if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
+            return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        l_force, r_force = self._finger_forces_cpu()
+        agent = self.agent
+        l_open = agent.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # direction that opens the finger
+        r_open = -agent.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
+        flags = []
+        for force, direction in ((l_force, l_open), (r_force, r_open)):
+            angle = common.compute_angle_between(direction, force)
+            flags.append((torch.linalg.norm(force, dim=1) >= 0.5) & (torch.rad2deg(angle) <= 85))
+        return flags[0] & flags[1]
+
+    def _finger_forces_cpu(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Contact forces [1, 3] of the target on each finger, from one pass over the contacts."""
+        fingers = (self.agent.finger1_link._objs[0].entity, self.agent.finger2_link._objs[0].entity)
+        target = self.target._objs[0]
+        impulses = np.zeros((2, 3))
+        for contact in self.scene.px.get_contacts():
+            e0, e1 = contact.bodies[0].entity, contact.bodies[1].entity
+            if e1 == target:
+                finger, sign = e0, 1.0  # impulses act on the first body
+            elif e0 == target:
+                finger, sign = e1, -1.0
+            else:
+                continue
+            for k in (0, 1):
+                if finger == fingers[k]:
+                    impulses[k] += sign * np.sum([point.impulse for point in contact.points], axis=0)
+        forces = torch.tensor(impulses / self.scene.px.timestep, dtype=torch.float32, device=self.device)
+        return forces[0:1], forces[1:2]
 
     def evaluate(self):
         b = self.built

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import trimesh
 
 from fetchbench_ms.solutions import FAILURE_CLASSES, PHASES, summarize
 from fetchbench_ms.solutions import runner
@@ -118,7 +119,7 @@ def test_robot_points_are_removed_from_the_scene_cloud():
     rng = np.random.default_rng(0)
     on_robot = []
     for link in ("panda_link3", "panda_link5", "panda_hand"):  # surface points of the arm as a camera sees it
-        points, _ = __import__("trimesh").sample.sample_surface(robot.collision_meshes[link], 200, seed=rng)
+        points, _ = trimesh.sample.sample_surface(robot.collision_meshes[link], 200, seed=rng)
         T = poses[link][0].numpy()
         on_robot.append(points @ T[:3, :3].T + T[:3, 3])
     elsewhere = rng.uniform([0.6, -0.5, 0.0], [1.0, 0.5, 0.3], (300, 3))  # furniture in front of the robot

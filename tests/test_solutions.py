@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import trimesh
 
 from fetchbench_ms.solutions import FAILURE_CLASSES, PHASES, summarize
 from fetchbench_ms.solutions import runner
@@ -104,3 +105,23 @@ def test_easy_table_task_succeeds_end_to_end(method, obs_mode, tmp_path, monkeyp
     info = env.unwrapped.evaluate()
     assert bool(info["is_lifted"][0]) and bool(info["is_retrieved"][0])
     env.close()
+
+
+def test_robot_points_are_removed_from_the_scene_cloud():
+    import torch
+
+    from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+    from fetchbench_ms.solutions.worlds import remove_robot_points
+
+    robot = panda()
+    q_full = np.r_[Q_DEFAULT, 0.04]
+    poses = robot.link_poses(torch.as_tensor(Q_DEFAULT)[None], 0.04)
+    rng = np.random.default_rng(0)
+    on_robot = []
+    for link in ("panda_link3", "panda_link5", "panda_hand"):  # surface points of the arm as a camera sees it
+        points, _ = trimesh.sample.sample_surface(robot.collision_meshes[link], 200, seed=rng)
+        T = poses[link][0].numpy()
+        on_robot.append(points @ T[:3, :3].T + T[:3, 3])
+    elsewhere = rng.uniform([0.6, -0.5, 0.0], [1.0, 0.5, 0.3], (300, 3))  # furniture in front of the robot
+    kept = remove_robot_points(np.concatenate(on_robot + [elsewhere]), q_full)
+    assert len(kept) == len(elsewhere) and np.allclose(kept, elsewhere)

@@ -199,7 +199,8 @@ def _world_model(env, method: str, state: EpisodeState):
 
     obs = env.unwrapped.get_obs(unflattened=True)  # one render per try
     clouds = fetch_clouds(obs)
-    return state.timed(pointcloud_world, clouds), clouds
+    q_full = env.unwrapped.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
+    return state.timed(pointcloud_world, clouds, q_full), clouds
 
 
 def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | None:

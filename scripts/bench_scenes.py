@@ -4,7 +4,7 @@ the time to load a scene into SAPIEN as static bodies (median), and parameter co
     python scripts/bench_scenes.py [--seeds 50] [--load-seeds 10] [TYPE ...]
 
 Goals: median generation <= 50 ms, median SAPIEN load <= 0.3 s. Loading is timed from
-``sapien.Scene()`` to the built static furniture body (the mesh cache is warmed first, as
+creating the SAPIEN scene (CPU physics + renderer) to the built static furniture body (the mesh cache is warmed first, as
 it is in any run after the first). Figures depend on machine load: say under what load
 they were taken.
 """
@@ -24,10 +24,9 @@ def main() -> int:
     parser.add_argument("--load-seeds", type=int, default=10, help="instances timed for SAPIEN loading per type")
     args = parser.parse_args()
 
-    import sapien
-
     from fetchbench_ms.scenes import generate, get_scene_type, scene_types
     from fetchbench_ms.scenes.sapien_build import build_static_scene
+    from fetchbench_ms.utils.sapien_device import new_scene
 
     names = args.types or list(scene_types())
     for name in names:
@@ -49,9 +48,9 @@ def main() -> int:
         load_times = []
         for seed in range(args.load_seeds):
             spec = generate(name, seed)
-            build_static_scene(sapien.Scene(), spec)  # warm the mesh cache for convex parts
+            build_static_scene(new_scene(), spec)  # warm the mesh cache for convex parts
             start = time.perf_counter()
-            scene = sapien.Scene()
+            scene = new_scene()
             build_static_scene(scene, spec)
             load_times.append(time.perf_counter() - start)
             del scene

@@ -26,6 +26,19 @@ from fetchbench_ms.scenes import (
 # Keep the mesh cache (content-addressed, so safe to share between runs) out of the home folder.
 os.environ.setdefault("FETCHBENCH_CACHE", os.path.join(tempfile.gettempdir(), "fetchbench_ms_test_cache"))
 
+# SAPIEN renders on one device per process, and a plain ``sapien.Scene()`` picks the first
+# device it finds while ManiSkill asks for "cuda", else "cpu". Holding a renderer on
+# ManiSkill's device for the whole session makes every scene any test creates agree with
+# the envs, whatever order the tests run in (and spares shader recompilation).
+try:
+    from fetchbench_ms.utils.sapien_device import render_device
+
+    import sapien
+
+    _SESSION_RENDERER = sapien.render.RenderSystem(render_device())
+except RuntimeError:  # no Vulkan device at all: the rendering tests fail on their own
+    _SESSION_RENDERER = None
+
 #: Seeds every registered type is tested at (the default run; slow tests use more).
 SEEDS = (0, 1, 2)
 

@@ -22,6 +22,7 @@ from fetchbench_ms.scenes.checks import (
     reachable_fractions,
 )
 from fetchbench_ms.scenes.sapien_build import build_static_scene
+from fetchbench_ms.utils.sapien_device import new_scene
 
 # ---------------------------------------------------------------------------------------
 # Every scene passes every check.
@@ -167,7 +168,7 @@ SETTLE_S = 1.5
 def _drop_boxes(spec: SceneSpec):
     """Load ``spec`` into SAPIEN, drop a box 5 mm above a point well inside each surface,
     simulate, and return (furniture entity, [(surface, start xy, end pose, speed)])."""
-    scene = sapien.Scene()
+    scene = new_scene()
     scene.set_timestep(SIM_DT)
     furniture = build_static_scene(scene, spec)
     drops = []

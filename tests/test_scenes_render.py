@@ -104,3 +104,25 @@ def test_demo_writes_gallery_page_and_statistics(tmp_path, capsys):
         assert f"![{name}, seed 0](gallery/{name}.png)" in page
     printed = capsys.readouterr().out
     assert f"total ({len(names)} types)" in printed
+
+
+def test_a_maniskill_env_can_still_render_after_a_scene_picture():
+    # SAPIEN renders on one device per process. A picture's scene is kept alive (see
+    # render.py), so it must sit on the device ManiSkill's default backend asks for, or
+    # every env made later in the process fails to create its renderer. Run in a fresh
+    # process: the test session itself holds a renderer (conftest.py).
+    import subprocess
+    import sys
+
+    code = (
+        "import sapien\n"
+        "from mani_skill.envs.utils.system.backend import parse_sim_and_render_backend\n"
+        "from fetchbench_ms.scenes import generate, scene_types\n"
+        "from fetchbench_ms.scenes.render import render_scene\n"
+        "render_scene(generate(next(iter(scene_types())), 0), 32, 24)\n"
+        "device = parse_sim_and_render_backend('physx_cpu', 'gpu').render_device\n"
+        "sapien.render.RenderSystem(device)\n"
+        "print('ok')\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip().endswith("ok"), run.stderr[-2000:]

@@ -13,7 +13,7 @@ import sapien
 import trimesh
 
 from ..utils.mesh_cache import mesh_file
-from ..utils.sapien_scene import new_scene
+from ..utils.sapien_device import new_scene
 from .asset import ObjectAsset
 
 #: Material defaults: the middle of FetchBench's per-object randomisation ranges.

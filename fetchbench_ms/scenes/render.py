@@ -15,7 +15,7 @@ import sapien
 
 from ..utils.io import atomic_write_bytes
 from ..utils.mesh_cache import mesh_file
-from ..utils.sapien_scene import new_scene
+from ..utils.sapien_device import new_scene
 from .geometry import part_aabb, surface_slab
 from .sapien_build import build_static_scene
 from .spec import SUPPORT_LABELS, SceneSpec
@@ -118,7 +118,7 @@ def render_scene(spec: SceneSpec, width: int = 640, height: int = 480, highlight
     """RGB picture [height, width, 3] uint8 of the furniture (with surface highlights)."""
     if width < 16 or height < 16:
         raise ValueError(f"picture size must be at least 16x16, got {width}x{height}")
-    scene = new_scene()
+    scene = new_scene()  # on ManiSkill's render device, so envs made later still render
     scene.set_ambient_light([0.45, 0.45, 0.45])
     scene.add_directional_light([0.4, 0.6, -1.0], [0.75, 0.75, 0.75], shadow=False)
     scene.add_directional_light([-0.6, -0.3, -0.5], [0.25, 0.25, 0.25], shadow=False)

@@ -12,7 +12,7 @@ def main() -> int:
         import numpy as np
         import sapien
 
-        from fetchbench_ms.utils.sapien_scene import new_scene
+        from fetchbench_ms.utils.sapien_device import new_scene
 
         scene = new_scene()
         camera = scene.add_camera("check", 32, 32, 1.0, 0.01, 10.0)

@@ -1,0 +1,104 @@
+"""Ray backend: the same tasks and records as the local pool, on a Ray cluster.
+
+``address`` joins an existing cluster (``ray.init(address=...)``, e.g. ``auto`` or
+``ray://head:10001``); without it a local cluster with ``workers`` CPUs is started (and
+stopped at the end). One actor per worker keeps its env between tasks, like a local
+worker process; a task running past its limit gets its actor killed and replaced, an
+actor that dies takes only its current task (an error record) with it. The driver alone
+writes results, so the store is the same whatever the backend.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from typing import Callable, Iterable
+
+from .methods import WorkItem, error_record
+
+
+def _actor_class(ray):
+    @ray.remote(num_cpus=1, max_restarts=0)
+    class TaskActor:
+        def __init__(self, method: str, retries: int):
+            os.environ.setdefault("OMP_NUM_THREADS", "1")
+            import torch
+
+            torch.set_num_threads(1)
+            from fetchbench_ms.evaluation.methods import TaskRunner
+
+            self.runner = TaskRunner(method, retries)
+
+        def run(self, item: WorkItem) -> dict:
+            return self.runner(item)
+
+    return TaskActor
+
+
+def run_ray(method: str, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
+            task_timeout: float = 600.0, retries: int = 1, address: str | None = None) -> None:
+    try:
+        import ray
+    except ImportError as error:
+        raise ValueError("the ray backend needs Ray: pip install 'fetchbench_ms[ray]' (or pip install ray)") from error
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    items = list(items)
+    if not items:
+        return
+    started_here = not ray.is_initialized()
+    if started_here:
+        # Workers import this package (and custom module:function methods) as the driver does.
+        runtime_env = {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}}
+        if address is None:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False, runtime_env=runtime_env)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        _run(ray, _actor_class(ray), method, items, on_record, workers, task_timeout, retries)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _run(ray, TaskActor, method, items, on_record, workers, task_timeout, retries) -> None:
+    from ray.exceptions import RayActorError, RayTaskError
+
+    queue = list(reversed(items))
+    actors = [TaskActor.remote(method, retries) for _ in range(min(workers, len(items)))]
+    running: dict = {}  # object ref -> (actor index, item, start time)
+
+    def submit(i: int) -> None:
+        item = queue.pop()
+        running[actors[i].run.remote(item)] = (i, item, time.monotonic())
+
+    for i in range(len(actors)):
+        if queue:
+            submit(i)
+    while running:
+        now = time.monotonic()
+        deadline = min(start + task_timeout for _, _, start in running.values())
+        ready, _ = ray.wait(list(running), num_returns=1, timeout=max(0.0, deadline - now))
+        for ref in ready:
+            i, item, _ = running.pop(ref)
+            try:
+                record = ray.get(ref)
+            except RayActorError as error:  # the actor's process died
+                record = {**error_record(item, "crash", f"the Ray actor died ({type(error).__name__})"), "method": method}
+                actors[i] = TaskActor.remote(method, retries)
+            except RayTaskError as error:  # the actor's constructor raised (the runner catches task errors)
+                record = {**error_record(item, "exception", str(error).splitlines()[0], str(error)), "method": method}
+                actors[i] = TaskActor.remote(method, retries)
+            on_record(record)
+            if queue:
+                submit(i)
+        now = time.monotonic()
+        for ref, (i, item, start) in list(running.items()):
+            if now - start > task_timeout:
+                running.pop(ref)
+                ray.kill(actors[i], no_restart=True)
+                on_record({**error_record(item, "timeout", f"ran past the task time limit of {task_timeout:g} s"),
+                           "method": method})
+                actors[i] = TaskActor.remote(method, retries)
+                if queue:
+                    submit(i)

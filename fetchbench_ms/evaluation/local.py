@@ -74,6 +74,10 @@ class _Worker:
         self.conn.close()
 
 
+def _deadline(worker: _Worker, task_timeout: float) -> float:
+    return worker.started + (task_timeout if worker.ready else STARTUP_TIMEOUT)
+
+
 def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
               task_timeout: float = 600.0, retries: int = 1) -> None:
     """Run every item; ``on_record`` gets each task's record (in the parent) as it finishes."""
@@ -86,14 +90,17 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
     pool = [_Worker(ctx, method, retries) for _ in range(min(workers, len(queue)))]
     failed_starts = 0
     try:
-        while queue or any(w.item is not None for w in pool):
+        while pool:
             now = time.monotonic()
             for w in pool:
                 if w.ready and w.item is None and queue:
                     w.item, w.started = queue.popleft(), now
                     w.conn.send(w.item)
-            deadlines = [w.started + (task_timeout if w.ready else STARTUP_TIMEOUT) for w in pool]
-            wait([w.conn for w in pool] + [w.proc.sentinel for w in pool], max(0.0, min(deadlines) - now))
+            if not queue and all(w.item is None for w in pool):
+                break
+            deadlines = [_deadline(w, task_timeout) for w in pool if w.item is not None or not w.ready]
+            wait([w.conn for w in pool] + [w.proc.sentinel for w in pool],
+                 max(0.0, min(deadlines) - now) if deadlines else None)
             for i, w in enumerate(pool):
                 message, died = None, False
                 if w.conn.poll():
@@ -109,13 +116,15 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
                     w.item = None
                     on_record(message)
                     continue
-                timed_out = not died and time.monotonic() - w.started > (task_timeout if w.ready else STARTUP_TIMEOUT)
+                busy = w.item is not None or not w.ready  # an idle worker has no deadline
+                timed_out = not died and busy and time.monotonic() > _deadline(w, task_timeout)
                 if not (died or timed_out):
                     continue
                 if w.item is not None:
                     if timed_out:
                         record = error_record(w.item, "timeout", f"ran past the task time limit of {task_timeout:g} s")
                     else:
+                        w.proc.join(5)  # its pipe closes a moment before it can be reaped
                         record = error_record(w.item, "crash", f"the worker process died "
                                                                 f"(exit code {w.proc.exitcode})")
                     record.update(method=method)
@@ -125,7 +134,9 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
                     if failed_starts >= 3:
                         raise RuntimeError(f"worker processes fail to start (exit code {w.proc.exitcode})")
                 w.kill()
-                pool[i] = _Worker(ctx, method, retries)
+                # A fresh worker only if there is work left for it.
+                pool[i] = _Worker(ctx, method, retries) if queue else None
+            pool = [w for w in pool if w is not None]
     finally:
         for w in pool:
             try:

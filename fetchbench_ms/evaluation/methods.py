@@ -40,7 +40,10 @@ class WorkItem:
         """Scene type and category, known before the task runs (for error records)."""
         if self.task is None:
             return {}
-        return {"scene_type": self.task["scene_type"], "category": self.task["target_label"]}
+        from ..tasks.spec import TaskSpec
+
+        task = TaskSpec.from_dict(self.task)
+        return {"scene_type": task.scene_type, "category": task.target_label, "target_object": task.target.object_id}
 
 
 def task_seed(task_id: str) -> int:

@@ -1,0 +1,24 @@
+"""Test methods for the evaluation runner (``tests.evaluation_faults:method`` style specs).
+
+``faulty`` behaves per task seed as ``FETCHBENCH_TEST_FAULTS`` (JSON ``{seed: behaviour}``,
+inherited by the worker processes) says: ``raise``, ``hang`` (sleeps far past any limit),
+``crash`` (the process dies at once, as on a segfault); other tasks return a cheap
+deterministic failed record without simulating.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+
+def faulty(env, seed):
+    behaviour = json.loads(os.environ.get("FETCHBENCH_TEST_FAULTS", "{}")).get(str(seed))
+    if behaviour == "raise":
+        raise RuntimeError(f"injected failure for seed {seed}")
+    if behaviour == "hang":
+        time.sleep(3600)
+    if behaviour == "crash":
+        os._exit(11)
+    return {"success": False, "failure": "not_attempted", "computation_time": 0.0, "cspace_length": 0.0,
+            "phases": {}}

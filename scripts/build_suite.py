@@ -38,8 +38,7 @@ def main(argv=None) -> int:
     suite.save(out)
     info = suite.info
     print(f"wrote {out}: {len(suite)} tasks from {info['complete_scenes']} of {info['planned_scenes']} scenes "
-          f"({'complete' if info['complete'] else 'partial'}); scene generation took {info['generation_seconds']} "
-          "worker-seconds")
+          f"({'complete' if info['complete'] else 'partial'})")
     if args.smoke:
         smoke = suite_build.smoke_subset(suite, args.smoke)
         smoke.save(SUITES_DIR / "smoke.json.gz")

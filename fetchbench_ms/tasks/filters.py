@@ -19,7 +19,7 @@ The env is created once per process (``FilterEnv``) and re-used for every arrang
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -161,7 +161,3 @@ def _rigid_dynamic():
 
     return sapien.physx.PhysxRigidDynamicComponent
 
-
-def with_target(task, k: int):
-    """``task`` with object ``k`` as the target."""
-    return replace(task, target_index=int(k))

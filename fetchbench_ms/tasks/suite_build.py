@@ -354,7 +354,6 @@ def assemble_suite(r: SuiteRecipe, work_dir) -> TaskSuite:
         "shortfall": {str(res["scene"]["index"]): res["shortfall"] for res in results if res["shortfall"]},
         "candidates": sum(res["candidates"] for res in results),
         "rejected_by_type": _rejections_by_type(results),
-        "generation_seconds": round(sum(res["seconds"] for res in results), 1),
     }
     return TaskSuite(r.name, {f"{r.name}/{k:04d}": tasks[i] for k, i in enumerate(order)}, info)
 

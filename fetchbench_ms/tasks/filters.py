@@ -139,13 +139,15 @@ class FilterEnv:
 
     def check(self, task, targets=None, seed: int = 0) -> ArrangementCheck:
         """All three filters for ``task``'s arrangement. ``targets``: the objects whose
-        reachability to test (default: the stable, visible ones; IK is the costly part)."""
+        reachability to test (default all); IK, the costly part, runs only for the visible
+        ones among them and only when the arrangement is stable."""
         obs = self.load(task)
         pixels = self.pixels(obs)
         max_move, max_speed = self.stability()
         stable = max_move < STABLE_MAX_MOVE and max_speed < STABLE_MAX_SPEED
         if targets is None:
-            targets = [k for k in range(len(task.objects)) if (pixels[k] > self.min_pixels).all()]
+            targets = range(len(task.objects))
+        targets = [k for k in targets if (pixels[k] > self.min_pixels).all()]
         reachable = {}
         if stable and targets:
             self.load(task)  # the same task again: back to the start poses, no rebuild

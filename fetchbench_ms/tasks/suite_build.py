@@ -42,7 +42,7 @@ from ..utils.io import atomic_write_text, canonical_json
 from .spec import TaskSpec
 from .suite import TaskSuite
 
-BUILD_VERSION = "1"
+BUILD_VERSION = "2"
 CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
 #: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
 #: (The paper's Total row swaps the drawer and basket columns; the rows add up to
@@ -199,13 +199,16 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None) -> dict:
             rejected["no_arrangement"] += 1
             continue
         labels = [o.support_label for o in task.objects]
+        # IK (the costly filter) only for objects whose category still has quota here.
         wanted = [i for i, label in enumerate(labels) if need[label] > 0]
-        check = filter_env.check(task, targets=None, seed=_arrangement_seed(r, scene, k))
+        check = filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k))
         candidates += len(labels)
         index = len(arrangements)
         kept = False
         for i, label in enumerate(labels):
             reason = check.rejection(i)
+            if reason == "reachable" and i not in check.reachable:
+                reason = "unchecked"  # stable and visible, but its category was full: no IK
             rejected[reason or "passed"] += 1
             if reason is not None:
                 continue

@@ -53,8 +53,10 @@ def format_stats(stats: dict) -> str:
 
 def format_rejections(stats: dict) -> str:
     """Share of candidate targets each filter rejected, by scene type (a candidate is every
-    placed object of every arrangement tried; the first failing filter counts)."""
-    header = ["", "candidates", "unstable", "not visible", "unreachable", "passed"]
+    placed object of every arrangement tried; the first failing filter counts; stable,
+    visible objects of a category whose quota was already full get no IK and are counted
+    apart)."""
+    header = ["", "candidates", "unstable", "not visible", "unreachable", "passed", "no IK (quota full)"]
     lines = []
     total = Counter()
     for scene_type, counts in stats["rejected_by_type"].items():
@@ -71,7 +73,7 @@ def format_rejections(stats: dict) -> str:
 def _rejection_row(name, counts) -> list:
     n = sum(v for k, v in counts.items() if k != "no_arrangement")
     share = lambda k: f"{100 * counts.get(k, 0) / n:.1f}%" if n else "-"  # noqa: E731
-    return [name, n, share("stable"), share("visible"), share("reachable"), share("passed")]
+    return [name, n, share("stable"), share("visible"), share("reachable"), share("passed"), share("unchecked")]
 
 
 def _stats(args) -> int:

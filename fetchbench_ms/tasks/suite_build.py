@@ -92,7 +92,7 @@ class SuiteRecipe:
 
 RECIPES = {
     "test": SuiteRecipe("test", "test", seed=0),
-    "val": SuiteRecipe("val", "train", seed=1, scale=0.1, tasks_per_scene=10, max_arrangements=30),
+    "val": SuiteRecipe("val", "train", seed=1, scale=0.1, tasks_per_scene=5, max_arrangements=15),
 }
 
 

@@ -10,30 +10,15 @@ from .methods import WorkItem, resolve_method, task_seed
 from .store import ResultsStore
 
 BACKENDS = ("local", "ray")
-SUITE_DIR = Path(__file__).resolve().parents[2] / "assets" / "suites"
-
-
-def available_suites() -> list[str]:
-    if not SUITE_DIR.is_dir():
-        return []
-    return sorted({p.name.split(".")[0] for p in SUITE_DIR.iterdir() if p.name.endswith((".json", ".json.gz"))})
 
 
 def open_suite(name_or_path: str):
     """A shipped suite by name (``test``, ``val``, ``smoke``) or a suite file; returns
-    (TaskSuite, source string, content sha256)."""
-    from ..tasks import suite as suite_module
+    (TaskSuite, its file, the file's sha256)."""
+    from ..tasks.suite import load_suite, suite_path
 
-    path = Path(name_or_path)
-    if not path.is_file():
-        candidates = [SUITE_DIR / f"{name_or_path}{ext}" for ext in (".json.gz", ".json")]
-        found = [c for c in candidates if c.is_file()]
-        if not found:
-            names = ", ".join(available_suites()) or "(none shipped)"
-            raise ValueError(f"unknown task suite {name_or_path!r}; valid: {names}, or a suite file path")
-        path = found[0]
-    suite = suite_module.load_suite(path)
-    return suite, str(path), sha256_bytes(path.read_bytes())
+    path = suite_path(name_or_path)
+    return load_suite(path), str(path), sha256_bytes(path.read_bytes())
 
 
 def parse_range(text: Optional[str], total: int) -> range:
@@ -54,7 +39,7 @@ def parse_range(text: Optional[str], total: int) -> range:
 
 
 def suite_items(suite, selection: range) -> list[WorkItem]:
-    ids = sorted(suite.tasks)
+    ids = list(suite.tasks)  # suite order: any prefix is a stratified sample
     return [WorkItem(task_id=i, seed=task_seed(i), task=suite.tasks[i].to_dict()) for i in (ids[k] for k in selection)]
 
 

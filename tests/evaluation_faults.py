@@ -22,3 +22,15 @@ def faulty(env, seed):
         os._exit(11)
     return {"success": False, "failure": "not_attempted", "computation_time": 0.0, "cspace_length": 0.0,
             "phases": {}}
+
+
+def wiggle(env, seed):
+    """Steps the arm's controller 16 times (holding its joint targets), then fails."""
+    import numpy as np
+
+    u = env.unwrapped
+    q = u.agent.robot.get_qpos()[0].cpu().numpy()[:7]
+    for _ in range(16):
+        u._step_action(np.concatenate([q, [1.0]]).astype(np.float32))
+    return {"success": False, "failure": "not_attempted", "computation_time": 0.0, "cspace_length": 0.0,
+            "phases": {}}

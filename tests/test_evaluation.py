@@ -157,3 +157,29 @@ def test_bad_input_is_a_clear_error(argv, message, tiny_suite, tmp_path, capsys)
 def test_report_of_a_folder_that_is_not_a_results_dir(tmp_path, capsys):
     assert main(["report", str(tmp_path)]) == 2
     assert "not a results directory" in capsys.readouterr().err
+
+
+def test_videos_of_failed_tasks(tmp_path):
+    """With a video folder, a failed task leaves a GIF: the start, a frame every 8 control
+    steps of the method, the end; the env's own stepping is restored afterwards."""
+    from PIL import Image
+
+    from fetchbench_ms.evaluation.methods import VIDEO_EVERY, RunnerSpec
+    from fetchbench_ms.evaluation.runner import seed_items
+
+    runner = RunnerSpec("evaluation_faults:wiggle", video_dir=str(tmp_path)).make()
+    try:
+        record = runner(seed_items("FetchBench-Table-v0", 1, 4)[0])
+        env = runner.envs[("FetchBench-Table-v0", "none")].unwrapped
+        assert "_step_action" not in vars(env)
+    finally:
+        runner.close()
+    assert "error" not in record
+    gif = Image.open(tmp_path / "FetchBench-Table-v0_seed-4.gif")
+    assert gif.size == (256, 256)
+    # GIF merges repeated frames (the arm held still) into longer ones: count time, not frames.
+    total_ms = 0
+    for k in range(gif.n_frames):
+        gif.seek(k)
+        total_ms += gif.info["duration"]
+    assert total_ms == (1 + 16 // VIDEO_EVERY + 1) * 1000 * VIDEO_EVERY // 20

@@ -18,7 +18,7 @@ def cmd_eval(args) -> int:
     records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
-                       retry_errors=args.retry_errors)
+                       retry_errors=args.retry_errors, videos=args.videos)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -51,6 +51,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--task-timeout", type=float, default=600.0, help="s per task before it is killed (error record)")
     p.add_argument("--retries", type=int, default=1, help="tries per task (FetchBench's --retries 5)")
     p.add_argument("--retry-errors", action="store_true", help="run again the tasks recorded as errors")
+    p.add_argument("--videos", action="store_true",
+                   help="record a GIF of every failed task (OUT/videos/), shown in the report's gallery")
     p.add_argument("--out", default=None, help="results directory, default out/eval/METHOD (re-running resumes)")
     p.set_defaults(func=cmd_eval)
 

@@ -16,7 +16,7 @@ import time
 from multiprocessing.connection import wait
 from typing import Callable, Iterable
 
-from .methods import WorkItem, error_record
+from .methods import RunnerSpec, WorkItem, error_record
 
 READY = "ready"
 STARTUP_TIMEOUT = 300.0  # s for a worker to import everything and say it is ready
@@ -33,7 +33,7 @@ def _die_with_parent() -> None:
         pass
 
 
-def worker_main(conn, method: str, retries: int, parent_pid: int) -> None:
+def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before the death signal was armed
         return
@@ -42,9 +42,7 @@ def worker_main(conn, method: str, retries: int, parent_pid: int) -> None:
     import torch
 
     torch.set_num_threads(1)
-    from .methods import TaskRunner
-
-    runner = TaskRunner(method, retries)
+    runner = spec.make()
     conn.send(READY)
     while True:
         try:
@@ -58,9 +56,9 @@ def worker_main(conn, method: str, retries: int, parent_pid: int) -> None:
 
 
 class _Worker:
-    def __init__(self, ctx, method: str, retries: int):
+    def __init__(self, ctx, spec: RunnerSpec):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=worker_main, args=(child, method, retries, os.getpid()), daemon=True)
+        self.proc = ctx.Process(target=worker_main, args=(child, spec, os.getpid()), daemon=True)
         self.proc.start()
         child.close()
         self.ready = False
@@ -78,8 +76,8 @@ def _deadline(worker: _Worker, task_timeout: float) -> float:
     return worker.started + (task_timeout if worker.ready else STARTUP_TIMEOUT)
 
 
-def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
-              task_timeout: float = 600.0, retries: int = 1) -> None:
+def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
+              task_timeout: float = 600.0) -> None:
     """Run every item; ``on_record`` gets each task's record (in the parent) as it finishes."""
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -87,7 +85,7 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
     if not queue:
         return
     ctx = mp.get_context("spawn")
-    pool = [_Worker(ctx, method, retries) for _ in range(min(workers, len(queue)))]
+    pool = [_Worker(ctx, spec) for _ in range(min(workers, len(queue)))]
     failed_starts = 0
     try:
         while pool:
@@ -127,7 +125,7 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
                         w.proc.join(5)  # its pipe closes a moment before it can be reaped
                         record = error_record(w.item, "crash", f"the worker process died "
                                                                 f"(exit code {w.proc.exitcode})")
-                    record.update(method=method)
+                    record.update(method=spec.method)
                     on_record(record)
                 else:
                     failed_starts += 1
@@ -135,7 +133,7 @@ def run_local(method: str, items: Iterable[WorkItem], on_record: Callable[[dict]
                         raise RuntimeError(f"worker processes fail to start (exit code {w.proc.exitcode})")
                 w.kill()
                 # A fresh worker only if there is work left for it.
-                pool[i] = _Worker(ctx, method, retries) if queue else None
+                pool[i] = _Worker(ctx, spec) if queue else None
             pool = [w for w in pool if w is not None]
     finally:
         for w in pool:

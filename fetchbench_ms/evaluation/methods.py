@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import re
 import time
 import traceback
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Optional
 
 IDLE = "idle"
@@ -98,11 +100,28 @@ def run_idle(env, seed) -> dict:
     }
 
 
+@dataclass(frozen=True)
+class RunnerSpec:
+    """What a worker needs to build its ``TaskRunner`` (picklable, sent to every worker)."""
+
+    method: str
+    retries: int = 1
+    video_dir: Optional[str] = None  # record a GIF of every failed task here
+
+    def make(self) -> "TaskRunner":
+        return TaskRunner(self.method, self.retries, self.video_dir)
+
+
+VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
+VIDEO_SIZE = 256  # px, square
+
+
 class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
-    def __init__(self, method_name: str, retries: int = 1):
+    def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None):
         self.method = resolve_method(method_name, retries)
+        self.video_dir = video_dir
         self.envs: dict = {}
 
     def env(self, env_id: str):
@@ -110,7 +129,8 @@ class TaskRunner:
 
         key = (env_id, self.method.obs_mode)
         if key not in self.envs:
-            self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos")
+            extra = {"render_mode": "rgb_array"} if self.video_dir else {}
+            self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos", **extra)
         return self.envs[key]
 
     def close(self) -> None:
@@ -127,7 +147,13 @@ class TaskRunner:
             env = self.env(item.env_id)
             options = {"task": item.task} if item.task is not None else None
             env.reset(seed=item.seed, options=options)
-            record = dict(self.method.run(env, item.seed))
+            if self.video_dir:
+                with VideoRecorder(env) as video:
+                    record = dict(self.method.run(env, item.seed))
+                if not record.get("success"):
+                    video.save(Path(self.video_dir) / f"{file_slug(item.task_id)}.gif")
+            else:
+                record = dict(self.method.run(env, item.seed))
             task = env.unwrapped.tasks[0]
             record.setdefault("scene_type", task.scene_type)
             record.setdefault("category", task.target_label)
@@ -153,3 +179,55 @@ def error_record(item: WorkItem, kind: str, message: str, trace: str = "") -> di
         "failure": ERROR_FAILURE,
         "error": {"kind": kind, "message": message, "traceback": trace},
     }
+
+
+def file_slug(text: str) -> str:
+    """A file-name-safe form of a task id or label ("test/0042" -> "test_0042")."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")
+
+
+class VideoRecorder:
+    """Frames of the env's overview camera every few control steps while a method runs.
+
+    Methods step the simulation through ``BaseEnv._step_action`` (``env.step`` would also
+    render the sensors), so the recorder wraps that on the env instance for the duration
+    of the ``with`` block: no method needs to know about recording.
+    """
+
+    def __init__(self, env, every: int = VIDEO_EVERY):
+        self.u, self.every, self.frames, self.steps = env.unwrapped, every, [], 0
+
+    def _frame(self) -> None:
+        from PIL import Image
+
+        image = self.u.render()[0].cpu().numpy()
+        self.frames.append(Image.fromarray(image).resize((VIDEO_SIZE, VIDEO_SIZE)))
+
+    def __enter__(self):
+        step_action = self.u._step_action
+
+        def recording_step(action):
+            out = step_action(action)
+            self.steps += 1
+            if self.steps % self.every == 0:
+                self._frame()
+            return out
+
+        self._frame()
+        self.u._step_action = recording_step
+        return self
+
+    def __exit__(self, *exc):
+        del self.u._step_action  # back to the class's method
+        self._frame()  # the end of the episode (after the hold)
+        return False
+
+    def save(self, path: Path) -> None:
+        import io
+
+        from ..utils.io import atomic_write_bytes
+
+        buffer = io.BytesIO()
+        self.frames[0].save(buffer, format="GIF", save_all=True, append_images=self.frames[1:],
+                            duration=int(1000 * self.every / self.u.control_freq), loop=0)
+        atomic_write_bytes(path, buffer.getvalue())

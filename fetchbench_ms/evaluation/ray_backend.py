@@ -14,20 +14,18 @@ import sys
 import time
 from typing import Callable, Iterable
 
-from .methods import WorkItem, error_record
+from .methods import RunnerSpec, WorkItem, error_record
 
 
 def _actor_class(ray):
     @ray.remote(num_cpus=1, max_restarts=0)
     class TaskActor:
-        def __init__(self, method: str, retries: int):
+        def __init__(self, spec: RunnerSpec):
             os.environ.setdefault("OMP_NUM_THREADS", "1")
             import torch
 
             torch.set_num_threads(1)
-            from fetchbench_ms.evaluation.methods import TaskRunner
-
-            self.runner = TaskRunner(method, retries)
+            self.runner = spec.make()
 
         def run(self, item: WorkItem) -> dict:
             return self.runner(item)
@@ -35,8 +33,8 @@ def _actor_class(ray):
     return TaskActor
 
 
-def run_ray(method: str, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
-            task_timeout: float = 600.0, retries: int = 1, address: str | None = None) -> None:
+def run_ray(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
+            task_timeout: float = 600.0, address: str | None = None) -> None:
     try:
         import ray
     except ImportError as error:
@@ -55,17 +53,17 @@ def run_ray(method: str, items: Iterable[WorkItem], on_record: Callable[[dict], 
         else:
             ray.init(address=address, log_to_driver=False)
     try:
-        _run(ray, _actor_class(ray), method, items, on_record, workers, task_timeout, retries)
+        _run(ray, _actor_class(ray), spec, items, on_record, workers, task_timeout)
     finally:
         if started_here:
             ray.shutdown()
 
 
-def _run(ray, TaskActor, method, items, on_record, workers, task_timeout, retries) -> None:
+def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
     from ray.exceptions import RayActorError, RayTaskError
 
     queue = list(reversed(items))
-    actors = [TaskActor.remote(method, retries) for _ in range(min(workers, len(items)))]
+    actors = [TaskActor.remote(spec) for _ in range(min(workers, len(items)))]
     running: dict = {}  # object ref -> (actor index, item, start time)
 
     def submit(i: int) -> None:
@@ -84,11 +82,11 @@ def _run(ray, TaskActor, method, items, on_record, workers, task_timeout, retrie
             try:
                 record = ray.get(ref)
             except RayActorError as error:  # the actor's process died
-                record = {**error_record(item, "crash", f"the Ray actor died ({type(error).__name__})"), "method": method}
-                actors[i] = TaskActor.remote(method, retries)
+                record = {**error_record(item, "crash", f"the Ray actor died ({type(error).__name__})"), "method": spec.method}
+                actors[i] = TaskActor.remote(spec)
             except RayTaskError as error:  # the actor's constructor raised (the runner catches task errors)
-                record = {**error_record(item, "exception", str(error).splitlines()[0], str(error)), "method": method}
-                actors[i] = TaskActor.remote(method, retries)
+                record = {**error_record(item, "exception", str(error).splitlines()[0], str(error)), "method": spec.method}
+                actors[i] = TaskActor.remote(spec)
             on_record(record)
             if queue:
                 submit(i)
@@ -98,7 +96,7 @@ def _run(ray, TaskActor, method, items, on_record, workers, task_timeout, retrie
                 running.pop(ref)
                 ray.kill(actors[i], no_restart=True)
                 on_record({**error_record(item, "timeout", f"ran past the task time limit of {task_timeout:g} s"),
-                           "method": method})
-                actors[i] = TaskActor.remote(method, retries)
+                           "method": spec.method})
+                actors[i] = TaskActor.remote(spec)
                 if queue:
                     submit(i)

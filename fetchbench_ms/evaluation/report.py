@@ -11,16 +11,14 @@ from __future__ import annotations
 
 import html
 import io
-import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..utils.io import atomic_write_bytes, atomic_write_text
 from .metrics import FUNNEL, failure_classes, summarize
-from .store import ResultsStore
-
-VIDEO_DIR = "videos"
+from .methods import file_slug
+from .store import VIDEO_DIR, ResultsStore
 
 
 @dataclass
@@ -223,11 +221,6 @@ def render_starts(run: Run, records: list[dict]) -> dict[str, bytes]:
     return images
 
 
-def _slug(text: str) -> str:
-    """A file-name-safe form of a task id or label."""
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")
-
-
 # ---------------------------------------------------------------------------- page
 STYLE = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
@@ -270,13 +263,13 @@ def build_report(dirs, out=None, gallery: int = 6, render: bool = True) -> Path:
                     f"{esc(str(r.get('category')))}, target {esc(str(r.get('target_object', '?')))}<br>"
                     f"failure <b>{esc(str(r.get('failure')))}</b>"]
             if r["task_id"] in images:
-                name = f"start_{_slug(run.label)}_{_slug(r['task_id'])}.png"
+                name = f"start_{file_slug(run.label)}_{file_slug(r['task_id'])}.png"
                 atomic_write_bytes(out / name, images[r["task_id"]])
                 card.append(f"<br><img src='{esc(name)}' title='left and right camera at the start'>")
             for ext in (".gif", ".mp4"):
-                video = run.root / VIDEO_DIR / f"{_slug(r['task_id'])}{ext}"
+                video = run.root / VIDEO_DIR / f"{file_slug(r['task_id'])}{ext}"
                 if video.exists():  # copied, so the report folder stands alone
-                    name = f"video_{_slug(run.label)}_{_slug(r['task_id'])}{ext}"
+                    name = f"video_{file_slug(run.label)}_{file_slug(r['task_id'])}{ext}"
                     shutil.copyfile(video, out / name)
                     card.append(f"<br><video src='{name}' controls></video>" if ext == ".mp4"
                                 else f"<br><img src='{name}' title='episode video'>")

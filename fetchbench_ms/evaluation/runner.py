@@ -6,8 +6,8 @@ from pathlib import Path
 from typing import Optional
 
 from ..utils.io import sha256_bytes
-from .methods import WorkItem, resolve_method, task_seed
-from .store import ResultsStore
+from .methods import RunnerSpec, WorkItem, resolve_method, task_seed
+from .store import VIDEO_DIR, ResultsStore
 
 BACKENDS = ("local", "ray")
 
@@ -56,7 +56,8 @@ def seed_items(env_id: str, episodes: int, seed: int) -> list[WorkItem]:
 def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Optional[str] = None,
              env_id: Optional[str] = None, episodes: int = 10, seed: int = 0, workers: int = 1,
              backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
-             retries: int = 1, retry_errors: bool = False, progress: bool = True) -> list[dict]:
+             retries: int = 1, retry_errors: bool = False, videos: bool = False,
+             progress: bool = True) -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
     selection (old and new), in task order."""
     from .metrics import summarize
@@ -86,16 +87,16 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         finished = [done[i.task_id] for i in items if i.task_id in done]
         bar.set_postfix(success=f"{sum(r['success'] for r in finished)}/{len(finished)}")
 
+    spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None)
     if todo:
         if backend == "local":
             from .local import run_local
 
-            run_local(method, todo, on_record, workers=workers, task_timeout=task_timeout, retries=retries)
+            run_local(spec, todo, on_record, workers=workers, task_timeout=task_timeout)
         else:
             from .ray_backend import run_ray
 
-            run_ray(method, todo, on_record, workers=workers, task_timeout=task_timeout, retries=retries,
-                    address=address)
+            run_ray(spec, todo, on_record, workers=workers, task_timeout=task_timeout, address=address)
     bar.close()
     records = [done[i.task_id] for i in items if i.task_id in done]
     store.write_summary(summarize(store.records()))

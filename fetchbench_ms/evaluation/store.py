@@ -19,6 +19,7 @@ from ..utils.io import append_jsonl_atomic, atomic_write_text, canonical_json
 RESULTS_FILE = "results.jsonl"
 MANIFEST_FILE = "run.json"
 SUMMARY_FILE = "summary.json"
+VIDEO_DIR = "videos"  # <task id>.gif of failed tasks, when recorded
 STORE_FORMAT = "fetchbench-results"
 STORE_VERSION = "1"
 

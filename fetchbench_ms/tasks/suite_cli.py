@@ -35,13 +35,22 @@ def suite_stats(suite) -> dict:
     }
 
 
+def _aligner(rows):
+    """A row formatter for a text table: first column left-aligned, the rest right-aligned."""
+    widths = [max(len(str(x)) for x in col) for col in zip(*rows)]
+
+    def fmt(cells) -> str:
+        return "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+
+    return fmt
+
+
 def format_stats(stats: dict) -> str:
     header = ["", "# Scenes", "# Tasks", *(name for _, name in COLUMNS)]
     lines = [[t, r["scenes"], r["tasks"], *(r[c] for c, _ in COLUMNS)] for t, r in stats["rows"].items()]
     total = stats["total"]
     lines.append(["Total", total["scenes"], total["tasks"], *(total[c] for c, _ in COLUMNS)])
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *lines)]
-    fmt = lambda cells: "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
+    fmt = _aligner([header, *lines])
     rule = "-" * len(fmt(header))
     out = [f"suite {stats['name']}", rule, fmt(header), rule, *map(fmt, lines[:-1]), rule, fmt(lines[-1]), rule]
     if stats["planned_scenes"] is not None:
@@ -65,8 +74,7 @@ def format_rejections(stats: dict) -> str:
     if not lines:
         return "(no filter statistics in this suite)"
     lines.append(_rejection_row("Total", total))
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *lines)]
-    fmt = lambda cells: "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w) for i, (c, w) in enumerate(zip(cells, widths)))  # noqa: E731
+    fmt = _aligner([header, *lines])
     return "\n".join([fmt(header), *map(fmt, lines)])
 
 

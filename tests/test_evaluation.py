@@ -82,6 +82,26 @@ def test_faults_are_isolated(tiny_suite, tmp_path, monkeypatch):
     assert summary["all"]["errors"] == 3 and summary["all"]["tasks"] == 4
 
 
+def children(pid: int) -> list[int]:
+    """Process ids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+        except OSError:
+            continue
+        if int(fields.get("PPid", "0").strip()) == pid:
+            out.append(int(status.parent.name))
+    return out
+
+
+def zombie(pid: int) -> bool:
+    try:
+        return "\nState:\tZ" in Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+
+
 def test_kill_9_and_restart_gives_the_uninterrupted_results(tiny_suite, idle_reference, tmp_path):
     out = tmp_path / "run"
     command = [sys.executable, "-m", "fetchbench_ms", "eval", "--method", "idle", "--suite", str(tiny_suite),
@@ -93,8 +113,15 @@ def test_kill_9_and_restart_gives_the_uninterrupted_results(tiny_suite, idle_ref
     while time.monotonic() < deadline and not (results.exists() and results.read_text().count("\n") >= 1):
         assert proc.poll() is None, "the run ended before it could be killed"
         time.sleep(0.2)
+    workers = children(proc.pid)
+    assert workers, "the run has no worker process"
     proc.send_signal(signal.SIGKILL)
     proc.wait()
+    deadline = time.monotonic() + 20
+    while any(Path(f"/proc/{pid}").exists() and not zombie(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not [pid for pid in workers if Path(f"/proc/{pid}").exists() and not zombie(pid)], \
+        "worker processes outlived the killed run"
     # A half-written last line, as a kill in the middle of an append would leave.
     with open(results, "ab") as f:
         f.write(b'{"task_id":"tiny/00')

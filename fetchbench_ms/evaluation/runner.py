@@ -18,7 +18,7 @@ def open_suite(name_or_path: str):
     from ..tasks.suite import load_suite, suite_path
 
     path = suite_path(name_or_path)
-    return load_suite(path), str(path), sha256_bytes(path.read_bytes())
+    return load_suite(path), str(path.resolve()), sha256_bytes(path.read_bytes())
 
 
 def parse_range(text: Optional[str], total: int) -> range:

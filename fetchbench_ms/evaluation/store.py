@@ -48,7 +48,9 @@ class ResultsStore:
         manifest = {"format": STORE_FORMAT, "version": STORE_VERSION, **manifest}
         if self.manifest_path.exists():
             old = self.manifest()
-            keys = ("format", "version", "method", "source", "source_sha256", "method_options")
+            # A suite is identified by its content (the same file may be named by another path).
+            source = "source_sha256" if manifest.get("source_sha256") else "source"
+            keys = ("format", "version", "method", source, "method_options")
             diff = [k for k in keys if old.get(k) != manifest.get(k)]
             if diff:
                 detail = "; ".join(f"{k}: {old.get(k)!r} there, {manifest.get(k)!r} now" for k in diff)

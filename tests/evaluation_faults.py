@@ -34,3 +34,13 @@ def wiggle(env, seed):
         u._step_action(np.concatenate([q, [1.0]]).astype(np.float32))
     return {"success": False, "failure": "not_attempted", "computation_time": 0.0, "cspace_length": 0.0,
             "phases": {}}
+
+
+def numpy_record(env, seed):
+    """A record with numpy values (converted) and, for odd seeds, no ``success`` (an error)."""
+    import numpy as np
+
+    if seed % 2:
+        return {"failure": "not_attempted"}
+    return {"success": np.bool_(False), "failure": "not_attempted", "computation_time": np.float32(0.5),
+            "cspace_length": np.float64(1.5), "phases": {"ik_found": np.bool_(True)}}

@@ -153,13 +153,17 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", "{}")
     items = seed_items("FetchBench-Shelf-v0", 2, 7)
     assert [i.task_id for i in items] == ["FetchBench-Shelf-v0/seed-7", "FetchBench-Shelf-v0/seed-8"]
-    runner = TaskRunner("evaluation_faults:faulty")
+    runner = TaskRunner("evaluation_faults:numpy_record")
     try:
         record = runner(items[1])
         assert runner.envs[("FetchBench-Shelf-v0", "none")].unwrapped.tasks[0].seed == 8
+        odd = runner(seed_items("FetchBench-Shelf-v0", 1, 7)[0])
     finally:
         runner.close()
     assert record["seed"] == 8 and record["category"] == "on_shelf" and record["env_id"] == "FetchBench-Shelf-v0"
+    # numpy values come back as plain JSON values; a record without success is an error.
+    assert record["success"] is False and record["computation_time"] == 0.5 and record["phases"]["ik_found"] is True
+    assert odd["error"]["kind"] == "exception" and "no boolean 'success'" in odd["error"]["message"]
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import json
 import re
 import time
 import traceback
@@ -154,6 +155,12 @@ class TaskRunner:
                     video.save(Path(self.video_dir) / f"{file_slug(item.task_id)}.gif")
             else:
                 record = dict(self.method.run(env, item.seed))
+            # The parent writes it as one canonical JSON line: make sure it is JSON here,
+            # where a failure is this task's error and not the run's.
+            record = json.loads(json.dumps(record, default=_json_default, allow_nan=False))
+            if not isinstance(record.get("success"), (bool, int)):
+                raise TypeError(f"method {self.method.name} returned no boolean 'success' (keys: {sorted(record)})")
+            record["success"] = bool(record["success"])
             task = env.unwrapped.tasks[0]
             record.setdefault("scene_type", task.scene_type)
             record.setdefault("category", task.target_label)
@@ -165,6 +172,12 @@ class TaskRunner:
         record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
                       wall_time=round(time.perf_counter() - t, 2))
         return record
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):  # numpy / torch scalars and arrays
+        return value.tolist()
+    raise TypeError(f"a record value of type {type(value).__name__} is not JSON")
 
 
 def error_record(item: WorkItem, kind: str, message: str, trace: str = "") -> dict:

@@ -118,3 +118,13 @@ def test_gallery_renders_the_start_of_a_failed_task(tmp_path):
 
     image = np.asarray(Image.open(images[0]))
     assert image.shape == (240, 640, 3) and image.std() > 10  # two 320x240 views, not blank
+
+
+@pytest.mark.slow
+def test_demo_evaluates_and_reports(tmp_path, capsys):
+    """The main job on two smoke tasks: the table is printed and the report written."""
+    assert main(["demo", "--tasks", "0:2", "--workers", "1", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "ga-mesh-rrt on the 'smoke' suite" in out and "all" in out
+    assert len((tmp_path / "results" / "results.jsonl").read_text().splitlines()) == 2
+    assert (tmp_path / "report" / "index.html").exists()

@@ -12,6 +12,7 @@ from __future__ import annotations
 import html
 import io
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -257,7 +258,14 @@ def build_report(dirs, out=None, gallery: int = 6, render: bool = True) -> Path:
         if not failures:
             parts.append("<p>No failed task.</p>")
             continue
-        images = render_starts(run, [f for f in failures if not f.get("error")]) if render else {}
+        images = {}
+        if render:
+            try:
+                images = render_starts(run, [f for f in failures if not f.get("error")])
+            except (RuntimeError, ValueError, KeyError, FileNotFoundError) as error:
+                # No renderer here, or the task source moved: the report stands without pictures.
+                warnings.warn(f"start images of {run.label} not rendered: {error}", stacklevel=1)
+                parts.append(f"<p>Start images not rendered: {esc(str(error))}</p>")
         for r in failures:
             card = [f"<div class='card'><b>{esc(r['task_id'])}</b>: {esc(str(r.get('scene_type')))}, "
                     f"{esc(str(r.get('category')))}, target {esc(str(r.get('target_object', '?')))}<br>"

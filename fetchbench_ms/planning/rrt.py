@@ -54,13 +54,13 @@ def path_valid(checker: CollisionChecker, path: np.ndarray, resolution: float) -
 
 def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
                     resolution: float = 0.02, simplify: bool = True, try_direct: bool = True,
-                    restart_after: float = 2.5) -> PlanResult:
+                    restart_after: float = 5.0, planner_range: float | None = None) -> PlanResult:
     """Plan from ``q_start`` to any of ``q_goals`` ((7,) or (K, 7)), best goals first.
 
     RRTConnect's run time is heavy-tailed (a tree that grew into a pocket rarely gets
     out), so the search restarts with fresh trees every ``restart_after`` seconds until
-    ``time_limit``: on a shelf retrieval that timed out at 10 s in one run, restarts
-    typically solve in 1-3 s.
+    ``time_limit``. ``planner_range`` is RRTConnect's step (OMPL's default, a fifth of
+    the space's extent, did best into a shelf cell; 0.3-1.0 rad did worse).
     """
     import ompl.base as ob
     import ompl.geometric as og
@@ -121,6 +121,8 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
     while not pdef.hasExactSolution() and time.perf_counter() < deadline:
         pdef.clearSolutionPaths()
         planner = og.RRTConnect(si)
+        if planner_range is not None:
+            planner.setRange(planner_range)
         planner.setProblemDefinition(pdef)
         planner.setup()
         stop = min(deadline, time.perf_counter() + restart_after)

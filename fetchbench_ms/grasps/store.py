@@ -28,6 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, sha256_bytes, sha256_file
+from ..utils.paths import assets_root
 
 #: Bump when the sampler, the physics test or the file layout changes: old files become stale.
 GRASPS_VERSION = 2
@@ -41,7 +42,7 @@ def default_dir() -> Path:
     override = os.environ.get("FETCHBENCH_GRASPS_DIR")
     if override:
         return Path(override)
-    return Path(__file__).resolve().parents[2] / "assets" / "grasps"
+    return assets_root() / "grasps"
 
 
 def shard_of(object_id: str) -> int:

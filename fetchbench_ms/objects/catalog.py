@@ -32,6 +32,7 @@ import numpy as np
 import trimesh
 
 from ..utils.io import sha256_bytes, sha256_file
+from ..utils.paths import assets_root
 from . import blobs, geometry as g, procedural, ycb
 from .asset import SOURCES, SPLITS, ObjectAsset, ObjectRecord
 
@@ -62,7 +63,7 @@ def asset_dir() -> Path:
     override = os.environ.get("FETCHBENCH_OBJECT_ASSETS")
     if override:
         return Path(override)
-    return Path(__file__).resolve().parents[2] / "assets" / "objects"
+    return assets_root() / "objects"
 
 
 def split_of(object_id: str) -> str:

@@ -236,7 +236,7 @@ class SceneBuilder:
         bounds = np.array([part_aabb(p) for p in self.parts])  # [N, 2, 3]
         out = []
         for s in self.surfaces:
-            probe = s.polygon.buffer(-0.003, join_style="mitre")
+            probe = s.polygon.buffer(-0.0005, join_style="mitre")  # thinner than the checks' 1 mm tolerance
             x0, y0, x1, y1 = probe.bounds
             above = bounds[:, 0, 2] > s.height + 1e-4
             near = (bounds[:, 0, 0] < x1) & (bounds[:, 1, 0] > x0) & (bounds[:, 0, 1] < y1) & (bounds[:, 1, 1] > y0)

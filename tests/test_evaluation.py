@@ -214,3 +214,13 @@ def test_videos_of_failed_tasks(tmp_path):
         gif.seek(k)
         total_ms += gif.info["duration"]
     assert total_ms == (1 + 16 // VIDEO_EVERY + 1) * 1000 * VIDEO_EVERY // 20
+
+
+def test_ray_backend_isolates_faults(tiny_suite, tmp_path, monkeypatch):
+    faults = {"tiny/0000": "raise", "tiny/0001": "hang", "tiny/0002": "crash"}
+    monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", json.dumps({str(task_seed(k)): v for k, v in faults.items()}))
+    records = evaluate("evaluation_faults:faulty", tmp_path, suite=str(tiny_suite), workers=2, backend="ray",
+                       task_timeout=15, progress=False)
+    kinds = {r["task_id"]: (r.get("error") or {}).get("kind") for r in records}
+    assert kinds == {"tiny/0000": "exception", "tiny/0001": "timeout", "tiny/0002": "crash", "tiny/0003": None}
+    assert "injected failure" in records[0]["error"]["traceback"]

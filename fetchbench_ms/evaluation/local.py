@@ -125,7 +125,7 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
                         w.proc.join(5)  # its pipe closes a moment before it can be reaped
                         record = error_record(w.item, "crash", f"the worker process died "
                                                                 f"(exit code {w.proc.exitcode})")
-                    record.update(method=spec.method)
+                    record.update(method=spec.method, wall_time=round(time.monotonic() - w.started, 2))
                     on_record(record)
                 else:
                     failed_starts += 1

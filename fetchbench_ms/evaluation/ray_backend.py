@@ -3,9 +3,10 @@
 ``address`` joins an existing cluster (``ray.init(address=...)``, e.g. ``auto`` or
 ``ray://head:10001``); without it a local cluster with ``workers`` CPUs is started (and
 stopped at the end). One actor per worker keeps its env between tasks, like a local
-worker process; a task running past its limit gets its actor killed and replaced, an
-actor that dies takes only its current task (an error record) with it. The driver alone
-writes results, so the store is the same whatever the backend.
+worker process (its first task's time limit includes the actor's start-up). A task
+running past its limit gets its actor killed and replaced; an actor that dies takes only
+its current task (an error record) with it. The driver alone writes results, so the
+store is the same whatever the backend.
 """
 from __future__ import annotations
 
@@ -73,19 +74,23 @@ def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
     for i in range(len(actors)):
         if queue:
             submit(i)
+    def failed(item: WorkItem, start: float, kind: str, message: str, trace: str = "") -> dict:
+        return {**error_record(item, kind, message, trace), "method": spec.method,
+                "wall_time": round(time.monotonic() - start, 2)}
+
     while running:
         now = time.monotonic()
         deadline = min(start + task_timeout for _, _, start in running.values())
         ready, _ = ray.wait(list(running), num_returns=1, timeout=max(0.0, deadline - now))
         for ref in ready:
-            i, item, _ = running.pop(ref)
+            i, item, start = running.pop(ref)
             try:
                 record = ray.get(ref)
             except RayActorError as error:  # the actor's process died
-                record = {**error_record(item, "crash", f"the Ray actor died ({type(error).__name__})"), "method": spec.method}
+                record = failed(item, start, "crash", f"the Ray actor died ({type(error).__name__})")
                 actors[i] = TaskActor.remote(spec)
             except RayTaskError as error:  # the actor's constructor raised (the runner catches task errors)
-                record = {**error_record(item, "exception", str(error).splitlines()[0], str(error)), "method": spec.method}
+                record = failed(item, start, "exception", str(error).splitlines()[0], str(error))
                 actors[i] = TaskActor.remote(spec)
             on_record(record)
             if queue:
@@ -95,8 +100,7 @@ def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
             if now - start > task_timeout:
                 running.pop(ref)
                 ray.kill(actors[i], no_restart=True)
-                on_record({**error_record(item, "timeout", f"ran past the task time limit of {task_timeout:g} s"),
-                           "method": spec.method})
+                on_record(failed(item, start, "timeout", f"ran past the task time limit of {task_timeout:g} s"))
                 actors[i] = TaskActor.remote(spec)
                 if queue:
                     submit(i)

@@ -215,6 +215,11 @@ def test_generated_suite_is_identical_whatever_the_worker_count(tmp_path):
         suite.save(paths[-1])
         assert suite.info["complete_scenes"] == 2 and not suite.info["complete"]
     assert paths[0].read_bytes() == paths[1].read_bytes()
+    # The per-scene results (every filter verdict counted) agree too, time aside.
+    for name in ("scene_000.json", "scene_001.json"):
+        a, b = (json.loads((tmp_path / f"w{w}" / name).read_text()) for w in (1, 2))
+        assert a.pop("seconds") > 0 and b.pop("seconds") > 0
+        assert a == b and a["candidates"] > 0
     # Re-running skips finished scenes (resumable): nothing is remade.
     before = {p: p.stat().st_mtime_ns for p in (tmp_path / "w1").iterdir()}
     suite_build.build_scenes(r, tmp_path / "w1", workers=1, limit=2, log=lambda *_: None)

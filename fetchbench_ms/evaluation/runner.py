@@ -80,12 +80,17 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     todo = [it for it in items if it.task_id not in done or (retry_errors and done[it.task_id].get("error"))]
     bar = _progress(len(items), len(items) - len(todo), method, progress)
 
+    todo_ids = {t.task_id for t in todo}
+    kept = [done[i.task_id] for i in items if i.task_id in done and i.task_id not in todo_ids]
+    successes, finished = sum(bool(r["success"]) for r in kept), len(kept)
+
     def on_record(record: dict) -> None:
+        nonlocal successes, finished
         store.append(record)
         done[record["task_id"]] = record
+        successes, finished = successes + bool(record["success"]), finished + 1
         bar.update(1)
-        finished = [done[i.task_id] for i in items if i.task_id in done]
-        bar.set_postfix(success=f"{sum(r['success'] for r in finished)}/{len(finished)}")
+        bar.set_postfix(success=f"{successes}/{finished}")
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None)
     if todo:

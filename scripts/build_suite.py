@@ -11,7 +11,9 @@ bytes for the same recipe whatever --workers is.
 from __future__ import annotations
 
 import argparse
+import tarfile
 import time
+from pathlib import Path
 
 from fetchbench_ms.tasks import suite_build
 from fetchbench_ms.tasks.suite import SUITES_DIR
@@ -29,6 +31,12 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     r = suite_build.recipe(args.suite)
     work_dir = args.work_dir or f"build/suites/{r.name}"
+    # A partial build ships its per-scene results so the next run continues it.
+    archive = SUITES_DIR / "partial" / f"{r.name}-scenes.tar.gz"
+    if not Path(work_dir).exists() and archive.exists():
+        with tarfile.open(archive) as tar:
+            tar.extractall(Path(work_dir).parent, filter="data")
+        print(f"continuing from {archive}")
     start = time.perf_counter()
     if not args.assemble_only:
         suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit)
@@ -39,6 +47,12 @@ def main(argv=None) -> int:
     info = suite.info
     print(f"wrote {out}: {len(suite)} tasks from {info['complete_scenes']} of {info['planned_scenes']} scenes "
           f"({'complete' if info['complete'] else 'partial'})")
+    archive.unlink(missing_ok=True)
+    if not info["complete"] and args.out is None:
+        archive.parent.mkdir(parents=True, exist_ok=True)
+        with tarfile.open(archive, "w:gz") as tar:
+            tar.add(work_dir, arcname=Path(work_dir).name)
+        print(f"wrote {archive}: the finished scenes, to continue the build")
     if args.smoke:
         smoke = suite_build.smoke_subset(suite, args.smoke)
         smoke.save(SUITES_DIR / "smoke.json.gz")

@@ -31,3 +31,7 @@ def add_commands(subparsers) -> None:
     s.add_argument("--split", default="test", help="object split: train or test")
     s.add_argument("-o", "--out", default=None, help="write the task JSON here instead of printing it")
     s.set_defaults(func=_sample)
+
+    from .suite_cli import add_commands as add_suite_commands
+
+    add_suite_commands(subparsers)

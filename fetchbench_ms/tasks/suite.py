@@ -1,59 +1,153 @@
 """Task suite files: a named, versioned, hashed set of tasks that envs look up by id.
 
-Filtering tasks into the fixed FetchBench test suite is a later stage; this module is
-the file format and the lookup the env uses for ``reset(options={"task_id": ...})``.
+    suite = load_suite("test")            # a shipped suite by name (test, val, smoke) or a path
+    task = suite.get("test/0042")         # a TaskSpec
+    env = gym.make("FetchBench-v0", task_suite="smoke"); env.reset(options={"task_id": "smoke/0003"})
 
-File (JSON): ``{"format": "fetchbench-task-suite", "version": "1", "name": ...,
-"tasks": {task_id: TaskSpec dict, ...}, "sha256": <hash of the canonical JSON of the
-rest>}``. A file whose hash does not match its content is rejected.
+File (JSON, gzip-compressed when the name ends in ``.gz``), compact because the tasks of
+a suite share furniture and object arrangements: every scene is stored once, every
+arrangement (objects, robot, cameras of one scene) once, and a task is (id, arrangement,
+target index)::
+
+    {"format": "fetchbench-task-suite", "version": "2", "name": ..., "info": {...},
+     "scenes": [{scene_type, scene_seed, scene_params, scene_hash}, ...],
+     "arrangements": [{"scene": i, <the rest of a TaskSpec dict but target_index>}, ...],
+     "tasks": [[task_id, arrangement index, target index], ...],   # in suite order
+     "sha256": <sha256 of the canonical JSON of everything else>}
+
+A file whose hash does not match its content, or of another format version, is rejected.
+The order of ``tasks`` is the suite order (for the generated suites: any prefix is a
+stratified sample, see ``tasks.suite_build``).
 """
 from __future__ import annotations
 
+import gzip
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..utils.io import atomic_write_text, canonical_json, sha256_bytes
+from ..utils.io import atomic_write_bytes, canonical_json, sha256_bytes
 from .spec import TaskSpec
 
 SUITE_FORMAT = "fetchbench-task-suite"
-SUITE_VERSION = "1"
+SUITE_VERSION = "2"
+SCENE_KEYS = ("scene_type", "scene_seed", "scene_params", "scene_hash")
+#: Where the shipped suites live: ``<name>.json.gz``.
+SUITES_DIR = Path(__file__).resolve().parents[2] / "assets" / "suites"
+
+
+def shipped_suites() -> tuple[str, ...]:
+    """Names of the suites shipped with the package (test, val, smoke when built)."""
+    return tuple(sorted(p.name[: -len(".json.gz")] for p in SUITES_DIR.glob("*.json.gz")))
 
 
 @dataclass(frozen=True)
 class TaskSuite:
+    """Tasks by id, in suite order (dict order). ``info``: free-form JSON-safe facts
+    about the suite (how it was generated, how complete it is)."""
+
     name: str
     tasks: dict[str, TaskSpec]
+    info: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.tasks)
+
+    def ids(self) -> list[str]:
+        return list(self.tasks)
 
     def get(self, task_id: str) -> TaskSpec:
         if task_id not in self.tasks:
-            ids = sorted(self.tasks)
+            ids = list(self.tasks)
             shown = ", ".join(ids[:20]) + (f", ... ({len(ids)} in all)" if len(ids) > 20 else "")
             raise KeyError(f"unknown task id {task_id!r} in suite {self.name!r}; valid: {shown}")
         return self.tasks[task_id]
 
-    def _body(self) -> dict:
+    def subset(self, name: str, task_ids, info: dict | None = None) -> "TaskSuite":
+        """A new suite ``name`` of the given tasks, re-numbered ``name/0000``... in the given
+        order; ``info["source_ids"]`` keeps the ids they had here."""
+        task_ids = list(task_ids)
+        tasks = {f"{name}/{k:04d}": self.get(t) for k, t in enumerate(task_ids)}
+        return TaskSuite(name, tasks, {**(info or {}), "source_suite": self.name, "source_ids": task_ids})
+
+    def to_body(self) -> dict:
+        """The file's content (without its hash): scenes and arrangements stored once."""
+        scenes, scene_index = [], {}
+        arrangements, arrangement_index = [], {}
+        rows = []
+        for task_id, task in self.tasks.items():
+            d = task.to_dict()
+            scene = {k: d.pop(k) for k in SCENE_KEYS}
+            key = canonical_json(scene)
+            if key not in scene_index:
+                scene_index[key] = len(scenes)
+                scenes.append(scene)
+            target = d.pop("target_index")
+            d["scene"] = scene_index[key]
+            key = canonical_json(d)
+            if key not in arrangement_index:
+                arrangement_index[key] = len(arrangements)
+                arrangements.append(d)
+            rows.append([task_id, arrangement_index[key], target])
         return {
-            "format": SUITE_FORMAT,
-            "version": SUITE_VERSION,
-            "name": self.name,
-            "tasks": {k: self.tasks[k].to_dict() for k in sorted(self.tasks)},
+            "format": SUITE_FORMAT, "version": SUITE_VERSION, "name": self.name, "info": self.info,
+            "scenes": scenes, "arrangements": arrangements, "tasks": rows,
         }
 
     def save(self, path) -> None:
-        body = self._body()
+        """Write the suite (gzip when ``path`` ends in .gz; byte-identical for equal suites)."""
+        body = self.to_body()
         body["sha256"] = sha256_bytes(canonical_json(body).encode())
-        atomic_write_text(path, canonical_json(body))
+        data = canonical_json(body).encode()
+        if str(path).endswith(".gz"):
+            data = gzip.compress(data, compresslevel=9, mtime=0)
+        atomic_write_bytes(path, data)
 
 
-def load_suite(path) -> TaskSuite:
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"task suite file {path} does not exist")
-    body = json.loads(path.read_text())
-    if body.get("format") != SUITE_FORMAT or body.get("version") != SUITE_VERSION:
-        raise ValueError(f"{path} is not a version {SUITE_VERSION} {SUITE_FORMAT} file")
+def suite_path(name_or_path) -> Path:
+    """The file of a shipped suite name (``test``, ``val``, ``smoke``) or an existing path."""
+    path = Path(name_or_path)
+    if path.suffix in (".json", ".gz") or path.exists():
+        if not path.exists():
+            raise FileNotFoundError(f"task suite file {path} does not exist")
+        return path
+    shipped = SUITES_DIR / f"{name_or_path}.json.gz"
+    if not shipped.exists():
+        raise ValueError(f"unknown task suite {str(name_or_path)!r}; valid: {', '.join(shipped_suites()) or '(none shipped)'}"
+                         " or the path of a suite file")
+    return shipped
+
+
+def load_suite(name_or_path) -> TaskSuite:
+    """Load a suite by shipped name or path; a corrupt, tampered or stale file raises ValueError."""
+    path = suite_path(name_or_path)
+    raw = path.read_bytes()
+    if raw[:2] == b"\x1f\x8b":
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError) as error:
+            raise ValueError(f"task suite {path} is corrupt: {error}") from None
+    try:
+        body = json.loads(raw)
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"task suite {path} is corrupt: not JSON ({error})") from None
+    if not isinstance(body, dict) or body.get("format") != SUITE_FORMAT:
+        raise ValueError(f"{path} is not a {SUITE_FORMAT} file")
+    if body.get("version") != SUITE_VERSION:
+        raise ValueError(f"{path} is a version {body.get('version')!r} task suite; this install reads version "
+                         f"{SUITE_VERSION!r}: regenerate it (scripts/build_suite.py)")
     stored = body.pop("sha256", None)
     if stored != sha256_bytes(canonical_json(body).encode()):
         raise ValueError(f"task suite {path} is corrupt: its content does not match its sha256")
-    return TaskSuite(name=body["name"], tasks={k: TaskSpec.from_dict(v) for k, v in body["tasks"].items()})
+    return suite_from_body(body)
+
+
+def suite_from_body(body: dict) -> TaskSuite:
+    scenes = body["scenes"]
+    tasks = {}
+    for task_id, arrangement, target in body["tasks"]:
+        d = dict(body["arrangements"][arrangement])
+        d.update(scenes[d.pop("scene")])
+        d["target_index"] = target
+        tasks[task_id] = TaskSpec.from_dict(d)
+    return TaskSuite(name=body["name"], tasks=tasks, info=body.get("info", {}))

@@ -1,0 +1,397 @@
+"""Generate FetchBench task suites: scenes -> object arrangements -> filtered tasks.
+
+The ``test`` suite follows the paper's appendix table: 100 scenes with the paper's
+per-type counts, 60 tasks each, and per scene type the paper's per-category task counts
+(``PAPER_TABLE``), split over the type's scenes by largest remainder. ``val`` is the
+same recipe at a smaller size on *train* objects; unlimited train tasks come from
+``sample_task(seed, config=SamplerConfig(object_split="train"))``.
+
+Per scene (seeded by (suite seed, scene index) alone, so a scene's result does not
+depend on which worker made it or in which order):
+1. the furniture from its scene seed;
+2. arrangement after arrangement (``sampler`` places ~15 objects with the original's
+   label weights, robot, cameras, settles them), each judged by the three filters
+   (``tasks.filters``); an object that passes becomes a task if its category still has
+   quota in this scene. This is how the category mix is met: the original's label
+   weights decide where objects go, the per-scene quotas decide which passing objects
+   become tasks (on-table targets, for instance, are under-represented by the weights
+   and fill their quota from more arrangements);
+3. a scene stops at its quota or after ``max_arrangements``; a category that still lacks
+   tasks then is filled from the other categories' passing objects (recorded in the
+   scene result as ``shortfall``).
+Per-scene results are written atomically to a work directory and skipped on re-run
+(resumable); the suite file is assembled from them in a fixed order, so it is
+byte-identical for the same seed whatever the worker count.
+
+Suite order: tasks are grouped in strata (scene type x category); the j-th of n_s tasks
+of stratum s sits at position (j + 1/2) / n_s, and the suite is sorted by position
+(ties by stratum), so every prefix holds each stratum in proportion to its size.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections import Counter
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..utils.io import atomic_write_text, canonical_json
+from .spec import TaskSpec
+from .suite import TaskSuite
+
+BUILD_VERSION = "2"
+CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
+#: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
+#: (The paper's Total row swaps the drawer and basket columns; the rows add up to
+#: in-drawer 859 and in-basket 891, as its text says.)
+PAPER_TABLE = {
+    "CellShelfDesk": (10, {"on_table": 265, "on_shelf": 235, "in_drawer": 0, "in_basket": 100}),
+    "Desk": (6, {"on_table": 360, "on_shelf": 0, "in_drawer": 0, "in_basket": 0}),
+    "DeskWall": (7, {"on_table": 255, "on_shelf": 165, "in_drawer": 0, "in_basket": 0}),
+    "DoubleDoorCabinet": (6, {"on_table": 0, "on_shelf": 353, "in_drawer": 0, "in_basket": 7}),
+    "Drawer": (6, {"on_table": 0, "on_shelf": 0, "in_drawer": 360, "in_basket": 0}),
+    "DrawerShelf": (10, {"on_table": 0, "on_shelf": 48, "in_drawer": 499, "in_basket": 53}),
+    "EketShelf": (5, {"on_table": 0, "on_shelf": 300, "in_drawer": 0, "in_basket": 0}),
+    "LargeShelf": (10, {"on_table": 0, "on_shelf": 481, "in_drawer": 0, "in_basket": 119}),
+    "LargeShelfDesk": (9, {"on_table": 208, "on_shelf": 266, "in_drawer": 0, "in_basket": 66}),
+    "LayerShelf": (10, {"on_table": 0, "on_shelf": 362, "in_drawer": 0, "in_basket": 238}),
+    "RoundTable": (9, {"on_table": 237, "on_shelf": 0, "in_drawer": 0, "in_basket": 303}),
+    "SingleDoorCabinetDesk": (7, {"on_table": 201, "on_shelf": 214, "in_drawer": 0, "in_basket": 5}),
+    "TriangleShelfDesk": (5, {"on_table": 0, "on_shelf": 300, "in_drawer": 0, "in_basket": 0}),
+}
+TASKS_PER_SCENE = 60
+
+
+@dataclass(frozen=True)
+class SuiteRecipe:
+    """What a suite is made of. ``scale`` < 1 shrinks every scene count (at least one
+    scene per type) for val or quick builds; ``tasks_per_scene`` shrinks the quotas."""
+
+    name: str = "test"
+    object_split: str = "test"
+    seed: int = 0
+    scale: float = 1.0
+    tasks_per_scene: int = TASKS_PER_SCENE
+    max_arrangements: int = 80  # arrangements tried per scene before giving up on its quota
+    num_objects: int = 15
+
+    def __post_init__(self):
+        if self.object_split not in ("train", "test"):
+            raise ValueError(f"unknown object split {self.object_split!r}; valid: train, test")
+        if not 0 < self.scale <= 1:
+            raise ValueError(f"scale must be in (0, 1], got {self.scale}")
+        if self.tasks_per_scene < 1:
+            raise ValueError(f"tasks_per_scene must be positive, got {self.tasks_per_scene}")
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+RECIPES = {
+    "test": SuiteRecipe("test", "test", seed=0),
+    "val": SuiteRecipe("val", "train", seed=1, scale=0.1, tasks_per_scene=5, max_arrangements=15),
+}
+
+
+def recipe(name: str) -> SuiteRecipe:
+    if name not in RECIPES:
+        raise ValueError(f"unknown suite recipe {name!r}; valid: {', '.join(RECIPES)}")
+    return RECIPES[name]
+
+
+# ----------------------------------------------------------------------------- plan
+@dataclass(frozen=True)
+class ScenePlan:
+    index: int  # position in the suite's scene list (generation order)
+    scene_type: str
+    scene_seed: int
+    quota: dict  # category label -> tasks wanted
+
+
+def _largest_remainder(total: int, weights) -> list[int]:
+    weights = np.asarray(weights, dtype=float)
+    if weights.sum() <= 0:
+        return [0] * len(weights)
+    exact = total * weights / weights.sum()
+    counts = np.floor(exact).astype(int)
+    for i in np.argsort(-(exact - counts), kind="stable")[: total - counts.sum()]:
+        counts[i] += 1
+    return counts.tolist()
+
+
+def plan_scenes(r: SuiteRecipe) -> list[ScenePlan]:
+    """The scenes of a suite with their per-category quotas, in generation order: scene
+    types interleaved (round robin by type, largest first) so the first scenes made
+    already cover every type."""
+    per_type = {}
+    for scene_type, (n_scenes, by_label) in PAPER_TABLE.items():
+        n = max(1, int(round(n_scenes * r.scale)))
+        # Category quotas per scene: the type's paper mix, tasks_per_scene each.
+        label_counts = _largest_remainder(n * r.tasks_per_scene, [by_label[c] for c in CATEGORY_ORDER])
+        quotas = [dict.fromkeys(CATEGORY_ORDER, 0) for _ in range(n)]
+        for c, total in zip(CATEGORY_ORDER, label_counts):
+            for s, count in enumerate(_largest_remainder(total, [1] * n)):
+                quotas[(s + CATEGORY_ORDER.index(c)) % n][c] += count  # spread the remainders
+        # Every scene gets tasks_per_scene: move surplus of one scene to another.
+        per_type[scene_type] = _balance(quotas, r.tasks_per_scene)
+    order = sorted(PAPER_TABLE, key=lambda t: (-PAPER_TABLE[t][0], t))
+    plans, round_ = [], 0
+    while any(round_ < len(per_type[t]) for t in order):
+        for scene_type in order:
+            if round_ < len(per_type[scene_type]):
+                index = len(plans)
+                seed = int(np.random.SeedSequence([r.seed, index]).generate_state(1)[0] & 0x7FFFFFFF)
+                plans.append(ScenePlan(index, scene_type, seed, per_type[scene_type][round_]))
+        round_ += 1
+    return plans
+
+
+def _balance(quotas: list[dict], per_scene: int) -> list[dict]:
+    quotas = [dict(q) for q in quotas]
+    for _ in range(per_scene * len(quotas)):
+        sums = [sum(q.values()) for q in quotas]
+        hi, lo = int(np.argmax(sums)), int(np.argmin(sums))
+        if sums[hi] <= per_scene and sums[lo] >= per_scene:
+            break
+        c = max(CATEGORY_ORDER, key=lambda c: quotas[hi][c])
+        quotas[hi][c] -= 1
+        quotas[lo][c] += 1
+    return quotas
+
+
+# ----------------------------------------------------------------------------- one scene
+def _arrangement_seed(r: SuiteRecipe, scene: ScenePlan, k: int) -> int:
+    return int(np.random.SeedSequence([r.seed, scene.index, k]).generate_state(1)[0] & 0x7FFFFFFF)
+
+
+def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int) -> TaskSpec | None:
+    """Arrangement ``k`` of a scene: a settled task (target 0 for now), or None if none fits."""
+    from .objects import object_ids
+    from .sampler import SamplerConfig, _sample_in_scene
+
+    seed = _arrangement_seed(r, scene, k)
+    config = SamplerConfig(num_objects=r.num_objects, object_split=r.object_split)
+    task = _sample_in_scene(np.random.default_rng(seed), scene.scene_type, scene.scene_seed, None,
+                            object_ids(r.object_split), config)
+    if task is None:
+        return None
+    return replace(task, target_index=0, seed=seed)
+
+
+def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None) -> dict:
+    """Generate one scene's tasks. Returns a JSON-safe result: the accepted tasks, the
+    per-filter rejection counts, the time it took."""
+    start = time.perf_counter()
+    need = dict(scene.quota)
+    accepted: list[tuple[int, int, str]] = []  # (arrangement, object, label)
+    spare: list[tuple[int, int, str]] = []  # passing objects no quota wanted
+    arrangements: list[dict] = []
+    rejected = Counter()
+    candidates = 0
+    for k in range(r.max_arrangements):
+        if sum(need.values()) == 0:
+            break
+        task = sample_arrangement(r, scene, k)
+        if task is None:
+            rejected["no_arrangement"] += 1
+            continue
+        labels = [o.support_label for o in task.objects]
+        # IK (the costly filter) only for objects whose category still has quota here.
+        wanted = [i for i, label in enumerate(labels) if need[label] > 0]
+        check = filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k))
+        candidates += len(labels)
+        index = len(arrangements)
+        kept = False
+        for i, label in enumerate(labels):
+            reason = check.rejection(i)
+            if reason == "reachable" and i not in check.reachable:
+                reason = "unchecked"  # stable and visible, but its category was full: no IK
+            rejected[reason or "passed"] += 1
+            if reason is not None:
+                continue
+            if i in wanted and need[label] > 0:
+                need[label] -= 1
+                accepted.append((index, i, label))
+                kept = True
+            else:
+                spare.append((index, i, label))
+                kept = True
+        if kept:
+            arrangements.append(task.to_dict())
+        if log:
+            log(f"scene {scene.index} {scene.scene_type} arrangement {k}: "
+                f"{len(accepted)} tasks, still need {sum(need.values())}")
+    shortfall = {c: n for c, n in need.items() if n > 0}
+    missing = sum(shortfall.values())
+    accepted += spare[:missing]  # fill from other categories, in generation order
+    used = sorted({a for a, _, _ in accepted})
+    renumber = {a: j for j, a in enumerate(used)}
+    return {
+        "build_version": BUILD_VERSION,
+        "recipe": r.to_dict(),
+        "scene": {"index": scene.index, "scene_type": scene.scene_type, "scene_seed": scene.scene_seed,
+                  "quota": scene.quota},
+        "arrangements": [arrangements[a] for a in used],
+        "tasks": [[renumber[a], i] for a, i, _ in accepted],
+        "shortfall": shortfall,
+        "candidates": candidates,
+        "rejected": dict(sorted(rejected.items())),
+        "seconds": time.perf_counter() - start,
+    }
+
+
+# ----------------------------------------------------------------------------- many scenes
+_WORKER_ENV = None
+
+
+def _worker_init():
+    import torch
+
+    torch.set_num_threads(1)  # one core per worker; also keeps IK bit-identical across worker counts
+
+
+def _scene_path(work_dir: Path, scene: ScenePlan) -> Path:
+    return work_dir / f"scene_{scene.index:03d}.json"
+
+
+def _build_one(args) -> str:
+    global _WORKER_ENV
+    r, scene, work_dir = args
+    path = _scene_path(Path(work_dir), scene)
+    if path.exists():
+        return str(path)
+    if _WORKER_ENV is None:
+        from .filters import FilterEnv
+
+        _WORKER_ENV = FilterEnv(num_objects=r.num_objects)
+    result = build_scene(r, scene, _WORKER_ENV)
+    atomic_write_text(path, canonical_json(result) + "\n")
+    return str(path)
+
+
+def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None = None, log=print) -> list[Path]:
+    """Make the per-scene results (skipping those already in ``work_dir``); ``limit``: only
+    the first that many scenes of the plan. Workers are ``spawn``ed processes."""
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    plans = plan_scenes(r)[:limit]
+    todo = [p for p in plans if not _scene_path(work_dir, p).exists()]
+    log(f"{r.name}: {len(plans) - len(todo)} of {len(plans)} scenes done, {len(todo)} to make with {workers} workers")
+    jobs = [(r, p, str(work_dir)) for p in todo]
+    if workers <= 1:
+        _worker_init()
+        for job in jobs:
+            log(f"made {_build_one(job)}")
+    else:
+        import multiprocessing as mp
+
+        with mp.get_context("spawn").Pool(workers, initializer=_worker_init, maxtasksperchild=None) as pool:
+            for path in pool.imap_unordered(_build_one, jobs):
+                log(f"made {path}")
+    return [_scene_path(work_dir, p) for p in plans]
+
+
+def load_scene_results(r: SuiteRecipe, work_dir) -> list[dict]:
+    """The finished per-scene results in plan order (stale ones, from another recipe or build
+    version, raise)."""
+    results = []
+    for plan in plan_scenes(r):
+        path = _scene_path(Path(work_dir), plan)
+        if not path.exists():
+            continue
+        result = json.loads(path.read_text())
+        if result.get("build_version") != BUILD_VERSION or result.get("recipe") != r.to_dict():
+            raise ValueError(f"{path} was made by another recipe or build version; delete it to rebuild")
+        if result["scene"]["scene_seed"] != plan.scene_seed:
+            raise ValueError(f"{path} is for another scene than the plan's; delete it to rebuild")
+        results.append(result)
+    return results
+
+
+def stratified_order(keys: list) -> list[int]:
+    """Indices of ``keys`` (stratum of each item, items of a stratum in their given order)
+    so that every prefix holds each stratum in proportion to its size."""
+    strata = sorted(set(keys), key=str)
+    rank = {s: i for i, s in enumerate(strata)}
+    size = Counter(keys)
+    seen = Counter()
+    positions = []
+    for i, key in enumerate(keys):
+        positions.append(((seen[key] + 0.5) / size[key], rank[key], i))
+        seen[key] += 1
+    return [i for _, _, i in sorted(positions)]
+
+
+def assemble_suite(r: SuiteRecipe, work_dir) -> TaskSuite:
+    """The suite from the finished scenes, in stratified order; ``info`` says how complete it is."""
+    results = load_scene_results(r, work_dir)
+    tasks: list[TaskSpec] = []
+    for result in results:
+        arrangements = [TaskSpec.from_dict(a) for a in result["arrangements"]]
+        # Within a scene, round robin over arrangements so a prefix of a stratum spreads over them.
+        for a, i in result["tasks"]:
+            tasks.append(replace(arrangements[a], target_index=i))
+    # Strata: type x category; within one, scenes interleave (the j-th task of each scene first).
+    per_scene_seen = Counter()
+    keyed = []
+    for t in tasks:
+        stratum = (t.scene_type, t.target_label)
+        sub = (stratum, t.scene_seed)
+        keyed.append((stratum, per_scene_seen[sub], t.scene_seed))
+        per_scene_seen[sub] += 1
+    within = sorted(range(len(tasks)), key=lambda i: (keyed[i][0], keyed[i][1], keyed[i][2]))
+    keys = [keyed[i][0] for i in within]
+    order = [within[j] for j in stratified_order(keys)]
+    planned = plan_scenes(r)
+    info = {
+        "recipe": r.to_dict(),
+        "build_version": BUILD_VERSION,
+        "planned_scenes": len(planned),
+        "planned_tasks": len(planned) * r.tasks_per_scene,
+        "complete_scenes": len(results),
+        "complete": len(results) == len(planned),
+        "complete_scene_indices": [res["scene"]["index"] for res in results],
+        "shortfall": {str(res["scene"]["index"]): res["shortfall"] for res in results if res["shortfall"]},
+        "candidates": sum(res["candidates"] for res in results),
+        "rejected_by_type": _rejections_by_type(results),
+    }
+    return TaskSuite(r.name, {f"{r.name}/{k:04d}": tasks[i] for k, i in enumerate(order)}, info)
+
+
+def _rejections_by_type(results) -> dict:
+    out: dict = {}
+    for res in results:
+        counts = out.setdefault(res["scene"]["scene_type"], Counter())
+        counts.update(res["rejected"])
+    return {t: dict(sorted(c.items())) for t, c in sorted(out.items())}
+
+
+def smoke_subset(suite: TaskSuite, size: int = 20) -> TaskSuite:
+    """About ``size`` tasks covering every category and as many scene types as possible:
+    first one task per (type, category) stratum in suite order until ``size`` or all
+    strata are covered, categories first, then the suite order fills the rest."""
+    chosen: list[str] = []
+    seen_labels, seen_types = set(), set()
+    ids = suite.ids()
+    for want in ("label", "type", "any"):
+        for task_id in ids:
+            if len(chosen) >= size:
+                break
+            if task_id in chosen:
+                continue
+            t = suite.get(task_id)
+            if want == "label" and t.target_label in seen_labels:
+                continue
+            if want == "type" and t.scene_type in seen_types:
+                continue
+            chosen.append(task_id)
+            seen_labels.add(t.target_label)
+            seen_types.add(t.scene_type)
+    return suite.subset("smoke", chosen, {"what": f"{len(chosen)} tasks of {suite.name}: every category, most types"})
+
+
+def default_workers() -> int:
+    return max(1, min(os.cpu_count() or 1, 16))

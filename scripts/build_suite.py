@@ -1,0 +1,50 @@
+"""Generate a FetchBench task suite (resumable) and write assets/suites/<name>.json.gz.
+
+    nice python scripts/build_suite.py --suite test --workers 2          # make scenes, then assemble
+    python scripts/build_suite.py --suite test --assemble-only           # ship what is finished
+    python scripts/build_suite.py --suite test --smoke 20                # also write smoke.json.gz
+
+Per-scene results go to --work-dir (default build/suites/<name>) and are skipped on
+re-run, so an interrupted build continues where it stopped. The suite file is the same
+bytes for the same recipe whatever --workers is.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+from fetchbench_ms.tasks import suite_build
+from fetchbench_ms.tasks.suite import SUITES_DIR
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--suite", default="test", help=f"recipe: {', '.join(suite_build.RECIPES)}")
+    p.add_argument("--workers", type=int, default=suite_build.default_workers())
+    p.add_argument("--limit", type=int, default=None, help="make only the first N scenes of the plan")
+    p.add_argument("--work-dir", default=None)
+    p.add_argument("--assemble-only", action="store_true", help="write the suite from the scenes already made")
+    p.add_argument("--smoke", type=int, default=0, help="also write the smoke subset of this many tasks")
+    p.add_argument("--out", default=None, help="suite file (default assets/suites/<name>.json.gz)")
+    args = p.parse_args(argv)
+    r = suite_build.recipe(args.suite)
+    work_dir = args.work_dir or f"build/suites/{r.name}"
+    start = time.perf_counter()
+    if not args.assemble_only:
+        suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit)
+        print(f"made scenes in {time.perf_counter() - start:.0f} s wall ({args.workers} workers)")
+    suite = suite_build.assemble_suite(r, work_dir)
+    out = args.out or SUITES_DIR / f"{r.name}.json.gz"
+    suite.save(out)
+    info = suite.info
+    print(f"wrote {out}: {len(suite)} tasks from {info['complete_scenes']} of {info['planned_scenes']} scenes "
+          f"({'complete' if info['complete'] else 'partial'})")
+    if args.smoke:
+        smoke = suite_build.smoke_subset(suite, args.smoke)
+        smoke.save(SUITES_DIR / "smoke.json.gz")
+        print(f"wrote {SUITES_DIR / 'smoke.json.gz'}: {len(smoke)} tasks")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

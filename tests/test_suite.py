@@ -1,0 +1,226 @@
+"""Task suites: the file format, the shipped suites, the generator's order and determinism."""
+from __future__ import annotations
+
+import gzip
+import json
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from fetchbench_ms.tasks import suite_build
+from fetchbench_ms.tasks.suite import TaskSuite, load_suite, shipped_suites
+from fetchbench_ms.tasks.suite_build import PAPER_TABLE, SuiteRecipe, plan_scenes, stratified_order
+from fetchbench_ms.tasks.suite_cli import format_stats, suite_stats
+
+
+@pytest.fixture(scope="module")
+def smoke():
+    return load_suite("smoke")
+
+
+@pytest.fixture(scope="module")
+def test_suite():
+    return load_suite("test")
+
+
+# ----------------------------------------------------------------------------- file format
+def test_round_trip_is_compact_and_byte_stable(tmp_path, smoke):
+    path = tmp_path / "s.json.gz"
+    smoke.save(path)
+    again = load_suite(path)
+    assert again.ids() == smoke.ids() and again.tasks == smoke.tasks and again.info == smoke.info
+    again.save(tmp_path / "t.json.gz")
+    assert (tmp_path / "t.json.gz").read_bytes() == path.read_bytes()
+    body = json.loads(gzip.decompress(path.read_bytes()))
+    # Each scene and arrangement once: tasks of one arrangement share it.
+    assert len(body["arrangements"]) <= len(body["tasks"])
+    assert len(body["scenes"]) == len({(t.scene_type, t.scene_seed) for t in smoke.tasks.values()})
+
+
+def test_two_targets_of_one_arrangement_share_it(tmp_path, smoke):
+    task = smoke.get(smoke.ids()[0])
+    other = (task.target_index + 1) % len(task.objects)
+    suite = TaskSuite("pair", {"pair/0": task, "pair/1": replace(task, target_index=other)})
+    suite.save(tmp_path / "p.json")
+    body = json.loads((tmp_path / "p.json").read_text())
+    assert len(body["arrangements"]) == 1 and len(body["scenes"]) == 1
+    assert load_suite(tmp_path / "p.json").get("pair/1").target_index == other
+
+
+def test_tampered_file_is_rejected(tmp_path, smoke):
+    path = tmp_path / "s.json"
+    smoke.save(path)
+    body = json.loads(path.read_text())
+    body["arrangements"][0]["objects"][0]["position"][2] += 0.01
+    path.write_text(json.dumps(body))
+    with pytest.raises(ValueError, match="corrupt: its content does not match its sha256"):
+        load_suite(path)
+    (tmp_path / "junk.json.gz").write_bytes(b"\x1f\x8b not gzip")
+    with pytest.raises(ValueError, match="corrupt"):
+        load_suite(tmp_path / "junk.json.gz")
+
+
+def test_old_version_is_refused(tmp_path, smoke):
+    path = tmp_path / "old.json"
+    body = smoke.to_body()
+    body["version"] = "1"
+    from fetchbench_ms.utils.io import canonical_json, sha256_bytes
+
+    body["sha256"] = sha256_bytes(canonical_json(body).encode())
+    path.write_text(json.dumps(body))
+    with pytest.raises(ValueError, match="version '1' task suite.*regenerate"):
+        load_suite(path)
+
+
+def test_unknown_suite_and_task_id_name_the_valid_ones(smoke):
+    with pytest.raises(ValueError, match=r"unknown task suite 'tset'; valid: .*smoke.*test"):
+        load_suite("tset")
+    with pytest.raises(FileNotFoundError):
+        load_suite("missing/suite.json.gz")
+    with pytest.raises(KeyError, match=r"unknown task id 'smoke/9999' in suite 'smoke'; valid: smoke/0000"):
+        smoke.get("smoke/9999")
+
+
+def test_shipped_suites_listed():
+    assert {"smoke", "test", "val"} <= set(shipped_suites())
+
+
+# ----------------------------------------------------------------------------- order and plan
+def test_stratified_order_prefixes_are_proportional():
+    rng = np.random.default_rng(0)
+    keys = list(rng.choice(["a", "b", "c", "d"], p=[0.5, 0.3, 0.15, 0.05], size=400))
+    order = stratified_order(keys)
+    assert sorted(order) == list(range(400))
+    sizes = Counter(keys)
+    for n in (10, 40, 100, 250):
+        counts = Counter(keys[i] for i in order[:n])
+        for key, size in sizes.items():
+            assert abs(counts[key] - n * size / 400) <= 1.5, (n, key)
+    # Within a stratum the given order is kept.
+    a_positions = [i for i in order if keys[i] == "a"]
+    assert a_positions == sorted(a_positions)
+
+
+def test_test_plan_has_the_papers_scene_counts_and_category_mix():
+    plans = plan_scenes(suite_build.recipe("test"))
+    assert Counter(p.scene_type for p in plans) == {t: n for t, (n, _) in PAPER_TABLE.items()}
+    assert all(sum(p.quota.values()) == 60 for p in plans)
+    totals = Counter()
+    for p in plans:
+        totals.update(p.quota)
+    paper = {"on_table": 1526, "on_shelf": 2724, "in_drawer": 859, "in_basket": 891}
+    for label, n in paper.items():
+        assert abs(totals[label] - n) <= 0.1 * n, (label, totals[label], n)
+    # The first 13 scenes made cover every type (a partial build is still a fair sample).
+    assert {p.scene_type for p in plans[:13]} == set(PAPER_TABLE)
+    assert len({p.scene_seed for p in plans}) == len(plans)
+
+
+def test_bad_recipe_is_refused():
+    with pytest.raises(ValueError, match="unknown suite recipe 'tests'; valid: test, val"):
+        suite_build.recipe("tests")
+    with pytest.raises(ValueError, match="valid: train, test"):
+        SuiteRecipe(object_split="all")
+
+
+# ----------------------------------------------------------------------------- shipped suites
+def _strata(suite):
+    return [(t.scene_type, t.target_label) for t in suite.tasks.values()]
+
+
+def test_shipped_test_suite_prefix_is_stratified(test_suite):
+    keys = _strata(test_suite)
+    sizes, n_all = Counter(keys), len(keys)
+    strata = len(sizes)
+    for fraction in (0.1, 0.25, 0.5):
+        n = int(n_all * fraction)
+        counts = Counter(keys[:n])
+        for key, size in sizes.items():
+            # Every stratum within one task of its share at its position, plus rounding
+            # spread over the strata.
+            assert abs(counts[key] - n * size / n_all) <= 1 + strata * size / n_all + 1e-9, (fraction, key)
+
+
+def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
+    info = test_suite.info
+    plans = plan_scenes(suite_build.recipe("test"))
+    assert info["planned_scenes"] == 100 and info["planned_tasks"] == 6000
+    by_index = {p.index: p for p in plans}
+    made = [by_index[i] for i in info["complete_scene_indices"]]
+    assert info["complete_scenes"] == len(made) and info["complete"] == (len(made) == 100)
+    # Every task comes from a finished scene of the plan, from test-split objects.
+    scene_seeds = {(p.scene_type, p.scene_seed) for p in made}
+    assert {(t.scene_type, t.scene_seed) for t in test_suite.tasks.values()} <= scene_seeds
+    from fetchbench_ms.tasks.objects import object_ids
+
+    test_ids = set(object_ids("test"))
+    assert all(o.object_id in test_ids for t in test_suite.tasks.values() for o in t.objects)
+    # Each finished scene has its quota, except the shortfall it records.
+    per_scene = Counter(t.scene_seed for t in test_suite.tasks.values())
+    for p in made:
+        short = sum(info["shortfall"].get(str(p.index), {}).values())
+        assert per_scene[p.scene_seed] >= 60 - short
+    if info["complete"]:
+        stats = suite_stats(test_suite)
+        assert {t: r["scenes"] for t, r in stats["rows"].items()} == {t: n for t, (n, _) in PAPER_TABLE.items()}
+        paper = {"on_table": 1526, "on_shelf": 2724, "in_drawer": 859, "in_basket": 891}
+        for label, n in paper.items():
+            assert abs(stats["total"][label] - n) <= 0.1 * n
+    else:
+        assert "PARTIAL" in format_stats(suite_stats(test_suite))
+
+
+def test_val_suite_uses_train_objects():
+    from fetchbench_ms.tasks.objects import object_ids
+
+    val = load_suite("val")
+    train = set(object_ids("train"))
+    assert len(val) > 0 and all(o.object_id in train for t in val.tasks.values() for o in t.objects)
+
+
+def test_smoke_covers_every_category_and_most_types(smoke, test_suite):
+    assert 15 <= len(smoke) <= 25
+    assert {t.target_label for t in smoke.tasks.values()} == {t.target_label for t in test_suite.tasks.values()}
+    types = {t.scene_type for t in smoke.tasks.values()}
+    assert len(types) >= min(7, len({t.scene_type for t in test_suite.tasks.values()}))
+    for smoke_id, test_id in zip(smoke.ids(), smoke.info["source_ids"]):
+        assert smoke.get(smoke_id) == test_suite.get(test_id)
+
+
+def test_stats_cli(capsys):
+    from fetchbench_ms.cli import main
+
+    assert main(["suite", "stats", "--suite", "smoke", "--json"]) == 0
+    stats = json.loads(capsys.readouterr().out)
+    assert stats["total"]["tasks"] == sum(r["tasks"] for r in stats["rows"].values())
+    assert stats["total"]["tasks"] == sum(stats["total"][c] for c in ("on_table", "on_shelf", "in_drawer", "in_basket"))
+    assert main(["suite", "stats", "--suite", "test", "--filters"]) == 0
+    out = capsys.readouterr().out
+    assert "# Scenes" in out and "In-Basket" in out and "Total" in out and "unreachable" in out
+    assert main(["suite", "stats", "--suite", "nope"]) == 2
+    assert "valid:" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_generated_suite_is_identical_whatever_the_worker_count(tmp_path):
+    r = SuiteRecipe("tiny", "test", seed=7, scale=0.1, tasks_per_scene=2, max_arrangements=3)
+    paths = []
+    for workers in (1, 2):
+        work = tmp_path / f"w{workers}"
+        suite_build.build_scenes(r, work, workers=workers, limit=2, log=lambda *_: None)
+        suite = suite_build.assemble_suite(r, work)
+        paths.append(tmp_path / f"tiny{workers}.json.gz")
+        suite.save(paths[-1])
+        assert suite.info["complete_scenes"] == 2 and not suite.info["complete"]
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    # The per-scene results (every filter verdict counted) agree too, time aside.
+    for name in ("scene_000.json", "scene_001.json"):
+        a, b = (json.loads((tmp_path / f"w{w}" / name).read_text()) for w in (1, 2))
+        assert a.pop("seconds") > 0 and b.pop("seconds") > 0
+        assert a == b and a["candidates"] > 0
+    # Re-running skips finished scenes (resumable): nothing is remade.
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "w1").iterdir()}
+    suite_build.build_scenes(r, tmp_path / "w1", workers=1, limit=2, log=lambda *_: None)
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "w1").iterdir()} == before

@@ -1,55 +1,58 @@
 """``fetchbench demo``: the project's main job (``make demo``).
 
-For now (until the evaluation exists) it shows the procedural scene library: it renders
-one picture per scene type with the support surfaces highlighted, writes a gallery page
-and the scene statistics to the output folder, and prints the statistics.
+Evaluates the ``ga-mesh-rrt`` sense-plan-act baseline (annotated grasps, oracle meshes,
+RRTConnect) on the ``smoke`` task suite on CPU, one worker process per core, prints the
+success table by category and writes the HTML report. It is ``fetchbench eval`` plus
+``fetchbench report``: results go to ``OUT/results`` (re-running resumes, so a second run
+only rebuilds the report) and the report to ``OUT/report/index.html``.
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
-from .scenes.cli import seed_arg
-from .utils.io import atomic_write_text, canonical_json
+
+def default_workers() -> int:
+    """One per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
 
 
-def run_demo(out_dir: str | Path, seed: int = 0, stat_seeds: int = 8, width: int = 320, height: int = 240) -> int:
-    from .scenes.gallery import render_gallery, write_gallery_page
-    from .scenes.registry import scene_types
-    from .scenes.stats import stats_table, type_stats
+def run_demo(out_dir, method: str = "ga-mesh-rrt", suite: str = "smoke", tasks: str | None = None,
+             workers: int | None = None, render: bool = True) -> int:
+    from .evaluation import evaluate, format_table, summarize
+    from .evaluation.report import build_report
 
     out_dir = Path(out_dir)
-    names = list(scene_types())
-    if not names:
-        raise FileNotFoundError("no scene types are registered (fetchbench_ms/scenes/types/ is empty)")
-    print(f"FetchBench-MS demo: {len(names)} scene types -> {out_dir}/")
+    workers = workers or default_workers()
     start = time.perf_counter()
-    print("rendering the gallery (the first picture compiles the renderer's shaders, ~10 s on CPU)")
-    images = render_gallery(out_dir / "gallery", names, seed, width, height, progress=lambda n, p: print(f"  {p}"))
-    stats = {n: type_stats(n, range(stat_seeds)) for n in names}
-    page = write_gallery_page(out_dir / "scenes.md", images, seed, stats)
-    atomic_write_text(out_dir / "scene_stats.json", canonical_json([s.to_dict() for s in stats.values()]) + "\n")
+    print(f"FetchBench-MS demo: {method} on the {suite!r} suite, {workers} worker(s) -> {out_dir}/")
+    records = evaluate(method, out_dir / "results", suite=suite, tasks=tasks, workers=workers)
+    summary = summarize(records)
     print()
-    print(stats_table(list(stats.values())))
+    print(format_table(summary, "by_category"))
     print()
-    print(f"gallery page: {page}")
-    print(f"statistics:   {out_dir / 'scene_stats.json'}")
-    print(f"done in {time.perf_counter() - start:.1f} s")
+    print(format_table(summary, "by_scene_type"))
+    errors = [r for r in records if r.get("error")]
+    for r in errors:
+        print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
+    page = build_report([out_dir / "results"], out_dir / "report", render=render)
+    print()
+    print(f"results: {out_dir / 'results' / 'results.jsonl'}")
+    print(f"report:  {page}")
+    print(f"done in {time.perf_counter() - start:.0f} s")
     return 0
 
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValueError(f"--size takes WIDTHxHEIGHT, e.g. 320x240; got {text!r}") from None
-    return w, h
-
-
 def add_commands(subparsers) -> None:
-    p = subparsers.add_parser("demo", help="the main job: scene gallery and statistics (make demo)")
+    p = subparsers.add_parser("demo", help="the main job: evaluate ga-mesh-rrt on the smoke suite, report (make demo)")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the pictured instances")
-    p.add_argument("--stat-seeds", type=int, default=8, help="seeds the statistics average over")
-    p.add_argument("--size", default="320x240", help="picture size WIDTHxHEIGHT")
-    p.set_defaults(func=lambda a: run_demo(a.out, a.seed, a.stat_seeds, *_size(a.size)))
+    p.add_argument("--method", default="ga-mesh-rrt", help="method to evaluate (see fetchbench eval --help)")
+    p.add_argument("--suite", default="smoke", help="task suite (default smoke)")
+    p.add_argument("--tasks", default=None, help="START:END slice of the suite")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: one per core)")
+    p.add_argument("--no-render", action="store_true", help="report without start images")
+    p.set_defaults(func=lambda a: run_demo(a.out, a.method, a.suite, a.tasks, a.workers, not a.no_render))

@@ -1,0 +1,64 @@
+"""``fetchbench eval`` (run a method on suite tasks or env seeds) and ``fetchbench report``."""
+from __future__ import annotations
+
+import os
+
+from .runner import BACKENDS
+
+
+def cmd_eval(args) -> int:
+    from .metrics import format_table, summarize
+    from .runner import evaluate
+
+    if args.suite is not None and args.env is not None:
+        raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
+    if args.tasks is not None and args.suite is None:
+        raise ValueError("--tasks selects tasks of a --suite")
+    out = args.out or os.path.join("out", "eval", args.method.replace(":", "_"))
+    records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
+                       episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
+                       address=args.address, task_timeout=args.task_timeout, retries=args.retries,
+                       retry_errors=args.retry_errors, videos=args.videos)
+    for r in records:
+        if r.get("error"):
+            print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
+    summary = summarize(records)
+    print(format_table(summary, "by_category"))
+    print(f"results: {os.path.join(out, 'results.jsonl')}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .report import build_report
+
+    page = build_report(args.results, args.out, gallery=args.gallery, render=not args.no_render)
+    print(f"report: {page}")
+    return 0
+
+
+def add_commands(subparsers) -> None:
+    p = subparsers.add_parser("eval", help="evaluate a method on a task suite (one JSON line per task, resumable)")
+    p.add_argument("--method", default="ga-mesh-rrt",
+                   help="ga-mesh-rrt, ga-ptd-rrt, idle, or an importable module:function")
+    p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
+    p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
+    p.add_argument("--env", default=None, help="instead of a suite: sample tasks from this env id's seeds")
+    p.add_argument("--episodes", type=int, default=10, help="with --env: number of seeds")
+    p.add_argument("--seed", type=int, default=0, help="with --env: first seed")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (one core each)")
+    p.add_argument("--backend", default="local", help=f"one of: {', '.join(BACKENDS)}")
+    p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
+    p.add_argument("--task-timeout", type=float, default=600.0, help="s per task before it is killed (error record)")
+    p.add_argument("--retries", type=int, default=1, help="tries per task (FetchBench's --retries 5)")
+    p.add_argument("--retry-errors", action="store_true", help="run again the tasks recorded as errors")
+    p.add_argument("--videos", action="store_true",
+                   help="record a GIF of every failed task (OUT/videos/), shown in the report's gallery")
+    p.add_argument("--out", default=None, help="results directory, default out/eval/METHOD (re-running resumes)")
+    p.set_defaults(func=cmd_eval)
+
+    r = subparsers.add_parser("report", help="HTML report of one or more results directories")
+    r.add_argument("results", nargs="+", help="results directories (several: compared side by side)")
+    r.add_argument("--out", default=None, help="report folder (default: FIRST_DIR/report)")
+    r.add_argument("--gallery", type=int, default=6, help="sample failures pictured per method")
+    r.add_argument("--no-render", action="store_true", help="no start images (no renderer needed)")
+    r.set_defaults(func=cmd_report)

@@ -1,0 +1,246 @@
+"""Methods the runner can evaluate, and how one task is run in a worker.
+
+A method is a function ``run(env, seed) -> dict`` on an env already reset to the task,
+plus the env's observation mode. Built in: the sense-plan-act baselines of
+``fetchbench_ms.solutions`` and ``idle`` (the arm holds its start configuration through
+the episode and the env judges: a lower bound, and a cheap deterministic method for
+testing the runner). Any importable ``module:function`` with that signature is a method
+too (its ``obs_mode`` attribute, default ``"none"``), so a new solution is evaluated
+without touching this file.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import re
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional
+
+IDLE = "idle"
+ERROR_FAILURE = "error"  # the failure class of a task that crashed or timed out
+
+
+def builtin_methods() -> tuple[str, ...]:
+    from ..solutions.sense_plan_act import METHODS
+
+    return (*METHODS, IDLE)
+
+
+@dataclass(frozen=True)
+class WorkItem:
+    """One task to run: a suite task (``task`` is its TaskSpec dict) or a seed of an env id."""
+
+    task_id: str
+    seed: int
+    env_id: str = "FetchBench-v0"
+    task: Optional[dict] = None
+
+    def describe(self) -> dict:
+        """Scene type and category, known before the task runs (for error records)."""
+        if self.task is None:
+            return {}
+        from ..tasks.spec import TaskSpec
+
+        task = TaskSpec.from_dict(self.task)
+        return {"scene_type": task.scene_type, "category": task.target_label, "target_object": task.target.object_id}
+
+
+def task_seed(task_id: str) -> int:
+    """The method's seed for a suite task: fixed by the id, whatever the selection or order."""
+    return int(hashlib.sha256(task_id.encode()).hexdigest()[:8], 16) % 2**31
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    obs_mode: str
+    run: Callable  # run(env, seed) -> record dict
+
+
+def resolve_method(name: str, retries: int = 1) -> Method:
+    from ..solutions.sense_plan_act import METHODS, solve
+
+    if name in METHODS:
+        obs_mode = "pointcloud" if METHODS[name]["world"] == "pointcloud" else "none"
+
+        def run(env, seed):
+            return solve(env, seed=seed, method=name, retries=retries, reset=False)
+
+        return Method(name, obs_mode, run)
+    if name == IDLE:
+        return Method(name, "none", run_idle)
+    if ":" in name:
+        module, _, attr = name.partition(":")
+        try:
+            fn = getattr(importlib.import_module(module), attr)
+        except (ImportError, AttributeError) as error:
+            raise ValueError(f"method {name!r}: cannot import {attr!r} from {module!r} ({error})") from error
+        return Method(name, getattr(fn, "obs_mode", "none"), fn)
+    raise ValueError(f"unknown method {name!r}; valid: {', '.join(builtin_methods())} "
+                     f"or an importable module:function")
+
+
+def run_idle(env, seed) -> dict:
+    """Hold the start configuration with the gripper open, then FetchBench's judge."""
+    from ..envs import settle_and_hold
+
+    info = settle_and_hold(env)
+    success = bool(info["success"][0])
+    return {
+        "success": success,
+        "failure": None if success else "not_attempted",
+        "computation_time": 0.0,
+        "cspace_length": 0.0,
+        "phases": {},
+        "target_moved": round(float(info["target_moved"][0]), 4),
+        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
+    }
+
+
+@dataclass(frozen=True)
+class RunnerSpec:
+    """What a worker needs to build its ``TaskRunner`` (picklable, sent to every worker)."""
+
+    method: str
+    retries: int = 1
+    video_dir: Optional[str] = None  # record a GIF of every failed task here
+
+    def make(self) -> "TaskRunner":
+        return TaskRunner(self.method, self.retries, self.video_dir)
+
+
+VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
+VIDEO_SIZE = 256  # px, square
+
+
+class TaskRunner:
+    """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
+
+    def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None):
+        self.method = resolve_method(method_name, retries)
+        self.video_dir = video_dir
+        self.envs: dict = {}
+
+    def env(self, env_id: str):
+        from ..envs import make
+
+        key = (env_id, self.method.obs_mode)
+        if key not in self.envs:
+            extra = {"render_mode": "rgb_array"} if self.video_dir else {}
+            self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos", **extra)
+        return self.envs[key]
+
+    def close(self) -> None:
+        for env in self.envs.values():
+            try:
+                env.close()
+            except Exception:  # noqa: BLE001 - a broken env is dropped whatever it says
+                pass
+        self.envs.clear()
+
+    def __call__(self, item: WorkItem) -> dict:
+        t = time.perf_counter()
+        try:
+            env = self.env(item.env_id)
+            options = {"task": item.task} if item.task is not None else None
+            env.reset(seed=item.seed, options=options)
+            if self.video_dir:
+                with VideoRecorder(env) as video:
+                    record = dict(self.method.run(env, item.seed))
+                if not record.get("success"):
+                    video.save(Path(self.video_dir) / f"{file_slug(item.task_id)}.gif")
+            else:
+                record = dict(self.method.run(env, item.seed))
+            # The parent writes it as one canonical JSON line: make sure it is JSON here,
+            # where a failure is this task's error and not the run's.
+            record = json.loads(json.dumps(record, default=_json_default, allow_nan=False))
+            if not isinstance(record.get("success"), (bool, int)):
+                raise TypeError(f"method {self.method.name} returned no boolean 'success' (keys: {sorted(record)})")
+            record["success"] = bool(record["success"])
+            task = env.unwrapped.tasks[0]
+            record.setdefault("scene_type", task.scene_type)
+            record.setdefault("category", task.target_label)
+            record.setdefault("target_object", task.target.object_id)
+        except Exception as error:  # noqa: BLE001 - any failure of one task is that task's record
+            # The env may be half-way through a reconfigure: start the next task on a fresh one.
+            self.close()
+            record = error_record(item, "exception", f"{type(error).__name__}: {error}", traceback.format_exc())
+        record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
+                      wall_time=round(time.perf_counter() - t, 2))
+        return record
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):  # numpy / torch scalars and arrays
+        return value.tolist()
+    raise TypeError(f"a record value of type {type(value).__name__} is not JSON")
+
+
+def error_record(item: WorkItem, kind: str, message: str, trace: str = "") -> dict:
+    """A task that raised (``exception``), ran past its limit (``timeout``) or took its worker
+    down (``crash``): a failed task with the reason, not a lost one."""
+    return {
+        **item.describe(),
+        "task_id": item.task_id,
+        "seed": item.seed,
+        "env_id": item.env_id,
+        "success": False,
+        "failure": ERROR_FAILURE,
+        "error": {"kind": kind, "message": message, "traceback": trace},
+    }
+
+
+def file_slug(text: str) -> str:
+    """A file-name-safe form of a task id or label ("test/0042" -> "test_0042")."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")
+
+
+class VideoRecorder:
+    """Frames of the env's overview camera every few control steps while a method runs.
+
+    Methods step the simulation through ``BaseEnv._step_action`` (``env.step`` would also
+    render the sensors), so the recorder wraps that on the env instance for the duration
+    of the ``with`` block: no method needs to know about recording.
+    """
+
+    def __init__(self, env, every: int = VIDEO_EVERY):
+        self.u, self.every, self.frames, self.steps = env.unwrapped, every, [], 0
+
+    def _frame(self) -> None:
+        from PIL import Image
+
+        image = self.u.render()[0].cpu().numpy()
+        self.frames.append(Image.fromarray(image).resize((VIDEO_SIZE, VIDEO_SIZE)))
+
+    def __enter__(self):
+        step_action = self.u._step_action
+
+        def recording_step(action):
+            out = step_action(action)
+            self.steps += 1
+            if self.steps % self.every == 0:
+                self._frame()
+            return out
+
+        self._frame()
+        self.u._step_action = recording_step
+        return self
+
+    def __exit__(self, *exc):
+        del self.u._step_action  # back to the class's method
+        self._frame()  # the end of the episode (after the hold)
+        return False
+
+    def save(self, path: Path) -> None:
+        import io
+
+        from ..utils.io import atomic_write_bytes
+
+        buffer = io.BytesIO()
+        self.frames[0].save(buffer, format="GIF", save_all=True, append_images=self.frames[1:],
+                            duration=int(1000 * self.every / self.u.control_freq), loop=0)
+        atomic_write_bytes(path, buffer.getvalue())

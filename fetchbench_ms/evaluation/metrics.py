@@ -1,0 +1,82 @@
+"""Metrics over task records: success by category and by scene type, failure classes,
+the phase funnel, computation time and C-space length.
+
+A task that errored (crash, timeout, exception) counts as a failed task of the method:
+its rate is in every table (column ``errors``) so a broken run cannot look like a good one.
+Medians of computation time and C-space length are over tasks that ran (no error).
+"""
+from __future__ import annotations
+
+import statistics
+
+CATEGORIES = ("on_table", "on_shelf", "in_drawer", "in_basket")  # the paper's column order
+# FetchBench's pipeline stages in order; the last is the env's verdict.
+FUNNEL = (("ik_found", "IK"), ("pregrasp_plan", "pre-grasp plan"), ("approach_reached", "approach"),
+          ("grasped", "grasp"), ("retrieval_plan", "retrieval plan"), ("success", "success"))
+FAILURE_ORDER = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision",
+                 "not_attempted", "error")
+
+
+def _median(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return round(statistics.median(values), 3) if values else None
+
+
+def failure_classes(records: list[dict]) -> list[str]:
+    seen = {r["failure"] for r in records if r.get("failure")}
+    return [f for f in FAILURE_ORDER if f in seen] + sorted(seen - set(FAILURE_ORDER))
+
+
+def group_stats(records: list[dict]) -> dict:
+    n = len(records)
+    ran = [r for r in records if not r.get("error")]
+    return {
+        "tasks": n,
+        "successes": sum(bool(r["success"]) for r in records),
+        "success_rate": round(sum(bool(r["success"]) for r in records) / n, 4) if n else None,
+        "errors": n - len(ran),
+        "median_computation_time": _median(r.get("computation_time") for r in ran),
+        "median_cspace_length": _median(r.get("cspace_length") for r in ran),
+        "funnel": {key: round(sum(bool(_stage(r, key)) for r in records) / n, 4) if n else None
+                   for key, _ in FUNNEL},
+        "failures": {f: sum(r.get("failure") == f for r in records) for f in failure_classes(records)},
+    }
+
+
+def _stage(record: dict, key: str) -> bool:
+    return bool(record["success"]) if key == "success" else bool((record.get("phases") or {}).get(key))
+
+
+def grouped(records: list[dict], field: str) -> dict[str, list[dict]]:
+    groups: dict[str, list[dict]] = {}
+    for r in records:
+        groups.setdefault(r.get(field) or "unknown", []).append(r)
+    order = list(CATEGORIES) if field == "category" else sorted(groups)
+    return {k: groups[k] for k in order + sorted(set(groups) - set(order)) if k in groups}
+
+
+def summarize(records: list[dict]) -> dict:
+    """``{"all": stats, "by_category": {...}, "by_scene_type": {...}}``; ``{}`` when empty."""
+    if not records:
+        return {}
+    return {
+        "all": group_stats(records),
+        "by_category": {k: group_stats(v) for k, v in grouped(records, "category").items()},
+        "by_scene_type": {k: group_stats(v) for k, v in grouped(records, "scene_type").items()},
+    }
+
+
+def format_table(summary: dict, by: str = "by_category") -> str:
+    """A plain-text table of one grouping plus the overall row."""
+    if not summary:
+        return "no task ran"
+    label = "category" if by == "by_category" else "scene type"
+    header = f"{label:<22}{'tasks':>6}{'success':>9}{'errors':>7}{'med time s':>11}{'med C-len':>10}  failures"
+    lines = [header, "-" * len(header)]
+    rows = list(summary[by].items()) + [("all", summary["all"])]
+    for name, s in rows:
+        failures = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"
+        t = "-" if s["median_computation_time"] is None else f"{s['median_computation_time']:.2f}"
+        c = "-" if s["median_cspace_length"] is None else f"{s['median_cspace_length']:.2f}"
+        lines.append(f"{name:<22}{s['tasks']:>6}{s['success_rate']:>9.1%}{s['errors']:>7}{t:>11}{c:>10}  {failures}")
+    return "\n".join(lines)

@@ -1,0 +1,114 @@
+"""``evaluate``: run a method on suite tasks (or env seeds) into a resumable results store."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+from ..utils.io import sha256_bytes
+from .methods import RunnerSpec, WorkItem, resolve_method, task_seed
+from .store import VIDEO_DIR, ResultsStore
+
+BACKENDS = ("local", "ray")
+
+
+def open_suite(name_or_path: str):
+    """A shipped suite by name (``test``, ``val``, ``smoke``) or a suite file; returns
+    (TaskSuite, its file, the file's sha256)."""
+    from ..tasks.suite import load_suite, suite_path
+
+    path = suite_path(name_or_path)
+    return load_suite(path), str(path.resolve()), sha256_bytes(path.read_bytes())
+
+
+def parse_range(text: Optional[str], total: int) -> range:
+    """``START:END`` (either side may be empty) over a suite of ``total`` tasks."""
+    if text is None:
+        return range(total)
+    parts = text.split(":")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        start = int(parts[0]) if parts[0].strip() else 0
+        end = int(parts[1]) if parts[1].strip() else total
+    except ValueError:
+        raise ValueError(f"--tasks takes START:END (e.g. 0:600, :20, 100:), got {text!r}") from None
+    if not 0 <= start < end <= total:
+        raise ValueError(f"--tasks {text!r} is out of range: need 0 <= START < END <= {total} (the suite's size)")
+    return range(start, end)
+
+
+def suite_items(suite, selection: range) -> list[WorkItem]:
+    ids = list(suite.tasks)  # suite order: any prefix is a stratified sample
+    return [WorkItem(task_id=i, seed=task_seed(i), task=suite.tasks[i].to_dict()) for i in (ids[k] for k in selection)]
+
+
+def seed_items(env_id: str, episodes: int, seed: int) -> list[WorkItem]:
+    from ..envs import ENV_IDS
+
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; valid: {', '.join(ENV_IDS)}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    return [WorkItem(task_id=f"{env_id}/seed-{s}", seed=s, env_id=env_id) for s in range(seed, seed + episodes)]
+
+
+def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Optional[str] = None,
+             env_id: Optional[str] = None, episodes: int = 10, seed: int = 0, workers: int = 1,
+             backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
+             retries: int = 1, retry_errors: bool = False, videos: bool = False,
+             progress: bool = True) -> list[dict]:
+    """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
+    selection (old and new), in task order."""
+    from .metrics import summarize
+
+    resolve_method(method, retries)  # unknown method: fail before anything is written
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    if suite is not None:
+        task_suite, source, source_sha = open_suite(suite)
+        items = suite_items(task_suite, parse_range(tasks, len(task_suite.tasks)))
+        selection = {"suite": task_suite.name, "tasks": tasks}
+    else:
+        env_id = env_id or "FetchBench-v0"
+        items = seed_items(env_id, episodes, seed)
+        source, source_sha, selection = f"env:{env_id}", None, {"env_id": env_id, "episodes": episodes, "seed": seed}
+    store = ResultsStore(Path(out_dir))
+    store.open_run({"method": method, "source": source, "source_sha256": source_sha,
+                    "method_options": {"retries": retries}, "selection": selection})
+    done = {r["task_id"]: r for r in store.records()}
+    todo = [it for it in items if it.task_id not in done or (retry_errors and done[it.task_id].get("error"))]
+    bar = _progress(len(items), len(items) - len(todo), method, progress)
+
+    todo_ids = {t.task_id for t in todo}
+    kept = [done[i.task_id] for i in items if i.task_id in done and i.task_id not in todo_ids]
+    successes, finished = sum(bool(r["success"]) for r in kept), len(kept)
+
+    def on_record(record: dict) -> None:
+        nonlocal successes, finished
+        store.append(record)
+        done[record["task_id"]] = record
+        successes, finished = successes + bool(record["success"]), finished + 1
+        bar.update(1)
+        bar.set_postfix(success=f"{successes}/{finished}")
+
+    spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None)
+    if todo:
+        if backend == "local":
+            from .local import run_local
+
+            run_local(spec, todo, on_record, workers=workers, task_timeout=task_timeout)
+        else:
+            from .ray_backend import run_ray
+
+            run_ray(spec, todo, on_record, workers=workers, task_timeout=task_timeout, address=address)
+    bar.close()
+    records = [done[i.task_id] for i in items if i.task_id in done]
+    store.write_summary(summarize(store.records()))
+    return records
+
+
+def _progress(total: int, initial: int, method: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc=method, unit="task", disable=not enabled, file=sys.stderr)

@@ -1,0 +1,100 @@
+"""The results store: a directory with ``run.json`` (what was run) and ``results.jsonl``
+(one JSON line per finished task, appended atomically as tasks finish, in any order).
+
+Resuming: a task whose id has a line is finished and is skipped on the next run. A kill
+at any moment leaves at most an unterminated last line (a write cut short); it is
+dropped on the next open, so no record is lost or doubled. The manifest pins the method,
+the task source and its content hash: resuming into a directory of another run is an
+error instead of a silent mix.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..utils.io import append_jsonl_atomic, atomic_write_text, canonical_json
+
+RESULTS_FILE = "results.jsonl"
+MANIFEST_FILE = "run.json"
+SUMMARY_FILE = "summary.json"
+VIDEO_DIR = "videos"  # <task id>.gif of failed tasks, when recorded
+STORE_FORMAT = "fetchbench-results"
+STORE_VERSION = "1"
+
+
+@dataclass
+class ResultsStore:
+    root: Path
+
+    @property
+    def results_path(self) -> Path:
+        return self.root / RESULTS_FILE
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / MANIFEST_FILE
+
+    # ----------------------------------------------------------------- manifest
+    def manifest(self) -> dict:
+        if not self.manifest_path.exists():
+            raise FileNotFoundError(f"{self.root} is not a results directory (no {MANIFEST_FILE}); "
+                                    f"make one with `fetchbench eval ... --out {self.root}`")
+        return json.loads(self.manifest_path.read_text())
+
+    def open_run(self, manifest: dict) -> None:
+        """Create the directory for a run, or check that it holds the same run."""
+        manifest = {"format": STORE_FORMAT, "version": STORE_VERSION, **manifest}
+        if self.manifest_path.exists():
+            old = self.manifest()
+            # A suite is identified by its content (the same file may be named by another path).
+            source = "source_sha256" if manifest.get("source_sha256") else "source"
+            keys = ("format", "version", "method", source, "method_options")
+            diff = [k for k in keys if old.get(k) != manifest.get(k)]
+            if diff:
+                detail = "; ".join(f"{k}: {old.get(k)!r} there, {manifest.get(k)!r} now" for k in diff)
+                raise ValueError(f"{self.root} holds results of another run ({detail}); use another --out")
+        else:
+            atomic_write_text(self.manifest_path, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+        self.repair()
+
+    # ----------------------------------------------------------------- records
+    def repair(self) -> None:
+        """Drop an unterminated last line (the append of a killed run, cut short)."""
+        path = self.results_path
+        if not path.exists():
+            return
+        with open(path, "rb+") as f:
+            data = f.read()
+            if data and not data.endswith(b"\n"):
+                f.truncate(data.rfind(b"\n") + 1)
+                f.flush()
+                os.fsync(f.fileno())
+
+    def records(self) -> list[dict]:
+        """Every finished task's record (the last line of a task id wins), in file order."""
+        if not self.results_path.exists():
+            if not self.manifest_path.exists():
+                self.manifest()  # raises: not a results directory
+            return []
+        by_id: dict[str, dict] = {}
+        lines = self.results_path.read_bytes().split(b"\n")
+        complete = lines[:-1]  # the part after the last newline is an append cut short
+        for n, line in enumerate(complete, 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError as error:
+                raise ValueError(f"{self.results_path}:{n} is not a JSON line ({error}); "
+                                 f"remove that line to resume") from error
+            by_id.pop(record["task_id"], None)
+            by_id[record["task_id"]] = record
+        return list(by_id.values())
+
+    def append(self, record: dict) -> None:
+        append_jsonl_atomic(self.results_path, record)
+
+    def write_summary(self, summary: dict) -> None:
+        atomic_write_text(self.root / SUMMARY_FILE, canonical_json(summary) + "\n")

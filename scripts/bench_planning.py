@@ -6,7 +6,7 @@
 - with ``--tasks N``: the ga-mesh-rrt pipeline on N sampled FetchBench tasks
   (success rate, median computation time).
 
-Usage: python scripts/bench_planning.py [--trials 10] [--tasks 0] [--method ga-mesh-rrt]
+Usage: python scripts/bench_planning.py [--trials 10] [--tasks 0] [--method ga-mesh-rrt] [--workers 1] [--out DIR]
 """
 from __future__ import annotations
 
@@ -63,21 +63,36 @@ def bench_core(trials: int) -> None:
               f"{len(plan_times)}/{trials} solved; statuses {dict((s, statuses.count(s)) for s in set(statuses))}")
 
 
-def bench_pipeline(n_tasks: int, method: str, seed: int) -> None:
-    from fetchbench_ms.solutions import run_episodes
+def bench_pipeline(n_tasks: int, method: str, seed: int, out_dir: str | None, workers: int) -> None:
+    """The pipeline on ``n_tasks`` sampled (unfiltered) tasks, seeds ``seed..``, through the
+    evaluation runner; success overall and on the tasks where an annotated grasp had a
+    collision-free IK solution (what FetchBench's reachability filter keeps)."""
+    import collections
+    import tempfile
 
-    from fetchbench_ms.solutions.runner import format_summary, summarize
+    from fetchbench_ms.evaluation import evaluate
+    from fetchbench_ms.evaluation.metrics import format_table, summarize
 
-    for reachable_only in (False, True):
-        records = run_episodes(method=method, env_id="FetchBench-v0", episodes=n_tasks, seed=seed, out_dir=None,
-                               reachable_only=reachable_only, progress=False)
-        ran = [r for r in records if "skipped" not in r]
-        times = [r["computation_time"] for r in ran]
-        ok = sum(r["success"] for r in ran)
-        which = "tasks passing the reachability filter" if reachable_only else "sampled tasks (unfiltered)"
-        print(f"{method} on {which}: success {ok}/{len(ran)} ({len(records) - len(ran)} seeds skipped), "
-              f"computation time median {statistics.median(times):.2f} s, max {max(times):.2f} s")
-        print(format_summary(summarize(records)))
+    out_dir = out_dir or tempfile.mkdtemp(prefix=f"bench_{method}_")
+    records = evaluate(method, out_dir, env_id="FetchBench-v0", episodes=n_tasks, seed=seed,
+                       workers=workers, progress=False)
+    ran = [r for r in records if not r.get("error")]
+    reachable = [r for r in ran if r["phases"]["ik_found"]]
+    for which, rs in (("sampled tasks (unfiltered)", ran), ("tasks with an IK-feasible annotated grasp", reachable)):
+        if not rs:
+            print(f"{method} on {which}: none")
+            continue
+        by = collections.defaultdict(lambda: [0, 0])
+        for r in rs:
+            by[r["category"]][0] += bool(r["success"])
+            by[r["category"]][1] += 1
+        per = ", ".join(f"{c} {a}/{b}" for c, (a, b) in sorted(by.items()))
+        times = [r["computation_time"] for r in rs]
+        print(f"{method} on {which}: success {sum(bool(r['success']) for r in rs)}/{len(rs)} ({per}); "
+              f"computation time median {statistics.median(times):.2f} s, max {max(times):.2f} s; "
+              f"failures {dict(collections.Counter(r['failure'] for r in rs if not r['success']))}")
+    print(format_table(summarize(records), "by_category"))
+    print(f"records: {out_dir}")
 
 
 def main() -> None:
@@ -86,11 +101,13 @@ def main() -> None:
     parser.add_argument("--tasks", type=int, default=0)
     parser.add_argument("--method", default="ga-mesh-rrt")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1, help="evaluation worker processes for --tasks")
+    parser.add_argument("--out", default=None, help="results folder for --tasks (resumable; default a temporary one)")
     args = parser.parse_args()
     torch.set_num_threads(1)  # small batches: threads only add overhead on a shared CPU
     bench_core(args.trials)
     if args.tasks:
-        bench_pipeline(args.tasks, args.method, args.seed)
+        bench_pipeline(args.tasks, args.method, args.seed, args.out, args.workers)
 
 
 if __name__ == "__main__":

@@ -88,11 +88,11 @@ def test_export_cli_obj_and_surfaces(tmp_path):
     assert len(trimesh.load(out).geometry) == len(s.parts) + len(s.support_surfaces)
 
 
-def test_demo_writes_gallery_page_and_statistics(tmp_path, capsys):
+def test_gallery_writes_pictures_page_and_statistics(tmp_path, capsys):
     import json
 
     out = tmp_path / "demo"
-    assert cli.main(["demo", "--out", str(out), "--stat-seeds", "1", "--size", "64x48"]) == 0
+    assert cli.main(["scenes", "gallery", "--out", str(out), "--stat-seeds", "1", "--size", "64x48"]) == 0
     names = _types()
     pictures = sorted(p.stem for p in (out / "gallery").glob("*.png"))
     assert pictures == sorted(names)

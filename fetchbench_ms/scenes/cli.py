@@ -151,6 +151,42 @@ def cmd_stats(args) -> int:
     return 0
 
 
+def cmd_gallery(args) -> int:
+    """One picture per type, a gallery page and the statistics (the first main job)."""
+    import time
+    from pathlib import Path
+
+    from .gallery import render_gallery, write_gallery_page
+    from .registry import scene_types
+    from .stats import stats_table, type_stats
+
+    out_dir = Path(args.out)
+    width, height = _size(args.size)
+    names = list(scene_types())
+    start = time.perf_counter()
+    print(f"scene gallery: {len(names)} scene types -> {out_dir}/ "
+          "(the first picture compiles the renderer's shaders, ~10 s on CPU)")
+    images = render_gallery(out_dir / "gallery", names, args.seed, width, height, progress=lambda n, p: print(f"  {p}"))
+    stats = {n: type_stats(n, range(args.stat_seeds)) for n in names}
+    page = write_gallery_page(out_dir / "scenes.md", images, args.seed, stats)
+    atomic_write_text(out_dir / "scene_stats.json", canonical_json([s.to_dict() for s in stats.values()]) + "\n")
+    print()
+    print(stats_table(list(stats.values())))
+    print()
+    print(f"gallery page: {page}")
+    print(f"statistics:   {out_dir / 'scene_stats.json'}")
+    print(f"done in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size takes WIDTHxHEIGHT, e.g. 320x240; got {text!r}") from None
+    return width, height
+
+
 def add_commands(subparsers) -> None:
     scenes = subparsers.add_parser("scenes", help="procedural furniture scene types")
     sub = scenes.add_subparsers(dest="scenes_command", required=True, metavar="SUBCOMMAND")
@@ -194,3 +230,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--seeds", type=seed_arg, default=8, help="number of seeds (0..N-1), >= 1")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_stats)
+
+    p = sub.add_parser("gallery", help="one picture per type, a gallery page and the statistics")
+    p.add_argument("--out", default="out/gallery", help="output folder (default out/gallery)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the pictured instances")
+    p.add_argument("--stat-seeds", type=seed_arg, default=8, help="seeds the statistics average over")
+    p.add_argument("--size", default="320x240", help="picture size WIDTHxHEIGHT")
+    p.set_defaults(func=cmd_gallery)

@@ -1,6 +1,6 @@
 """Sense-plan-act baselines (FetchBench's GA-Mesh / GA-Ptd with RRTConnect) as
-ManiSkill-style ``solve(env, seed)`` functions, and an episode runner."""
-from .runner import run_episodes, summarize
+ManiSkill-style ``solve(env, seed)`` functions. Running them over many tasks is
+``fetchbench_ms.evaluation`` (``fetchbench eval``)."""
 from .sense_plan_act import FAILURE_CLASSES, METHODS, PHASES, SolveConfig, solve
 
-__all__ = ["FAILURE_CLASSES", "METHODS", "PHASES", "SolveConfig", "run_episodes", "solve", "summarize"]
+__all__ = ["FAILURE_CLASSES", "METHODS", "PHASES", "SolveConfig", "solve"]

@@ -18,6 +18,10 @@ from typing import Callable, Iterable
 from .methods import RunnerSpec, WorkItem, error_record
 
 
+#: How long an actor may take to start before its first task's clock runs anyway, s.
+ACTOR_START_LIMIT = 300.0
+
+
 def _actor_class(ray):
     @ray.remote(num_cpus=1, max_restarts=0)
     class TaskActor:
@@ -27,6 +31,9 @@ def _actor_class(ray):
 
             torch.set_num_threads(1)
             self.runner = spec.make()
+
+        def ready(self) -> bool:
+            return True
 
         def run(self, item: WorkItem) -> dict:
             return self.runner(item)
@@ -61,10 +68,22 @@ def run_ray(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[di
 
 
 def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
-    from ray.exceptions import RayActorError, RayTaskError
+    from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
 
     queue = list(reversed(items))
-    actors = [TaskActor.remote(spec) for _ in range(min(workers, len(items)))]
+
+    def start_actors(n: int) -> list:
+        # A task's time limit counts from when its actor is up: starting a process and
+        # importing the env can take longer than a task on a loaded machine.
+        started = [TaskActor.remote(spec) for _ in range(n)]
+        for actor in started:
+            try:
+                ray.get(actor.ready.remote(), timeout=ACTOR_START_LIMIT)
+            except (RayActorError, RayTaskError, GetTimeoutError):
+                pass  # a failed or slow start shows up on the actor's first task and is recorded there
+        return started
+
+    actors = start_actors(min(workers, len(items)))
     running: dict = {}  # object ref -> (actor index, item, start time)
 
     def submit(i: int) -> None:
@@ -88,10 +107,10 @@ def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
                 record = ray.get(ref)
             except RayActorError as error:  # the actor's process died
                 record = failed(item, start, "crash", f"the Ray actor died ({type(error).__name__})")
-                actors[i] = TaskActor.remote(spec)
+                actors[i] = start_actors(1)[0]
             except RayTaskError as error:  # the actor's constructor raised (the runner catches task errors)
                 record = failed(item, start, "exception", str(error).splitlines()[0], str(error))
-                actors[i] = TaskActor.remote(spec)
+                actors[i] = start_actors(1)[0]
             on_record(record)
             if queue:
                 submit(i)
@@ -101,6 +120,6 @@ def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
                 running.pop(ref)
                 ray.kill(actors[i], no_restart=True)
                 on_record(failed(item, start, "timeout", f"ran past the task time limit of {task_timeout:g} s"))
-                actors[i] = TaskActor.remote(spec)
+                actors[i] = start_actors(1)[0]
                 if queue:
                     submit(i)

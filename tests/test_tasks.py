@@ -45,7 +45,7 @@ def test_sampled_task_follows_the_rules(task):
     yaw = 2 * np.arctan2(task.robot_base_quat_wxyz[3], task.robot_base_quat_wxyz[0])
     along, across = x * np.cos(yaw) + y * np.sin(yaw), -x * np.sin(yaw) + y * np.cos(yaw)
     assert abs(along) <= task.robot_table_size[0] / 2 and abs(across) <= task.robot_table_size[1] / 2
-    assert task.extra["cameras_cover_supports"]
+    assert task.extra["camera_view_score"] > 0.3  # the cameras see a good part of the supports
     # Cameras mirror each other about the camera target's centre line and look towards it.
     cy = scene.camera_target.center[1]
     assert task.camera_left.position[1] - cy == pytest.approx(cy - task.camera_right.position[1])
@@ -148,3 +148,55 @@ def test_cli_samples_a_task_to_json_and_rejects_bad_categories(tmp_path, capsys)
     assert TaskSpec.from_dict(json.loads(out.read_text())) == sample_task(7)
     assert main(["tasks", "sample", "--seed", "7", "--category", "Drawers"]) == 2
     assert "valid: Table, Shelf, Drawer, Basket" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- camera views
+def _occluders(task):
+    from fetchbench_ms.tasks.camera_views import Occluders
+
+    return Occluders(task.scene(), task.robot_base_position, task.robot_base_quat_wxyz, task.robot_table_center,
+                     task.robot_table_size)
+
+
+def test_frustum_keeps_what_is_ahead_within_range():
+    from fetchbench_ms.tasks.camera_views import FAR, in_frustum
+
+    eye, target = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    points = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [1.0, 0.9, 0.0], [1.0, 0.0, 0.9], [FAR + 0.1, 0.0, 0.0]])
+    inside = in_frustum(eye, target, points, np.radians(70), 4 / 3)
+    # ahead; behind; 42 deg left (outside 35); 42 deg up (outside 27.7); too far
+    assert inside.tolist() == [True, False, False, False, False]
+
+
+def test_boards_and_the_robot_hide_what_is_behind_them():
+    task = sample_task(3, scene_type="LargeShelf")
+    occluders = _occluders(task)
+    scene = task.scene()
+    shelf = min((s for s in scene.surfaces("on_shelf")), key=lambda s: s.height)  # a board above it
+    point = np.array([*shelf.polygon.centroid.coords[0], shelf.height + 0.03])
+    above = point + [0.0, 0.0, 3.0]
+    in_front = point + [-1.0, 0.0, 0.0]  # level with it, looking in from the open front
+    assert not occluders.unobstructed(above, point[None])[0]
+    # The robot or a divider may stand in between: some eye in front sees it.
+    eyes = [in_front + [0, dy, dz] for dy in (-0.6, 0.0, 0.6) for dz in (0.0, 0.1)]
+    assert any(occluders.unobstructed(e, point[None])[0] for e in eyes), "the lowest shelf is hidden from the front"
+    # Through the middle of a robot sphere: hidden.
+    center, radius = occluders.sphere_centers[40], occluders.sphere_radii[40]
+    direction = np.array([0.0, 1.0, 0.0])
+    eye, far_point = center - 0.5 * direction, center + 0.5 * direction
+    assert not occluders.unobstructed(eye, far_point[None])[0]
+    assert occluders.unobstructed(eye + [0, 0, 5 * radius + 1.0], (far_point + [0, 0, 5 * radius + 1.0])[None])[0]
+
+
+@pytest.mark.parametrize("scene_type", ["Drawer", "DoubleDoorCabinet", "RoundTable"])
+def test_chosen_cameras_see_more_than_a_random_candidate(scene_type):
+    from fetchbench_ms.tasks.camera_views import sample_camera_pair
+
+    task = sample_task(5, scene_type=scene_type, config=SamplerConfig(settle=False))
+    occluders = _occluders(task)
+    fov = np.radians(70)
+    _, best, _ = sample_camera_pair(np.random.default_rng(1), task.scene(), occluders, fov, 4 / 3, tries=32)
+    singles = [sample_camera_pair(np.random.default_rng(100 + k), task.scene(), occluders, fov, 4 / 3, tries=1)[1]
+               for k in range(8)]
+    assert best >= max(singles) - 0.1 and best > np.mean(singles)
+    assert task.extra["camera_view_score"] > 0.3

@@ -15,8 +15,9 @@
 4. Robot base uniformly in the scene's robot region, facing +x; a box robot table
    (x U(0.4, 0.7) m, y U(0.6, 1.0) m) under it, top at the base height.
 5. Two cameras, left and right of the robot (mirrored in y about the camera target),
-   looking at the camera target region's centre plus an offset; rejection-sampled (20
-   tries) so the vertical field of view covers the heights of the supports.
+   looking at the camera target region's centre plus an offset; of 20 candidate pairs
+   the one that sees most of the support surfaces past the furniture and the robot
+   (ray casts, ``camera_views``) is kept.
 6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
    that fall off their support or do not come to rest are dropped. The settled poses
    are stored, so an episode starts at rest.
@@ -35,10 +36,11 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import Point, Polygon
 
 from ..scenes import SCENE_TYPES, generate, get_scene_type
+from .camera_views import Occluders, camera_axes, sample_camera_pair
 from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
-SAMPLER_VERSION = "1"
+SAMPLER_VERSION = "2"  # 2: cameras chosen by ray-cast visibility of the supports
 
 #: The original's support-label weights for placing an object.
 LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
@@ -65,13 +67,22 @@ class SamplerConfig:
     clearance: float = 0.005  # m, between an object's box and everything else
     drop_height: float = 0.005  # m above the surface
     erosion: float = 0.1  # x the object's largest extent
-    camera_tries: int = 20
+    camera_tries: int = 32
     camera_fov_x: float = math.radians(70.0)
     camera_aspect: float = 4.0 / 3.0  # width / height of the sensor the FOV check assumes
     settle: bool = True
     scene_attempts: int = 20  # scenes tried before giving up (a category that no scene offers)
+    #: Support-label weights for placing objects; None: the original's ``LABEL_WEIGHTS``.
+    #: (The suite generator leans them toward the categories a scene still needs.)
+    label_weights: tuple[tuple[str, float], ...] | None = None
 
     def __post_init__(self):
+        if self.label_weights is not None:
+            unknown = sorted({label for label, _ in self.label_weights} - set(LABEL_WEIGHTS))
+            if unknown:
+                raise ValueError(f"unknown support labels {unknown}; valid: {', '.join(LABEL_WEIGHTS)}")
+            if any(w < 0 for _, w in self.label_weights) or not any(w > 0 for _, w in self.label_weights):
+                raise ValueError(f"label weights must be >= 0 and not all zero, got {self.label_weights}")
         if not 1 <= self.num_objects <= 64:
             raise ValueError(f"num_objects must be 1..64, got {self.num_objects}")
         if self.object_split not in ("train", "test"):
@@ -142,8 +153,9 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
     if robot is None:
         return None
     base_position, base_quat, table_center, table_size = robot
-    cameras, covered = _sample_cameras(rng, scene, base_position, config)
-    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements), "cameras_cover_supports": covered}
+    cameras, view_score, covered = _sample_cameras(rng, scene, robot, config)
+    extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements),
+             "camera_view_score": round(view_score, 6), "cameras_cover_supports": covered}
     if config.settle:
         from ..envs.settle import settle_placements  # the one simulator step of sampling
 
@@ -225,8 +237,11 @@ def _rest_geometry(object_id: str, pose_index: int):
 
 
 def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectPlacement]:
-    labels = [label for label in LABEL_WEIGHTS if scene.surfaces(label)]
-    label_p = np.array([LABEL_WEIGHTS[label] for label in labels])
+    weights = LABEL_WEIGHTS if config.label_weights is None else dict(config.label_weights)
+    labels = [label for label in LABEL_WEIGHTS if scene.surfaces(label) and weights.get(label, 0.0) > 0]
+    if not labels:
+        return []
+    label_p = np.array([weights[label] for label in labels])
     label_p = label_p / label_p.sum()
     chosen = rng.choice(len(ids), size=config.num_objects, replace=len(ids) < config.num_objects)
     placements = []
@@ -339,54 +354,18 @@ def _sample_robot(rng, scene, world: _BoxWorld, tries: int = 20):
 # ----------------------------------------------------------------------------- cameras
 def look_at_quat(eye, target) -> tuple[float, float, float, float]:
     """wxyz rotation of a SAPIEN camera (x forward, y left, z up) at ``eye`` looking at ``target``."""
-    forward = np.asarray(target, float) - np.asarray(eye, float)
-    forward /= np.linalg.norm(forward)
-    left = np.cross([0.0, 0.0, 1.0], forward)
-    left /= np.linalg.norm(left)
-    up = np.cross(forward, left)
     T = np.eye(4)
-    T[:3, :3] = np.stack([forward, left, up], axis=1)
+    T[:3, :3] = camera_axes(eye, target).T
     return matrix_to_pose(T)[1]
 
 
-def _covers_heights(eye, target, z_lo, z_hi, fov_y) -> bool:
-    """Both the lowest and highest support heights (at the target's x, y) are in view vertically."""
-    forward = np.asarray(target) - np.asarray(eye)
-    forward /= np.linalg.norm(forward)
-    left = np.cross([0.0, 0.0, 1.0], forward)
-    left /= np.linalg.norm(left)
-    up = np.cross(forward, left)
-    for z in (z_lo, z_hi):
-        d = np.array([target[0], target[1], z]) - eye
-        if abs(math.atan2(d @ up, d @ forward)) > fov_y / 2:
-            return False
-    return True
-
-
-def _sample_cameras(rng, scene, base_position, config) -> tuple[tuple[CameraPose, CameraPose], bool]:
-    """The camera pair, and whether it covers the supports' heights (else the last try)."""
-    region = scene.camera_target
-    center, half = np.asarray(region.center), np.asarray(region.half_size)
-    heights = [s.height for s in scene.support_surfaces]
-    z_lo, z_hi = min(heights), max(heights) + 0.1
-    fov_y = 2 * math.atan(math.tan(config.camera_fov_x / 2) / config.camera_aspect)
-    best, covered = None, False
-    for _ in range(config.camera_tries):
-        target = center + rng.uniform(-0.3, 0.3, size=3) * half
-        eye = np.array([
-            base_position[0] + rng.uniform(-0.3, 0.1),
-            center[1] + rng.uniform(0.9, 1.3),
-            target[2] + rng.uniform(0.3, 0.7),
-        ])
-        eye_right = eye.copy()
-        eye_right[1] = 2 * center[1] - eye[1]
-        target_right = target.copy()
-        target_right[1] = 2 * center[1] - target[1]
-        best = (eye, target, eye_right, target_right)
-        covered = _covers_heights(eye, target, z_lo, z_hi, fov_y) and _covers_heights(eye_right, target_right, z_lo, z_hi, fov_y)
-        if covered:
-            break
-    eye, target, eye_right, target_right = best
-    left = CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
-    right = CameraPose(tuple(float(v) for v in eye_right), look_at_quat(eye_right, target_right), config.camera_fov_x)
-    return (left, right), covered
+def _sample_cameras(rng, scene, robot, config) -> tuple[tuple[CameraPose, CameraPose], float, bool]:
+    """The camera pair that sees most of the supports (``camera_views``), its score, and
+    whether every support surface has a point both cameras see."""
+    base_position, base_quat, table_center, table_size = robot
+    occluders = Occluders(scene, base_position, base_quat, table_center, table_size)
+    pair, score, covered = sample_camera_pair(rng, scene, occluders, config.camera_fov_x, config.camera_aspect,
+                                              config.camera_tries)
+    left, right = (CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
+                   for eye, target in pair)
+    return (left, right), score, covered

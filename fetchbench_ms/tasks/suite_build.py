@@ -9,13 +9,14 @@ same recipe at a smaller size on *train* objects; unlimited train tasks come fro
 Per scene (seeded by (suite seed, scene index) alone, so a scene's result does not
 depend on which worker made it or in which order):
 1. the furniture from its scene seed;
-2. arrangement after arrangement (``sampler`` places ~15 objects with the original's
-   label weights, robot, cameras, settles them), each judged by the three filters
-   (``tasks.filters``); an object that passes becomes a task if its category still has
-   quota in this scene. This is how the category mix is met: the original's label
-   weights decide where objects go, the per-scene quotas decide which passing objects
-   become tasks (on-table targets, for instance, are under-represented by the weights
-   and fill their quota from more arrangements);
+2. arrangement after arrangement (``sampler`` places ~15 objects, robot, cameras,
+   settles them), each judged by the three filters (``tasks.filters``); an object that
+   passes becomes a task if its category still has quota in this scene. This is how the
+   category mix is met: the per-scene quotas decide which passing objects become tasks,
+   and the placement's label weights (the original's, plus extra weight on the
+   categories still short, ``placement_weights``) put more objects where tasks are
+   still needed, so a DrawerShelf fills its in-drawer quota without hundreds of
+   arrangements;
 3. a scene stops at its quota or after ``max_arrangements``; a category that still lacks
    tasks then is filled from the other categories' passing objects (recorded in the
    scene result as ``shortfall``).
@@ -42,7 +43,7 @@ from ..utils.io import atomic_write_text, canonical_json
 from .spec import TaskSpec
 from .suite import TaskSuite
 
-BUILD_VERSION = "2"
+BUILD_VERSION = "3"  # 3: sampler v2 cameras, placement leaned toward needed categories
 CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
 #: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
 #: (The paper's Total row swaps the drawer and basket columns; the rows add up to
@@ -63,6 +64,7 @@ PAPER_TABLE = {
     "TriangleShelfDesk": (5, {"on_table": 0, "on_shelf": 300, "in_drawer": 0, "in_basket": 0}),
 }
 TASKS_PER_SCENE = 60
+NEED_BOOST = 2.0  # weight spread over the still-needed categories, on top of the original's (sum 1.3)
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,7 @@ class SuiteRecipe:
     seed: int = 0
     scale: float = 1.0
     tasks_per_scene: int = TASKS_PER_SCENE
-    max_arrangements: int = 80  # arrangements tried per scene before giving up on its quota
+    max_arrangements: int = 120  # arrangements tried per scene before giving up on its quota
     num_objects: int = 15
 
     def __post_init__(self):
@@ -167,13 +169,27 @@ def _arrangement_seed(r: SuiteRecipe, scene: ScenePlan, k: int) -> int:
     return int(np.random.SeedSequence([r.seed, scene.index, k]).generate_state(1)[0] & 0x7FFFFFFF)
 
 
-def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int) -> TaskSpec | None:
-    """Arrangement ``k`` of a scene: a settled task (target 0 for now), or None if none fits."""
+def placement_weights(need: dict) -> tuple[tuple[str, float], ...]:
+    """Support-label weights for the next arrangement: the original's weights, plus weight
+    in proportion to what each category still lacks, so objects go where tasks are needed
+    (a DrawerShelf wants mostly in-drawer targets) while every support keeps some clutter."""
+    from .sampler import LABEL_WEIGHTS
+
+    total = sum(need.values())
+    return tuple((label, float(LABEL_WEIGHTS[label] + (NEED_BOOST * need.get(label, 0) / total if total else 0.0)))
+                 for label in CATEGORY_ORDER)
+
+
+def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | None = None) -> TaskSpec | None:
+    """Arrangement ``k`` of a scene: a settled task (target 0 for now), or None if none fits.
+    ``need``: the categories' missing task counts, which lean the placement (None: the
+    scene's whole quota)."""
     from .objects import object_ids
     from .sampler import SamplerConfig, _sample_in_scene
 
     seed = _arrangement_seed(r, scene, k)
-    config = SamplerConfig(num_objects=r.num_objects, object_split=r.object_split)
+    config = SamplerConfig(num_objects=r.num_objects, object_split=r.object_split,
+                           label_weights=placement_weights(scene.quota if need is None else need))
     task = _sample_in_scene(np.random.default_rng(seed), scene.scene_type, scene.scene_seed, None,
                             object_ids(r.object_split), config)
     if task is None:
@@ -194,7 +210,7 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None) -> dict:
     for k in range(r.max_arrangements):
         if sum(need.values()) == 0:
             break
-        task = sample_arrangement(r, scene, k)
+        task = sample_arrangement(r, scene, k, need)
         if task is None:
             rejected["no_arrangement"] += 1
             continue

@@ -12,7 +12,7 @@ import pytest
 from fetchbench_ms.tasks import suite_build
 from fetchbench_ms.tasks.suite import TaskSuite, load_suite, shipped_suites
 from fetchbench_ms.tasks.suite_build import PAPER_TABLE, SuiteRecipe, plan_scenes, stratified_order
-from fetchbench_ms.tasks.suite_cli import format_stats, suite_stats
+from fetchbench_ms.tasks.suite_cli import category_mix_misses, format_stats, suite_stats
 
 
 @pytest.fixture(scope="module")
@@ -166,8 +166,12 @@ def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
         stats = suite_stats(test_suite)
         assert {t: r["scenes"] for t, r in stats["rows"].items()} == {t: n for t, (n, _) in PAPER_TABLE.items()}
         paper = {"on_table": 1526, "on_shelf": 2724, "in_drawer": 859, "in_basket": 891}
-        for label, n in paper.items():
-            assert abs(stats["total"][label] - n) <= 0.1 * n
+        assert stats["planned_by_category"] == paper
+        off = [label for label, n in paper.items() if abs(stats["total"][label] - n) > 0.1 * n]
+        # The paper's mix, or the table says plainly which categories miss it.
+        assert category_mix_misses(stats) == off
+        text = format_stats(stats)
+        assert ("NOT MET" in text) == bool(off) and "category mix vs plan" in text
     else:
         assert "PARTIAL" in format_stats(suite_stats(test_suite))
 

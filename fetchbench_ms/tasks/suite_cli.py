@@ -23,8 +23,10 @@ def suite_stats(suite) -> dict:
     for row in rows.values():
         total.update(row)
     info = suite.info
+    planned = _planned_by_category(info)
     return {
         "name": suite.name,
+        "planned_by_category": planned,
         "rows": dict(sorted(rows.items())),
         "total": {k: total[k] for k in ("scenes", "tasks", *(c for c, _ in COLUMNS))},
         "complete": info.get("complete"),
@@ -33,6 +35,28 @@ def suite_stats(suite) -> dict:
         "planned_tasks": info.get("planned_tasks"),
         "rejected_by_type": info.get("rejected_by_type", {}),
     }
+
+
+MIX_TOLERANCE = 0.10  # the issue's bar: every category total within 10% of the plan (the paper's)
+
+
+def _planned_by_category(info: dict) -> dict | None:
+    """The recipe's planned tasks per category (for ``test``: the paper's totals), or None
+    for a suite without a recipe (a subset such as ``smoke``)."""
+    if "recipe" not in info:
+        return None
+    from .suite_build import SuiteRecipe, plan_scenes
+
+    planned = Counter()
+    for plan in plan_scenes(SuiteRecipe(**info["recipe"])):
+        planned.update(plan.quota)
+    return {c: planned[c] for c, _ in COLUMNS}
+
+
+def category_mix_misses(stats: dict) -> list[str]:
+    """The categories whose task total is more than ``MIX_TOLERANCE`` off the plan."""
+    planned = stats.get("planned_by_category") or {}
+    return [c for c, n in planned.items() if n and abs(stats["total"][c] - n) > MIX_TOLERANCE * n]
 
 
 def _aligner(rows):
@@ -57,6 +81,14 @@ def format_stats(stats: dict) -> str:
         state = "complete" if stats["complete"] else "PARTIAL"
         out.append(f"{state}: {stats['complete_scenes']} of {stats['planned_scenes']} planned scenes generated "
                    f"({total['tasks']} of {stats['planned_tasks']} planned tasks)")
+    if stats.get("planned_by_category"):
+        names = dict(COLUMNS)
+        parts = [f"{names[c]} {total[c]}/{n} ({100 * (total[c] - n) / n:+.0f}%)"
+                 for c, n in stats["planned_by_category"].items() if n]
+        misses = category_mix_misses(stats)
+        verdict = (f"NOT MET, more than {MIX_TOLERANCE:.0%} off: {', '.join(names[c] for c in misses)}" if misses
+                   else f"met (every category within {MIX_TOLERANCE:.0%})")
+        out.append(f"category mix vs plan: {', '.join(parts)}: {verdict}")
     return "\n".join(out)
 
 

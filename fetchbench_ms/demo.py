@@ -4,7 +4,9 @@ Evaluates the ``ga-mesh-rrt`` sense-plan-act baseline (annotated grasps, oracle 
 RRTConnect) on the ``smoke`` task suite on CPU, one worker process per core, prints the
 success table by category and writes the HTML report. It is ``fetchbench eval`` plus
 ``fetchbench report``: results go to ``OUT/results`` (re-running resumes, so a second run
-only rebuilds the report) and the report to ``OUT/report/index.html``.
+only rebuilds the report) and the report to ``OUT/report/index.html``. Results of an
+earlier run that no longer match (an updated suite or method) are moved aside to
+``OUT/results.previous-N``, not deleted, and the demo starts afresh.
 """
 from __future__ import annotations
 
@@ -30,7 +32,14 @@ def run_demo(out_dir, method: str = "ga-mesh-rrt", suite: str = "smoke", tasks: 
     workers = workers or default_workers()
     start = time.perf_counter()
     print(f"FetchBench-MS demo: {method} on the {suite!r} suite, {workers} worker(s) -> {out_dir}/")
-    records = evaluate(method, out_dir / "results", suite=suite, tasks=tasks, workers=workers)
+    from .evaluation.store import RunMismatchError
+
+    try:
+        records = evaluate(method, out_dir / "results", suite=suite, tasks=tasks, workers=workers)
+    except RunMismatchError as error:
+        kept = _set_aside(out_dir / "results")
+        print(f"{error}\nthe demo keeps that run in {kept} and starts afresh")
+        records = evaluate(method, out_dir / "results", suite=suite, tasks=tasks, workers=workers)
     summary = summarize(records)
     print()
     print(format_table(summary, "by_category"))
@@ -45,6 +54,15 @@ def run_demo(out_dir, method: str = "ga-mesh-rrt", suite: str = "smoke", tasks: 
     print(f"report:  {page}")
     print(f"done in {time.perf_counter() - start:.0f} s")
     return 0
+
+
+def _set_aside(results_dir: Path) -> Path:
+    """Rename ``results_dir`` to the first free ``results.previous-N`` beside it."""
+    n = 1
+    while (target := results_dir.with_name(f"{results_dir.name}.previous-{n}")).exists():
+        n += 1
+    results_dir.rename(target)
+    return target
 
 
 def add_commands(subparsers) -> None:

@@ -224,3 +224,19 @@ def test_ray_backend_isolates_faults(tiny_suite, tmp_path, monkeypatch):
     kinds = {r["task_id"]: (r.get("error") or {}).get("kind") for r in records}
     assert kinds == {"tiny/0000": "exception", "tiny/0001": "timeout", "tiny/0002": "crash", "tiny/0003": None}
     assert "injected failure" in records[0]["error"]["traceback"]
+
+
+def test_demo_sets_an_outdated_run_aside_and_starts_afresh(tiny_suite, idle_reference, tmp_path, capsys):
+    # A results folder left by an earlier install (another suite content) must neither
+    # stop the main job nor be deleted.
+    from fetchbench_ms.demo import run_demo
+
+    out = tmp_path / "demo"
+    old = make_suite(tmp_path / "old.json", [11])
+    evaluate("idle", out / "results", suite=str(old), workers=1, progress=False)
+    old_lines = (out / "results" / "results.jsonl").read_text()
+    assert run_demo(out, method="idle", suite=str(tiny_suite), workers=2, render=False) == 0
+    assert (out / "results.previous-1" / "results.jsonl").read_text() == old_lines
+    assert comparable(ResultsStore(out / "results").records()) == idle_reference
+    assert (out / "report" / "index.html").exists()
+    assert "starts afresh" in capsys.readouterr().out

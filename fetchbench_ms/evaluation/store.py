@@ -24,6 +24,10 @@ STORE_FORMAT = "fetchbench-results"
 STORE_VERSION = "1"
 
 
+class RunMismatchError(ValueError):
+    """The results directory holds another run (method, suite content or options differ)."""
+
+
 @dataclass
 class ResultsStore:
     root: Path
@@ -54,7 +58,7 @@ class ResultsStore:
             diff = [k for k in keys if old.get(k) != manifest.get(k)]
             if diff:
                 detail = "; ".join(f"{k}: {old.get(k)!r} there, {manifest.get(k)!r} now" for k in diff)
-                raise ValueError(f"{self.root} holds results of another run ({detail}); use another --out")
+                raise RunMismatchError(f"{self.root} holds results of another run ({detail}); use another --out")
         else:
             atomic_write_text(self.manifest_path, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
         self.repair()

@@ -105,9 +105,7 @@ class Occluders:
             hit_distance = np.linalg.norm(hits - eye, axis=1)
             free[ray_index[hit_distance < length[ray_index] - 0.01]] = False
         # Robot spheres: the closest point of each segment to each centre.
-        to_center = self.sphere_centers[None] - eye  # (1, S, 3)
-        t = np.clip(np.einsum("psk,pk->ps", np.broadcast_to(to_center, (len(points), *to_center.shape[1:])),
-                              direction), 0.0, length[:, None])
+        t = np.clip(direction @ (self.sphere_centers - eye).T, 0.0, length[:, None])  # (P, S)
         closest = eye + t[..., None] * direction[:, None]
         blocked = (np.linalg.norm(closest - self.sphere_centers[None], axis=2) < self.sphere_radii[None]).any(axis=1)
         return free & ~blocked

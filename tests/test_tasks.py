@@ -254,6 +254,24 @@ def test_aligned_yaw_makes_a_long_object_fit_a_narrow_support():
     assert uniform < fitted
 
 
+def test_a_short_object_lies_across_so_the_hand_spans_the_long_side():
+    """A top grasp closes the fingers over the object's short side: turned across a narrow
+    support, the open hand (about 23 cm) lies along the support's long side."""
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting, _rectangle
+
+    marker = "procedural/marker/0024"  # 10 x 2 cm
+    for fit_across, expected in ((True, np.pi / 2), (False, 0.0)):
+        config = SamplerConfig(fit_across=fit_across)
+        for seed in range(4):
+            scene, slot = _slot_scene(long_side=0.30, short_side=0.15)
+            placed = _place_fitting(np.random.default_rng(seed), scene, _BoxWorld(scene), [marker], "in_basket", config)
+            assert placed is not None
+            footprint = _footprint(placed)
+            assert slot.polygon.buffer(1e-3).contains(footprint)
+            turn = (_rectangle(footprint)[2] - np.radians(30) - expected) % np.pi
+            assert min(turn, np.pi - turn) < config.fit_yaw_jitter + np.radians(3), (fit_across, seed)
+
+
 def test_fitting_placement_skips_objects_that_cannot_fit():
     from fetchbench_ms.tasks.sampler import _BoxWorld, _fitting_poses, _place_fitting
 

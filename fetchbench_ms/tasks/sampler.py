@@ -9,15 +9,20 @@
    probability) with random yaw, 5 mm above the surface. The footprint must lie on the
    surface, the object must fit under the board above, and its bounding box grown by
    5 mm must touch nothing (furniture or objects already placed); 100 attempts each.
+   For the labels in ``SamplerConfig.fit_labels`` (the suite's drawers and baskets a
+   scene still needs) the label is drawn first and, for a fit label, the object is
+   drawn among those with a stable pose that fits the surface, turned along its long
+   side, or across it where that fits too (so the open hand spans the long side), with
+   a small yaw jitter; a full surface falls back to the placement above.
 3. Physics per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution
    U(0, 0.1) (the original's ranges; PhysX has no rolling/torsion friction, so the
    original's 0.05 has no counterpart).
 4. Robot base uniformly in the scene's robot region, facing +x; a box robot table
    (x U(0.4, 0.7) m, y U(0.6, 1.0) m) under it, top at the base height.
 5. Two cameras, left and right of the robot (mirrored in y about the camera target),
-   looking at the camera target region's centre plus an offset; of 20 candidate pairs
+   looking at the camera target region's centre plus an offset; of 32 candidate pairs
    the one that sees most of the support surfaces past the furniture and the robot
-   (ray casts, ``camera_views``) is kept.
+   (ray casts, ``camera_views``; labels weighted by ``camera_label_weights``) is kept.
 6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
    that fall off their support or do not come to rest are dropped. The settled poses
    are stored, so an episode starts at rest.
@@ -81,6 +86,8 @@ class SamplerConfig:
     fit_labels: tuple[str, ...] = ()
     #: Yaw jitter (rad, +-) about the aligned yaw of a ``fit_labels`` placement.
     fit_yaw_jitter: float = math.radians(10.0)
+    #: Turn a fit-label object across the surface where it fits that way (else along).
+    fit_across: bool = True
     #: Weights of the support labels in the camera view score (``camera_views.view_score``);
     #: None: every label alike. The suite leans the cameras toward the categories it needs.
     camera_label_weights: tuple[tuple[str, float], ...] | None = None
@@ -306,10 +313,11 @@ def _rest_rectangle(object_id: str, pose_index: int) -> tuple[float, float, floa
     return (*_rectangle(Polygon(hull_xy)), float(hi[2] - lo[2]))
 
 
-def _fitting_poses(object_id: str, surface, config) -> list[int]:
+def _fitting_poses(object_id: str, surface, config) -> list[tuple[int, bool]]:
     """Stable poses of the object whose footprint, turned along the surface's long side,
     fits inside the surface shrunk by the sampler's erosion and clearance on every side,
-    and whose height fits under the board above."""
+    and whose height fits under the board above; with each, whether it also fits turned
+    across (its long side along the surface's short side)."""
     asset = load_object(object_id)
     margin = 2 * (config.erosion * float(max(asset.record.extents)) + config.clearance)
     long_side, short_side, _ = _surface_rectangle(surface.polygon.wkb)
@@ -318,7 +326,7 @@ def _fitting_poses(object_id: str, surface, config) -> list[int]:
         length, width, _, height = _rest_rectangle(object_id, pose_index)
         if (length + margin <= long_side and width + margin <= short_side
                 and height + config.drop_height + config.clearance <= surface.free_height):
-            poses.append(pose_index)
+            poses.append((pose_index, length + margin <= short_side))
     return poses
 
 
@@ -343,10 +351,14 @@ def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 12
         if not poses:
             continue
         asset = load_object(object_id)
-        pose_p = asset.stable_probs[poses] / asset.stable_probs[poses].sum()
+        pose_p = asset.stable_probs[[i for i, _ in poses]]
+        pose_p = pose_p / pose_p.sum()
         for _ in range(attempts):
-            pose_index = int(poses[int(rng.choice(len(poses), p=pose_p))])
-            yaw = (surface_angle - _rest_rectangle(object_id, pose_index)[2] + math.pi * int(rng.integers(2))
+            pose_index, across = poses[int(rng.choice(len(poses), p=pose_p))]
+            # Across where it fits: a top grasp closes the fingers over the object's short
+            # side, so the hand (23 cm from finger to finger) then spans the surface's long side.
+            turn = math.pi / 2 if (across and config.fit_across) else 0.0
+            yaw = (surface_angle + turn - _rest_rectangle(object_id, pose_index)[2] + math.pi * int(rng.integers(2))
                    + float(rng.uniform(-config.fit_yaw_jitter, config.fit_yaw_jitter)))
             placed = _try_place(rng, world, asset, surface, pose_index, yaw, config)
             if placed is not None:

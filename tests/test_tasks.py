@@ -203,7 +203,7 @@ def test_chosen_cameras_see_more_than_a_random_candidate(scene_type):
 
 
 # ----------------------------------------------------------------------------- fitting placement
-def _slot_scene(long_side=0.30, short_side=0.10, angle=np.radians(30)):
+def _slot_scene(long_side=0.30, short_side=0.10, angle=np.radians(30), wall=None):
     """A bare scene with one walled-less, narrow, turned support (label in_basket) and no furniture."""
     from types import SimpleNamespace
 
@@ -213,7 +213,8 @@ def _slot_scene(long_side=0.30, short_side=0.10, angle=np.radians(30)):
     corners = [(-long_side / 2, -short_side / 2), (long_side / 2, -short_side / 2), (long_side / 2, short_side / 2),
                (-long_side / 2, short_side / 2)]
     polygon = tuple((float(c * x - s * y + 1.0), float(s * x + c * y)) for x, y in corners)
-    surface = SupportSurface("slot", "in_basket", polygon, height=0.5, free_height=0.3, supporting_part="none")
+    surface = SupportSurface("slot", "in_basket", polygon, height=0.5, free_height=0.3, supporting_part="none",
+                             wall_top=None if wall is None else 0.5 + wall)
     return SimpleNamespace(parts=(), surfaces=lambda label: [surface] if label == "in_basket" else []), surface
 
 
@@ -280,6 +281,27 @@ def test_fitting_placement_skips_objects_that_cannot_fit():
     banana = "procedural/banana/0001"
     assert _fitting_poses(banana, slot, config) == []
     assert _place_fitting(np.random.default_rng(0), scene, _BoxWorld(scene), [banana], "in_basket", config) is None
+
+
+def test_in_a_walled_basket_objects_reaching_over_the_wall_are_preferred():
+    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting
+    from fetchbench_ms.tasks.spec import pose_matrix
+
+    ids = object_ids("test")
+    tops = {}
+    for reach in (0.03, None):
+        config = SamplerConfig(fit_wall_reach=reach)
+        tops[reach] = []
+        for seed in range(6):
+            scene, slot = _slot_scene(long_side=0.25, short_side=0.17, wall=0.12)
+            placed = _place_fitting(np.random.default_rng(seed), scene, _BoxWorld(scene), ids, "in_basket", config)
+            assert placed is not None
+            v = collision_vertices(load_object(placed.object_id))
+            T = pose_matrix(placed.position, placed.quat_wxyz)
+            tops[reach].append(float((v @ T[:3, :3].T + T[:3, 3])[:, 2].max()) - slot.height)
+    assert min(tops[0.03]) >= 0.12 - 0.03 - 0.01  # every top reaches over the wall (settling aside)
+    assert min(tops[None]) < 0.09  # without the preference, low objects sit between the walls
 
 
 def test_fit_labels_put_more_objects_into_baskets_and_inside_them():

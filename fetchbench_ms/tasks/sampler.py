@@ -88,6 +88,11 @@ class SamplerConfig:
     fit_yaw_jitter: float = math.radians(10.0)
     #: Turn a fit-label object across the surface where it fits that way (else along).
     fit_across: bool = True
+    #: Prefer, on a walled fit-label surface, objects whose top reaches to this far (m)
+    #: below the wall top: the open hand (23 cm by 8 cm) cannot go down between the walls
+    #: of a small basket, so only fingers reaching down over the wall can grasp; and a
+    #: top above the walls is what the cameras see. None: no preference.
+    fit_wall_reach: float | None = 0.03
     #: Weights of the support labels in the camera view score (``camera_views.view_score``);
     #: None: every label alike. The suite leans the cameras toward the categories it needs.
     camera_label_weights: tuple[tuple[str, float], ...] | None = None
@@ -313,11 +318,12 @@ def _rest_rectangle(object_id: str, pose_index: int) -> tuple[float, float, floa
     return (*_rectangle(Polygon(hull_xy)), float(hi[2] - lo[2]))
 
 
-def _fitting_poses(object_id: str, surface, config) -> list[tuple[int, bool]]:
+def _fitting_poses(object_id: str, surface, config) -> list[tuple[int, bool, bool]]:
     """Stable poses of the object whose footprint, turned along the surface's long side,
     fits inside the surface shrunk by the sampler's erosion and clearance on every side,
     and whose height fits under the board above; with each, whether it also fits turned
-    across (its long side along the surface's short side)."""
+    across (its long side along the surface's short side) and whether its top reaches
+    up to ``fit_wall_reach`` below the surface's wall top (always, without walls)."""
     asset = load_object(object_id)
     margin = 2 * (config.erosion * float(max(asset.record.extents)) + config.clearance)
     long_side, short_side, _ = _surface_rectangle(surface.polygon.wkb)
@@ -326,14 +332,17 @@ def _fitting_poses(object_id: str, surface, config) -> list[tuple[int, bool]]:
         length, width, _, height = _rest_rectangle(object_id, pose_index)
         if (length + margin <= long_side and width + margin <= short_side
                 and height + config.drop_height + config.clearance <= surface.free_height):
-            poses.append((pose_index, length + margin <= short_side))
+            reaches = (surface.wall_top is None or config.fit_wall_reach is None
+                       or surface.height + height >= surface.wall_top - config.fit_wall_reach)
+            poses.append((pose_index, length + margin <= short_side, reaches))
     return poses
 
 
-def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 12, attempts: int = 25):
+def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 24, attempts: int = 25):
     """Place an object that fits a surface of ``label``: a surface by area, then catalog
     objects in random order (first those whose box could fit, by the catalog's extents)
-    until one has a stable pose that fits (``_fitting_poses``); it is turned so its
+    until one has a stable pose that fits (``_fitting_poses``), preferring one whose top
+    reaches over the walls (else the first that fits of ``object_tries``); it is turned so its
     footprint's long side lies along the surface's (either way, +- ``fit_yaw_jitter``)
     and placed with ``_place_one``'s checks. None if nothing fits or there is no room."""
     surfaces = scene.surfaces(label)
@@ -345,16 +354,23 @@ def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 12
     could_fit = [i for i, e in enumerate(records) if e[0] <= short_side and e[1] <= long_side]
     if not could_fit:
         return None
+    chosen = None  # (object id, its fitting poses)
     for id_index in rng.permutation(could_fit)[:object_tries]:
         object_id = ids[int(id_index)]
         poses = _fitting_poses(object_id, surface, config)
-        if not poses:
-            continue
+        reaching = [p for p in poses if p[2]]
+        if reaching:
+            chosen = (object_id, reaching)
+            break
+        if poses and chosen is None:
+            chosen = (object_id, poses)
+    if chosen is not None:
+        object_id, poses = chosen
         asset = load_object(object_id)
-        pose_p = asset.stable_probs[[i for i, _ in poses]]
+        pose_p = asset.stable_probs[[p[0] for p in poses]]
         pose_p = pose_p / pose_p.sum()
         for _ in range(attempts):
-            pose_index, across = poses[int(rng.choice(len(poses), p=pose_p))]
+            pose_index, across, _ = poses[int(rng.choice(len(poses), p=pose_p))]
             # Across where it fits: a top grasp closes the fingers over the object's short
             # side, so the hand (23 cm from finger to finger) then spans the surface's long side.
             turn = math.pi / 2 if (across and config.fit_across) else 0.0
@@ -363,8 +379,7 @@ def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 12
             placed = _try_place(rng, world, asset, surface, pose_index, yaw, config)
             if placed is not None:
                 return placed
-        return None  # the surface is full for this object: let the caller place it elsewhere
-    return None
+    return None  # nothing fits, or the surface is full: the caller places its object elsewhere
 
 
 @functools.lru_cache(maxsize=8)

@@ -327,6 +327,9 @@ def test_fit_labels_put_more_objects_into_baskets_and_inside_them():
                     counts[fit] += 1
                     assert surfaces[placement.support_surface].polygon.buffer(1e-3).contains(_footprint(placement))
     assert counts[("in_basket",)] > counts[()], counts
+    # Same seed, same arrangement, byte for byte (the fitting placement draws from the rng only).
+    again = _sample_in_scene(np.random.default_rng(3), "RoundTable", plan.scene_seed, None, object_ids("test"), config)
+    assert again.to_json() == task.to_json()
 
 
 def test_camera_label_weights_lean_the_score():

@@ -13,7 +13,9 @@
    scene still needs) the label is drawn first and, for a fit label, the object is
    drawn among those with a stable pose that fits the surface, turned along its long
    side, or across it where that fits too (so the open hand spans the long side), with
-   a small yaw jitter; a full surface falls back to the placement above.
+   a small yaw jitter, preferring objects whose top reaches over the walls (a hand
+   cannot go down between a small basket's walls); a full surface falls back to the
+   placement above.
 3. Physics per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution
    U(0, 0.1) (the original's ranges; PhysX has no rolling/torsion friction, so the
    original's 0.05 has no counterpart).
@@ -45,7 +47,7 @@ from .camera_views import Occluders, camera_axes, sample_camera_pair
 from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
-SAMPLER_VERSION = "3"  # 3: objects that fit, turned to the long side, on `fit_labels`; camera label weights
+SAMPLER_VERSION = "3"  # 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
 
 #: The original's support-label weights for placing an object.
 LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
@@ -81,7 +83,7 @@ class SamplerConfig:
     #: (The suite generator leans them toward the categories a scene still needs.)
     label_weights: tuple[tuple[str, float], ...] | None = None
     #: Labels (e.g. the drawers and baskets a suite scene still needs) whose objects are
-    #: chosen to fit the drawn surface and turned along its long side (``_place_fitting``):
+    #: chosen to fit the drawn surface and turned to fit it (``_place_fitting``):
     #: with a random object and yaw, few objects fit a 17 cm basket. Empty: the original's.
     fit_labels: tuple[str, ...] = ()
     #: Yaw jitter (rad, +-) about the aligned yaw of a ``fit_labels`` placement.
@@ -343,14 +345,15 @@ def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 24
     objects in random order (first those whose box could fit, by the catalog's extents)
     until one has a stable pose that fits (``_fitting_poses``), preferring one whose top
     reaches over the walls (else the first that fits of ``object_tries``); it is turned so its
-    footprint's long side lies along the surface's (either way, +- ``fit_yaw_jitter``)
-    and placed with ``_place_one``'s checks. None if nothing fits or there is no room."""
+    footprint's long side lies along the surface's, or across it where it fits that way
+    (either way round, +- ``fit_yaw_jitter``), and placed with ``_place_one``'s checks.
+    None if nothing fits or there is no room."""
     surfaces = scene.surfaces(label)
     areas = np.array([s.area for s in surfaces])
     surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
     long_side, short_side, surface_angle = _surface_rectangle(surface.polygon.wkb)
     records = _records(tuple(ids))
-    # A cheap necessary test from the catalog's extents: the two smallest must fit across the surface.
+    # A cheap pre-test from the catalog's extents (no geometry loaded): the two smallest fit the surface.
     could_fit = [i for i, e in enumerate(records) if e[0] <= short_side and e[1] <= long_side]
     if not could_fit:
         return None

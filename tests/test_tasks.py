@@ -200,3 +200,144 @@ def test_chosen_cameras_see_more_than_a_random_candidate(scene_type):
                for k in range(8)]
     assert best >= max(singles) - 0.1 and best > np.mean(singles)
     assert task.extra["camera_view_score"] > 0.3
+
+
+# ----------------------------------------------------------------------------- fitting placement
+def _slot_scene(long_side=0.30, short_side=0.10, angle=np.radians(30), wall=None):
+    """A bare scene with one walled-less, narrow, turned support (label in_basket) and no furniture."""
+    from types import SimpleNamespace
+
+    from fetchbench_ms.scenes import SupportSurface
+
+    c, s = np.cos(angle), np.sin(angle)
+    corners = [(-long_side / 2, -short_side / 2), (long_side / 2, -short_side / 2), (long_side / 2, short_side / 2),
+               (-long_side / 2, short_side / 2)]
+    polygon = tuple((float(c * x - s * y + 1.0), float(s * x + c * y)) for x, y in corners)
+    surface = SupportSurface("slot", "in_basket", polygon, height=0.5, free_height=0.3, supporting_part="none",
+                             wall_top=None if wall is None else 0.5 + wall)
+    return SimpleNamespace(parts=(), surfaces=lambda label: [surface] if label == "in_basket" else []), surface
+
+
+def _footprint(placement):
+    from shapely.geometry import MultiPoint
+
+    from fetchbench_ms.tasks.spec import pose_matrix
+
+    T = pose_matrix(placement.position, placement.quat_wxyz)
+    v = collision_vertices(load_object(placement.object_id)) @ T[:3, :3].T + T[:3, 3]
+    return MultiPoint(v[:, :2]).convex_hull
+
+
+def test_aligned_yaw_makes_a_long_object_fit_a_narrow_support():
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting, _place_one, _rectangle
+
+    banana = "procedural/banana/0001"  # 19 x 3 cm: fits a 30 x 10 cm slot only along it
+    config = SamplerConfig()
+    fitted, uniform = 0, 0
+    for seed in range(10):
+        scene, slot = _slot_scene()
+        placed = _place_fitting(np.random.default_rng(seed), scene, _BoxWorld(scene), [banana], "in_basket", config)
+        if placed is not None:
+            fitted += 1
+            footprint = _footprint(placed)
+            assert slot.polygon.buffer(1e-3).contains(footprint)  # inside the support
+            length, _, angle = _rectangle(footprint)
+            turn = (angle - np.radians(30)) % np.pi
+            assert min(turn, np.pi - turn) < config.fit_yaw_jitter + np.radians(3)  # along the long side
+            assert placed.position[2] > slot.height  # on it, not in it
+        # The original's uniform yaw with as few attempts as the fitting placement gets (25).
+        scene, _ = _slot_scene()
+        few = SamplerConfig(placement_attempts=25)
+        if _place_one(np.random.default_rng(seed), scene, _BoxWorld(scene), load_object(banana), ["in_basket"],
+                      np.array([1.0]), few, None) is not None:
+            uniform += 1
+    assert fitted == 10
+    assert uniform < fitted
+
+
+def test_a_short_object_lies_across_so_the_hand_spans_the_long_side():
+    """A top grasp closes the fingers over the object's short side: turned across a narrow
+    support, the open hand (about 23 cm) lies along the support's long side."""
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting, _rectangle
+
+    marker = "procedural/marker/0024"  # 10 x 2 cm
+    for fit_across, expected in ((True, np.pi / 2), (False, 0.0)):
+        config = SamplerConfig(fit_across=fit_across)
+        for seed in range(4):
+            scene, slot = _slot_scene(long_side=0.30, short_side=0.15)
+            placed = _place_fitting(np.random.default_rng(seed), scene, _BoxWorld(scene), [marker], "in_basket", config)
+            assert placed is not None
+            footprint = _footprint(placed)
+            assert slot.polygon.buffer(1e-3).contains(footprint)
+            turn = (_rectangle(footprint)[2] - np.radians(30) - expected) % np.pi
+            assert min(turn, np.pi - turn) < config.fit_yaw_jitter + np.radians(3), (fit_across, seed)
+
+
+def test_fitting_placement_skips_objects_that_cannot_fit():
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _fitting_poses, _place_fitting
+
+    scene, slot = _slot_scene(long_side=0.12, short_side=0.05)
+    config = SamplerConfig()
+    banana = "procedural/banana/0001"
+    assert _fitting_poses(banana, slot, config) == []
+    assert _place_fitting(np.random.default_rng(0), scene, _BoxWorld(scene), [banana], "in_basket", config) is None
+
+
+def test_in_a_walled_basket_objects_reaching_over_the_wall_are_preferred():
+    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting
+    from fetchbench_ms.tasks.spec import pose_matrix
+
+    ids = object_ids("test")
+    tops = {}
+    for reach in (0.03, None):
+        config = SamplerConfig(fit_wall_reach=reach)
+        tops[reach] = []
+        for seed in range(6):
+            scene, slot = _slot_scene(long_side=0.25, short_side=0.17, wall=0.12)
+            placed = _place_fitting(np.random.default_rng(seed), scene, _BoxWorld(scene), ids, "in_basket", config)
+            assert placed is not None
+            v = collision_vertices(load_object(placed.object_id))
+            T = pose_matrix(placed.position, placed.quat_wxyz)
+            tops[reach].append(float((v @ T[:3, :3].T + T[:3, 3])[:, 2].max()) - slot.height)
+    assert min(tops[0.03]) >= 0.12 - 0.03 - 0.01  # every top reaches over the wall (settling aside)
+    assert min(tops[None]) < 0.09  # without the preference, low objects sit between the walls
+
+
+def test_fit_labels_put_more_objects_into_baskets_and_inside_them():
+    """The suite's RoundTable case: one small basket. With fitting placement more of the
+    same arrangements' objects land in it, and every one lies inside its floor polygon."""
+    from fetchbench_ms.tasks import suite_build
+    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.tasks.sampler import _sample_in_scene
+
+    r = suite_build.recipe("test")
+    plan = next(p for p in suite_build.plan_scenes(r) if p.scene_type == "RoundTable")
+    weights = suite_build.placement_weights(plan.quota)
+    counts = {}
+    for fit in ((), ("in_basket",)):
+        config = SamplerConfig(label_weights=weights, fit_labels=fit, settle=False)
+        counts[fit] = 0
+        for seed in range(4):
+            task = _sample_in_scene(np.random.default_rng(seed), "RoundTable", plan.scene_seed, None,
+                                    object_ids("test"), config)
+            surfaces = {s.name: s for s in task.scene().support_surfaces}
+            for placement in task.objects:
+                if placement.support_label == "in_basket":
+                    counts[fit] += 1
+                    assert surfaces[placement.support_surface].polygon.buffer(1e-3).contains(_footprint(placement))
+    assert counts[("in_basket",)] > counts[()], counts
+    # Same seed, same arrangement, byte for byte (the fitting placement draws from the rng only).
+    again = _sample_in_scene(np.random.default_rng(3), "RoundTable", plan.scene_seed, None, object_ids("test"), config)
+    assert again.to_json() == task.to_json()
+
+
+def test_camera_label_weights_lean_the_score():
+    from fetchbench_ms.tasks.camera_views import view_score
+
+    seen = np.array([1.0, 1.0, 0.0, 0.0])
+    owners = [("on_table", "t"), ("on_table", "t"), ("in_basket", "b"), ("in_basket", "b")]
+    assert view_score(seen, owners) == pytest.approx(0.5)
+    assert view_score(seen, owners, {"on_table": 1.0, "in_basket": 3.0}) == pytest.approx(0.25)
+    with pytest.raises(ValueError, match="valid: in_basket"):
+        SamplerConfig(fit_labels=("in_box",))

@@ -13,7 +13,8 @@ left's mirror image; the best-scoring of ``tries`` pairs wins.
 
 The score weights every support *label* equally (then every surface of a label), so a
 scene's two baskets count as much as its eight shelf boards: the suite needs targets in
-every category the scene has.
+every category the scene has. The suite generator can weight the labels (``label_weights``)
+toward the categories a scene still lacks.
 
 Pure geometry (trimesh rays + spheres), no simulator: the sampler stays sim-free until
 it settles the objects.
@@ -141,12 +142,17 @@ def seen_points(eye, target, points, occluders: Occluders, fov_x: float, aspect:
     return inside * np.minimum(1.0, (RESOLVE_DISTANCE / distance) ** 2)
 
 
-def view_score(seen_both: np.ndarray, owners) -> float:
-    """Mean over labels of the mean over that label's surfaces of the points' view quality."""
+def view_score(seen_both: np.ndarray, owners, label_weights: dict | None = None) -> float:
+    """Mean over labels (weighted by ``label_weights``, default alike; a label it lacks
+    weighs 1) of the mean over that label's surfaces of the points' view quality."""
     by_surface: dict = {}
     for ok, (label, name) in zip(seen_both, owners):
         by_surface.setdefault(label, {}).setdefault(name, []).append(ok)
-    return float(np.mean([np.mean([np.mean(v) for v in surfaces.values()]) for surfaces in by_surface.values()]))
+    scores = [np.mean([np.mean(v) for v in surfaces.values()]) for surfaces in by_surface.values()]
+    weights = [1.0 if label_weights is None else label_weights.get(label, 1.0) for label in by_surface]
+    if sum(weights) <= 0:
+        return float(np.mean(scores))
+    return float(np.average(scores, weights=weights))
 
 
 def mirror_y(point, y_mirror: float) -> np.ndarray:
@@ -156,7 +162,7 @@ def mirror_y(point, y_mirror: float) -> np.ndarray:
 
 
 def sample_camera_pair(rng: np.random.Generator, scene, occluders: Occluders, fov_x: float, aspect: float,
-                       tries: int, ranges: CameraRanges = CameraRanges()):
+                       tries: int, ranges: CameraRanges = CameraRanges(), label_weights: dict | None = None):
     """The best of ``tries`` mirrored pairs: ((eye_l, target_l), (eye_r, target_r)), its score,
     and whether every support surface has a point both cameras see."""
     center = np.asarray(scene.camera_target.center, float)
@@ -176,7 +182,7 @@ def sample_camera_pair(rng: np.random.Generator, scene, occluders: Occluders, fo
         eye_right, target_right = mirror_y(eye, center[1]), mirror_y(target, center[1])
         seen_both = np.minimum(seen_points(eye, target, points, occluders, fov_x, aspect),
                                seen_points(eye_right, target_right, points, occluders, fov_x, aspect))
-        score = view_score(seen_both, owners)
+        score = view_score(seen_both, owners, label_weights)
         if best is None or score > best[1]:
             surfaces_seen = {name for ok, (_, name) in zip(seen_both, owners) if ok > 0}
             covered = len(surfaces_seen) == len(scene.support_surfaces)

@@ -9,15 +9,22 @@
    probability) with random yaw, 5 mm above the surface. The footprint must lie on the
    surface, the object must fit under the board above, and its bounding box grown by
    5 mm must touch nothing (furniture or objects already placed); 100 attempts each.
+   For the labels in ``SamplerConfig.fit_labels`` (the suite's drawers and baskets a
+   scene still needs) the label is drawn first and, for a fit label, the object is
+   drawn among those with a stable pose that fits the surface, turned along its long
+   side, or across it where that fits too (so the open hand spans the long side), with
+   a small yaw jitter, preferring objects whose top reaches over the walls (a hand
+   cannot go down between a small basket's walls); a full surface falls back to the
+   placement above.
 3. Physics per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution
    U(0, 0.1) (the original's ranges; PhysX has no rolling/torsion friction, so the
    original's 0.05 has no counterpart).
 4. Robot base uniformly in the scene's robot region, facing +x; a box robot table
    (x U(0.4, 0.7) m, y U(0.6, 1.0) m) under it, top at the base height.
 5. Two cameras, left and right of the robot (mirrored in y about the camera target),
-   looking at the camera target region's centre plus an offset; of 20 candidate pairs
+   looking at the camera target region's centre plus an offset; of 32 candidate pairs
    the one that sees most of the support surfaces past the furniture and the robot
-   (ray casts, ``camera_views``) is kept.
+   (ray casts, ``camera_views``; labels weighted by ``camera_label_weights``) is kept.
 6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
    that fall off their support or do not come to rest are dropped. The settled poses
    are stored, so an episode starts at rest.
@@ -40,7 +47,7 @@ from .camera_views import Occluders, camera_axes, sample_camera_pair
 from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
-SAMPLER_VERSION = "2"  # 2: cameras chosen by ray-cast visibility of the supports
+SAMPLER_VERSION = "3"  # 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
 
 #: The original's support-label weights for placing an object.
 LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
@@ -75,6 +82,22 @@ class SamplerConfig:
     #: Support-label weights for placing objects; None: the original's ``LABEL_WEIGHTS``.
     #: (The suite generator leans them toward the categories a scene still needs.)
     label_weights: tuple[tuple[str, float], ...] | None = None
+    #: Labels (e.g. the drawers and baskets a suite scene still needs) whose objects are
+    #: chosen to fit the drawn surface and turned to fit it (``_place_fitting``):
+    #: with a random object and yaw, few objects fit a 17 cm basket. Empty: the original's.
+    fit_labels: tuple[str, ...] = ()
+    #: Yaw jitter (rad, +-) about the aligned yaw of a ``fit_labels`` placement.
+    fit_yaw_jitter: float = math.radians(10.0)
+    #: Turn a fit-label object across the surface where it fits that way (else along).
+    fit_across: bool = True
+    #: Prefer, on a walled fit-label surface, objects whose top reaches to this far (m)
+    #: below the wall top: the open hand (23 cm by 8 cm) cannot go down between the walls
+    #: of a small basket, so only fingers reaching down over the wall can grasp; and a
+    #: top above the walls is what the cameras see. None: no preference.
+    fit_wall_reach: float | None = 0.03
+    #: Weights of the support labels in the camera view score (``camera_views.view_score``);
+    #: None: every label alike. The suite leans the cameras toward the categories it needs.
+    camera_label_weights: tuple[tuple[str, float], ...] | None = None
 
     def __post_init__(self):
         if self.label_weights is not None:
@@ -83,6 +106,13 @@ class SamplerConfig:
                 raise ValueError(f"unknown support labels {unknown}; valid: {', '.join(LABEL_WEIGHTS)}")
             if any(w < 0 for _, w in self.label_weights) or not any(w > 0 for _, w in self.label_weights):
                 raise ValueError(f"label weights must be >= 0 and not all zero, got {self.label_weights}")
+        for name, given in (("fit_labels", self.fit_labels),
+                            ("camera_label_weights", [lab for lab, _ in self.camera_label_weights or ()])):
+            unknown = sorted(set(given) - set(LABEL_WEIGHTS))
+            if unknown:
+                raise ValueError(f"unknown support labels {unknown} in {name}; valid: {', '.join(LABEL_WEIGHTS)}")
+        if self.camera_label_weights is not None and any(w < 0 for _, w in self.camera_label_weights):
+            raise ValueError(f"camera label weights must be >= 0, got {self.camera_label_weights}")
         if not 1 <= self.num_objects <= 64:
             raise ValueError(f"num_objects must be 1..64, got {self.num_objects}")
         if self.object_split not in ("train", "test"):
@@ -244,22 +274,128 @@ def _place_objects(rng, scene, world, ids, config, target_label) -> list[ObjectP
     label_p = np.array([weights[label] for label in labels])
     label_p = label_p / label_p.sum()
     chosen = rng.choice(len(ids), size=config.num_objects, replace=len(ids) < config.num_objects)
+    fit = [label in config.fit_labels for label in labels]
     placements = []
     for k, id_index in enumerate(chosen):
         asset = load_object(ids[int(id_index)])
         # With a category, the first object goes on that label so the task has a target there.
         forced = target_label if (k == 0 and target_label is not None) else None
-        placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced)
+        placed = None
+        if forced is None and any(fit):
+            # The label first: a fit label gets an object chosen to fit it; the others keep
+            # the original's placement among themselves (the same overall label weights).
+            label = labels[int(rng.choice(len(labels), p=label_p))]
+            if label in config.fit_labels:
+                placed = _place_fitting(rng, scene, world, ids, label, config)
+            elif not all(fit):
+                others = np.array([0.0 if f else p for f, p in zip(fit, label_p)])
+                placed = _place_one(rng, scene, world, asset, labels, others / others.sum(), config, None)
+        if placed is None:  # the original's placement (also when the fit label had no room left)
+            placed = _place_one(rng, scene, world, asset, labels, label_p, config, forced)
         if placed is not None:
             placements.append(placed)
     return placements
 
 
+@functools.lru_cache(maxsize=256)
+def _surface_rectangle(polygon_wkb: bytes) -> tuple[float, float, float]:
+    """(long side, short side, angle of the long side) of a polygon's smallest rotated rectangle."""
+    from shapely import wkb
+
+    return _rectangle(wkb.loads(polygon_wkb))
+
+
+def _rectangle(polygon) -> tuple[float, float, float]:
+    corners = np.asarray(polygon.minimum_rotated_rectangle.exterior.coords)[:3]
+    a, b = corners[1] - corners[0], corners[2] - corners[1]
+    if np.linalg.norm(b) > np.linalg.norm(a):
+        a, b = b, a
+    return float(np.linalg.norm(a)), float(np.linalg.norm(b)), float(math.atan2(a[1], a[0]))
+
+
+@functools.lru_cache(maxsize=4096)
+def _rest_rectangle(object_id: str, pose_index: int) -> tuple[float, float, float, float]:
+    """(long side, short side, angle of the long side, height) of a stable pose's footprint."""
+    lo, hi, hull_xy = _rest_geometry(object_id, pose_index)
+    return (*_rectangle(Polygon(hull_xy)), float(hi[2] - lo[2]))
+
+
+def _fitting_poses(object_id: str, surface, config) -> list[tuple[int, bool, bool]]:
+    """Stable poses of the object whose footprint, turned along the surface's long side,
+    fits inside the surface shrunk by the sampler's erosion and clearance on every side,
+    and whose height fits under the board above; with each, whether it also fits turned
+    across (its long side along the surface's short side) and whether its top reaches
+    up to ``fit_wall_reach`` below the surface's wall top (always, without walls)."""
+    asset = load_object(object_id)
+    margin = 2 * (config.erosion * float(max(asset.record.extents)) + config.clearance)
+    long_side, short_side, _ = _surface_rectangle(surface.polygon.wkb)
+    poses = []
+    for pose_index in range(len(asset.stable_poses)):
+        length, width, _, height = _rest_rectangle(object_id, pose_index)
+        if (length + margin <= long_side and width + margin <= short_side
+                and height + config.drop_height + config.clearance <= surface.free_height):
+            reaches = (surface.wall_top is None or config.fit_wall_reach is None
+                       or surface.height + height >= surface.wall_top - config.fit_wall_reach)
+            poses.append((pose_index, length + margin <= short_side, reaches))
+    return poses
+
+
+def _place_fitting(rng, scene, world, ids, label, config, object_tries: int = 24, attempts: int = 25):
+    """Place an object that fits a surface of ``label``: a surface by area, then catalog
+    objects in random order (first those whose box could fit, by the catalog's extents)
+    until one has a stable pose that fits (``_fitting_poses``), preferring one whose top
+    reaches over the walls (else the first that fits of ``object_tries``); it is turned so its
+    footprint's long side lies along the surface's, or across it where it fits that way
+    (either way round, +- ``fit_yaw_jitter``), and placed with ``_place_one``'s checks.
+    None if nothing fits or there is no room."""
+    surfaces = scene.surfaces(label)
+    areas = np.array([s.area for s in surfaces])
+    surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
+    long_side, short_side, surface_angle = _surface_rectangle(surface.polygon.wkb)
+    records = _records(tuple(ids))
+    # A cheap pre-test from the catalog's extents (no geometry loaded): the two smallest fit the surface.
+    could_fit = [i for i, e in enumerate(records) if e[0] <= short_side and e[1] <= long_side]
+    if not could_fit:
+        return None
+    chosen = None  # (object id, its fitting poses)
+    for id_index in rng.permutation(could_fit)[:object_tries]:
+        object_id = ids[int(id_index)]
+        poses = _fitting_poses(object_id, surface, config)
+        reaching = [p for p in poses if p[2]]
+        if reaching:
+            chosen = (object_id, reaching)
+            break
+        if poses and chosen is None:
+            chosen = (object_id, poses)
+    if chosen is not None:
+        object_id, poses = chosen
+        asset = load_object(object_id)
+        pose_p = asset.stable_probs[[p[0] for p in poses]]
+        pose_p = pose_p / pose_p.sum()
+        for _ in range(attempts):
+            pose_index, across, _ = poses[int(rng.choice(len(poses), p=pose_p))]
+            # Across where it fits: a top grasp closes the fingers over the object's short
+            # side, so the hand (23 cm from finger to finger) then spans the surface's long side.
+            turn = math.pi / 2 if (across and config.fit_across) else 0.0
+            yaw = (surface_angle + turn - _rest_rectangle(object_id, pose_index)[2] + math.pi * int(rng.integers(2))
+                   + float(rng.uniform(-config.fit_yaw_jitter, config.fit_yaw_jitter)))
+            placed = _try_place(rng, world, asset, surface, pose_index, yaw, config)
+            if placed is not None:
+                return placed
+    return None  # nothing fits, or the surface is full: the caller places its object elsewhere
+
+
+@functools.lru_cache(maxsize=8)
+def _records(ids: tuple[str, ...]) -> list[tuple[float, float, float]]:
+    """Sorted catalog extents of each id (no geometry loaded)."""
+    from ..objects import catalog
+
+    by_id = {r.object_id: r for r in catalog.list_objects()}
+    return [tuple(sorted(by_id[i].extents)) for i in ids]
+
+
 def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label):
     stable_p = asset.stable_probs / asset.stable_probs.sum()
-    max_extent = float(max(asset.record.extents))
-    eroded = {}
-    c = config.clearance
     for _ in range(config.placement_attempts):
         label = forced_label or labels[int(rng.choice(len(labels), p=label_p))]
         surfaces = scene.surfaces(label)
@@ -267,49 +403,68 @@ def _place_one(rng, scene, world, asset, labels, label_p, config, forced_label):
         surface = surfaces[int(rng.choice(len(surfaces), p=areas / areas.sum()))]
         pose_index = int(rng.choice(len(stable_p), p=stable_p))
         yaw = float(rng.uniform(0.0, 2 * math.pi))
-        if surface.name not in eroded:
-            eroded[surface.name] = surface.polygon.buffer(-config.erosion * max_extent)
-        point = _sample_in_polygon(rng, eroded[surface.name])
-        if point is None:
-            continue
-        lo, hi, hull_xy = _rest_geometry(asset.object_id, pose_index)
-        if hi[2] - lo[2] + config.drop_height + c > surface.free_height:
-            continue
-        # Turn by the yaw about the box centre's vertical, put that centre over the point.
-        R_yaw = _rot_z(yaw)
-        center_xy = (lo[:2] + hi[:2]) / 2
-        footprint = (hull_xy - center_xy) @ R_yaw[:2, :2].T + point
-        if not surface.polygon.contains(Polygon(footprint)):
-            continue
-        # The stable pose's box, grown by the clearance except at the bottom (it must not
-        # touch its own support), must not touch furniture or the objects placed so far.
-        box_lo = lo - [c, c, -0.5 * config.drop_height]
-        box_hi = hi + [c, c, c]
-        z_shift = surface.height + config.drop_height - lo[2]
-        box_center = np.array([point[0], point[1], (box_lo[2] + box_hi[2]) / 2 + z_shift])
-        box = world.box(box_hi - box_lo, R_yaw, box_center)
-        if world.hits(box):
-            continue
-        world.add(box)
-        T_support_object = asset.stable_poses[pose_index]
-        T_world_object = np.eye(4)
-        T_world_object[:3, :3] = R_yaw @ T_support_object[:3, :3]
-        offset = np.array([center_xy[0], center_xy[1], 0.0])
-        T_world_object[:3, 3] = R_yaw @ (T_support_object[:3, 3] - offset) + [point[0], point[1], z_shift]
-        position, quat = matrix_to_pose(T_world_object)
-        friction = float(rng.uniform(*FRICTION_RANGE))
-        return ObjectPlacement(
-            object_id=asset.object_id,
-            position=position,
-            quat_wxyz=quat,
-            density=float(rng.uniform(*DENSITY_RANGE)),
-            static_friction=friction,
-            dynamic_friction=friction,
-            restitution=float(rng.uniform(*RESTITUTION_RANGE)),
-            support_surface=surface.name,
-            support_label=surface.label,
-        )
+        placed = _try_place(rng, world, asset, surface, pose_index, yaw, config)
+        if placed is not None:
+            return placed
     return None
+
+
+def _try_place(rng, world, asset, surface, pose_index, yaw, config) -> ObjectPlacement | None:
+    """One placement attempt: a point on the eroded surface, the stable pose turned by ``yaw``;
+    the placement (added to ``world``) if it lies on the surface and touches nothing, else None."""
+    c = config.clearance
+    point = _sample_in_polygon(rng, _eroded(surface, config.erosion * float(max(asset.record.extents))))
+    if point is None:
+        return None
+    lo, hi, hull_xy = _rest_geometry(asset.object_id, pose_index)
+    if hi[2] - lo[2] + config.drop_height + c > surface.free_height:
+        return None
+    # Turn by the yaw about the box centre's vertical, put that centre over the point.
+    R_yaw = _rot_z(yaw)
+    center_xy = (lo[:2] + hi[:2]) / 2
+    footprint = (hull_xy - center_xy) @ R_yaw[:2, :2].T + point
+    if not surface.polygon.contains(Polygon(footprint)):
+        return None
+    # The stable pose's box, grown by the clearance except at the bottom (it must not
+    # touch its own support), must not touch furniture or the objects placed so far.
+    box_lo = lo - [c, c, -0.5 * config.drop_height]
+    box_hi = hi + [c, c, c]
+    z_shift = surface.height + config.drop_height - lo[2]
+    box_center = np.array([point[0], point[1], (box_lo[2] + box_hi[2]) / 2 + z_shift])
+    box = world.box(box_hi - box_lo, R_yaw, box_center)
+    if world.hits(box):
+        return None
+    world.add(box)
+    T_support_object = asset.stable_poses[pose_index]
+    T_world_object = np.eye(4)
+    T_world_object[:3, :3] = R_yaw @ T_support_object[:3, :3]
+    offset = np.array([center_xy[0], center_xy[1], 0.0])
+    T_world_object[:3, 3] = R_yaw @ (T_support_object[:3, 3] - offset) + [point[0], point[1], z_shift]
+    position, quat = matrix_to_pose(T_world_object)
+    friction = float(rng.uniform(*FRICTION_RANGE))
+    return ObjectPlacement(
+        object_id=asset.object_id,
+        position=position,
+        quat_wxyz=quat,
+        density=float(rng.uniform(*DENSITY_RANGE)),
+        static_friction=friction,
+        dynamic_friction=friction,
+        restitution=float(rng.uniform(*RESTITUTION_RANGE)),
+        support_surface=surface.name,
+        support_label=surface.label,
+    )
+
+
+@functools.lru_cache(maxsize=4096)
+def _eroded_wkb(polygon_wkb: bytes, distance: float):
+    from shapely import wkb
+
+    return wkb.loads(polygon_wkb).buffer(-distance)
+
+
+def _eroded(surface, distance: float):
+    """The surface's polygon shrunk by ``distance`` (cached: surfaces and objects repeat)."""
+    return _eroded_wkb(surface.polygon.wkb, distance)
 
 
 def _sample_in_polygon(rng, polygon, tries: int = 50):
@@ -364,8 +519,9 @@ def _sample_cameras(rng, scene, robot, config) -> tuple[tuple[CameraPose, Camera
     whether every support surface has a point both cameras see."""
     base_position, base_quat, table_center, table_size = robot
     occluders = Occluders(scene, base_position, base_quat, table_center, table_size)
+    weights = None if config.camera_label_weights is None else dict(config.camera_label_weights)
     pair, score, covered = sample_camera_pair(rng, scene, occluders, config.camera_fov_x, config.camera_aspect,
-                                              config.camera_tries)
+                                              config.camera_tries, label_weights=weights)
     left, right = (CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
                    for eye, target in pair)
     return (left, right), score, covered

@@ -43,7 +43,7 @@ from ..utils.io import atomic_write_text, canonical_json
 from .spec import TaskSpec
 from .suite import TaskSuite
 
-BUILD_VERSION = "3"  # 3: sampler v2 cameras, placement leaned toward needed categories
+BUILD_VERSION = "4"  # 4: sampler v3: fitting objects in needed drawers/baskets, cameras weighted by need
 CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
 #: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
 #: (The paper's Total row swaps the drawer and basket columns; the rows add up to
@@ -65,6 +65,10 @@ PAPER_TABLE = {
 }
 TASKS_PER_SCENE = 60
 NEED_BOOST = 2.0  # weight spread over the still-needed categories, on top of the original's (sum 1.3)
+#: Labels whose objects are chosen to fit and turned along the surface when the scene needs
+#: them (small, walled supports where a random object and yaw rarely fit).
+FIT_LABELS = ("in_drawer", "in_basket")
+CAMERA_NEED_BOOST = 2.0  # camera score weight: 1 per label plus this x the label's share of the need
 
 
 @dataclass(frozen=True)
@@ -180,6 +184,14 @@ def placement_weights(need: dict) -> tuple[tuple[str, float], ...]:
                  for label in CATEGORY_ORDER)
 
 
+def camera_weights(need: dict) -> tuple[tuple[str, float], ...]:
+    """Label weights of the camera view score: every label 1, plus ``CAMERA_NEED_BOOST`` x its
+    share of what the scene still lacks, so views favour the drawers or baskets it needs."""
+    total = sum(need.values())
+    return tuple((label, 1.0 + (CAMERA_NEED_BOOST * need.get(label, 0) / total if total else 0.0))
+                 for label in CATEGORY_ORDER)
+
+
 def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | None = None) -> TaskSpec | None:
     """Arrangement ``k`` of a scene: a settled task (target 0 for now), or None if none fits.
     ``need``: the categories' missing task counts, which lean the placement (None: the
@@ -188,8 +200,11 @@ def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | No
     from .sampler import SamplerConfig, _sample_in_scene
 
     seed = _arrangement_seed(r, scene, k)
+    need = scene.quota if need is None else need
     config = SamplerConfig(num_objects=r.num_objects, object_split=r.object_split,
-                           label_weights=placement_weights(scene.quota if need is None else need))
+                           label_weights=placement_weights(need),
+                           fit_labels=tuple(label for label in FIT_LABELS if need.get(label, 0) > 0),
+                           camera_label_weights=camera_weights(need))
     task = _sample_in_scene(np.random.default_rng(seed), scene.scene_type, scene.scene_seed, None,
                             object_ids(r.object_split), config)
     if task is None:

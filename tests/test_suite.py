@@ -228,3 +228,42 @@ def test_generated_suite_is_identical_whatever_the_worker_count(tmp_path):
     before = {p: p.stat().st_mtime_ns for p in (tmp_path / "w1").iterdir()}
     suite_build.build_scenes(r, tmp_path / "w1", workers=1, limit=2, log=lambda *_: None)
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "w1").iterdir()} == before
+
+
+def test_a_killed_scene_build_continues_from_its_progress_to_the_same_result(tmp_path):
+    """A scene's state is saved after each arrangement; a build killed in the middle of a
+    scene continues there and ends with the result an uninterrupted build gives."""
+    from fetchbench_ms.tasks.filters import FilterEnv
+
+    r = SuiteRecipe("tiny", "test", seed=7, scale=0.1, tasks_per_scene=60, max_arrangements=2)
+    scene = suite_build.plan_scenes(r)[0]
+
+    class Killed(Exception):
+        pass
+
+    class KilledOnSecondCheck:
+        def __init__(self, env):
+            self.env, self.calls = env, 0
+
+        def check(self, *args, **kwargs):
+            self.calls += 1
+            if self.calls == 2:
+                raise Killed
+            return self.env.check(*args, **kwargs)
+
+    env = FilterEnv(num_objects=r.num_objects)
+    try:
+        whole = suite_build.build_scene(r, scene, env, progress_path=tmp_path / "whole.progress.json")
+        progress = tmp_path / "cut.progress.json"
+        with pytest.raises(Killed):
+            suite_build.build_scene(r, scene, KilledOnSecondCheck(env), progress_path=progress)
+        assert json.loads(progress.read_text())["state"]["next"] == 1
+        resumed = suite_build.build_scene(r, scene, env, progress_path=progress)
+    finally:
+        env.close()
+    assert whole.pop("seconds") > 0 and resumed.pop("seconds") > 0
+    assert resumed == whole and whole["candidates"] > 0
+    # Progress of another recipe is not taken for this one's.
+    other = SuiteRecipe("tiny", "test", seed=8, scale=0.1, tasks_per_scene=60, max_arrangements=2)
+    state = json.loads(progress.read_text())
+    assert state["key"] != suite_build._scene_key(other, suite_build.plan_scenes(other)[0])

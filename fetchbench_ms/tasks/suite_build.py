@@ -43,7 +43,7 @@ from ..utils.io import atomic_write_text, canonical_json
 from .spec import TaskSpec
 from .suite import TaskSuite
 
-BUILD_VERSION = "4"  # 4: sampler v3: fitting objects in needed drawers/baskets, cameras weighted by need
+BUILD_VERSION = "5"  # 5: CellShelfDesk boxes pulled out of bottom-row cells; 160 arrangements; 4: sampler v3
 CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
 #: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
 #: (The paper's Total row swaps the drawer and basket columns; the rows add up to
@@ -81,7 +81,7 @@ class SuiteRecipe:
     seed: int = 0
     scale: float = 1.0
     tasks_per_scene: int = TASKS_PER_SCENE
-    max_arrangements: int = 120  # arrangements tried per scene before giving up on its quota
+    max_arrangements: int = 160  # arrangements tried per scene before giving up on its quota
     num_objects: int = 15
 
     def __post_init__(self):
@@ -212,49 +212,71 @@ def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | No
     return replace(task, target_index=0, seed=seed)
 
 
-def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None) -> dict:
+def _scene_key(r: SuiteRecipe, scene: ScenePlan) -> dict:
+    return {"build_version": BUILD_VERSION, "recipe": r.to_dict(), "scene_seed": scene.scene_seed}
+
+
+def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress_path=None) -> dict:
     """Generate one scene's tasks. Returns a JSON-safe result: the accepted tasks, the
-    per-filter rejection counts, the time it took."""
+    per-filter rejection counts, the time it took.
+
+    ``progress_path``: after every arrangement the scene's state is written there
+    (atomically), and a later call continues from it, so a killed build loses at most one
+    arrangement of each scene in progress. The state is everything the remaining
+    arrangements depend on, so the result is the same as an uninterrupted build's."""
     start = time.perf_counter()
-    need = dict(scene.quota)
-    accepted: list[tuple[int, int, str]] = []  # (arrangement, object, label)
-    spare: list[tuple[int, int, str]] = []  # passing objects no quota wanted
-    arrangements: list[dict] = []
-    rejected = Counter()
-    candidates = 0
-    for k in range(r.max_arrangements):
+    state = {"next": 0, "need": dict(scene.quota), "accepted": [], "spare": [], "arrangements": [],
+             "rejected": {}, "candidates": 0, "seconds": 0.0}
+    if progress_path is not None and Path(progress_path).exists():
+        saved = json.loads(Path(progress_path).read_text())
+        if saved.get("key") == _scene_key(r, scene):
+            state = saved["state"]
+            if log:
+                log(f"scene {scene.index}: continuing at arrangement {state['next']}")
+    need = state["need"]
+    accepted = [tuple(a) for a in state["accepted"]]  # (arrangement, object, label)
+    spare = [tuple(a) for a in state["spare"]]  # passing objects no quota wanted
+    arrangements: list[dict] = state["arrangements"]
+    rejected = Counter(state["rejected"])
+    candidates = state["candidates"]
+    for k in range(state["next"], r.max_arrangements):
         if sum(need.values()) == 0:
             break
         task = sample_arrangement(r, scene, k, need)
         if task is None:
             rejected["no_arrangement"] += 1
-            continue
-        labels = [o.support_label for o in task.objects]
-        # IK (the costly filter) only for objects whose category still has quota here.
-        wanted = [i for i, label in enumerate(labels) if need[label] > 0]
-        check = filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k))
-        candidates += len(labels)
-        index = len(arrangements)
-        kept = False
-        for i, label in enumerate(labels):
-            reason = check.rejection(i)
-            if reason == "reachable" and i not in check.reachable:
-                reason = "unchecked"  # stable and visible, but its category was full: no IK
-            rejected[reason or "passed"] += 1
-            if reason is not None:
-                continue
-            if i in wanted and need[label] > 0:
-                need[label] -= 1
-                accepted.append((index, i, label))
+        else:
+            labels = [o.support_label for o in task.objects]
+            # IK (the costly filter) only for objects whose category still has quota here.
+            wanted = [i for i, label in enumerate(labels) if need[label] > 0]
+            check = filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k))
+            candidates += len(labels)
+            index = len(arrangements)
+            kept = False
+            for i, label in enumerate(labels):
+                reason = check.rejection(i)
+                if reason == "reachable" and i not in check.reachable:
+                    reason = "unchecked"  # stable and visible, but its category was full: no IK
+                rejected[reason or "passed"] += 1
+                if reason is not None:
+                    continue
+                if i in wanted and need[label] > 0:
+                    need[label] -= 1
+                    accepted.append((index, i, label))
+                else:
+                    spare.append((index, i, label))
                 kept = True
-            else:
-                spare.append((index, i, label))
-                kept = True
-        if kept:
-            arrangements.append(task.to_dict())
-        if log:
-            log(f"scene {scene.index} {scene.scene_type} arrangement {k}: "
-                f"{len(accepted)} tasks, still need {sum(need.values())}")
+            if kept:
+                arrangements.append(task.to_dict())
+            if log:
+                log(f"scene {scene.index} {scene.scene_type} arrangement {k}: "
+                    f"{len(accepted)} tasks, still need {sum(need.values())}")
+        if progress_path is not None:
+            state = {"next": k + 1, "need": need, "accepted": accepted, "spare": spare,
+                     "arrangements": arrangements, "rejected": dict(rejected), "candidates": candidates,
+                     "seconds": state["seconds"] + time.perf_counter() - start}
+            start = time.perf_counter()
+            atomic_write_text(progress_path, canonical_json({"key": _scene_key(r, scene), "state": state}) + "\n")
     shortfall = {c: n for c, n in need.items() if n > 0}
     missing = sum(shortfall.values())
     accepted += spare[:missing]  # fill from other categories, in generation order
@@ -270,7 +292,7 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None) -> dict:
         "shortfall": shortfall,
         "candidates": candidates,
         "rejected": dict(sorted(rejected.items())),
-        "seconds": time.perf_counter() - start,
+        "seconds": state["seconds"] + time.perf_counter() - start,
     }
 
 
@@ -298,8 +320,10 @@ def _build_one(args) -> str:
         from .filters import FilterEnv
 
         _WORKER_ENV = FilterEnv(num_objects=r.num_objects)
-    result = build_scene(r, scene, _WORKER_ENV)
+    progress = path.with_suffix(".progress.json")
+    result = build_scene(r, scene, _WORKER_ENV, progress_path=progress)
     atomic_write_text(path, canonical_json(result) + "\n")
+    progress.unlink(missing_ok=True)
     return str(path)
 
 

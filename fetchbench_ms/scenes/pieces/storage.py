@@ -26,10 +26,12 @@ def basket_params(kind: str = "wicker") -> tuple[ParamSpec, ...]:
 
 
 def build_basket(
-    b: SceneBuilder, v, name: str, center_xy, size_xy, z0: float, height: float, yaw: float = 0.0
+    b: SceneBuilder, v, name: str, center_xy, size_xy, z0: float, height: float, yaw: float = 0.0,
+    surface_clip: Polygon | None = None,
 ) -> Polygon:
     """An open box (floor + four walls) standing at ``z0``; adds its ``in_basket`` surface and
-    returns its footprint (scene frame). ``size_xy`` is along the basket's own x / y before ``yaw``."""
+    returns its footprint (scene frame). ``size_xy`` is along the basket's own x / y before ``yaw``.
+    ``surface_clip``: the surface is only the part of the floor inside it (scene frame)."""
     L, W = size_xy
     t, tf = v["wall_thickness"], v["floor_thickness"]
     mat = material(v, "basket")
@@ -53,6 +55,8 @@ def build_basket(
         return affinity.translate(affinity.rotate(poly, yaw, origin=(0, 0), use_radians=True), *center_xy)
 
     inner = to_scene(rect(-L / 2 + t, L / 2 - t, -W / 2 + t, W / 2 - t))
+    if surface_clip is not None:
+        inner = inner.intersection(surface_clip)
     b.surface(name, "in_basket", inner, z0 + tf, f"{name}_floor", wall_top=zt)
     return to_scene(rect(-L / 2, L / 2, -W / 2, W / 2))
 
@@ -268,8 +272,9 @@ def cell_shelf_params(rows=(1, 2), cols=(2, 4), depth=(0.26, 0.36), max_boxes: i
         ParamSpec("box_width_frac", 0.75, 0.95, "1", "box width as a share of the cell width"),
         ParamSpec("box_depth_frac", 0.7, 0.95, "1", "box depth as a share of the cell depth"),
         ParamSpec("box_height_frac", 0.45, 0.7, "1", "box height as a share of the cell height"),
+        ParamSpec("box_pull", 0.5, 0.8, "1", "share of a box's depth pulled out of its cell (objects go in that part)"),
     ]
-    specs += [ParamSpec(f"box_{k}_cell", 0, 7, "count", f"cell of box {k} (modulo the number of cells)", kind="int") for k in range(max_boxes)]
+    specs += [ParamSpec(f"box_{k}_cell", 0, 7, "count", f"bottom-row cell of box {k} (modulo the number of columns)", kind="int") for k in range(max_boxes)]
     specs += list(basket_params("fabric"))
     specs += list(material_params("frame", "paint"))
     return tuple(specs)
@@ -279,8 +284,12 @@ def cell_shelf_width(v, cols: int) -> float:
     return cols * v["cell_width"] + (cols - 1) * v["inner_thickness"] + 2 * v["outer_thickness"]
 
 
-def build_cell_shelf(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float, cols: int) -> tuple[float, float, float, float, float]:
-    """A grid of open cells with its front at ``x0``; returns (x0, x1, y0, y1, z_top)."""
+def build_cell_shelf(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: float, cols: int) -> tuple[float, float, float, float, float, list]:
+    """A grid of open cells with its front at ``x0`` (the robot side), some holding a storage
+    box pulled part-way out toward the robot; returns (x0, x1, y0, y1, z_top, the pulled-out
+    boxes' footprints). A box's ``in_basket`` surface is only its part outside the cell: inside
+    a cell the ceiling leaves no room for a hand over the box walls (in build version 4 no
+    object in a pushed-in box passed the reachability and visibility filters)."""
     rows = int(v["rows"])
     cw, ch, D = v["cell_width"], v["cell_height"], v["depth"]
     to, ti = v["outer_thickness"], v["inner_thickness"]
@@ -302,14 +311,16 @@ def build_cell_shelf(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: fl
         for c in range(1, cols):
             yc = ya + to + c * cw + (c - 1) * ti
             b.box_between(f"{name}_divider_{r}_{c}", (x0, yc, z_floor), (x1, yc + ti, z_floor + ch), mat)
-    boxed = {}
+    boxed, footprints = {}, []
     n_cells = rows * cols
     for k in range(int(v["n_boxes"])):
-        cell = int(v[f"box_{k}_cell"]) % n_cells
+        # Boxes sit in the bottom row: a pulled-out box higher up is above the reach of a hand
+        # coming down into it (build version 4 found no reachable object in upper-row boxes).
+        cell = int(v[f"box_{k}_cell"]) % cols
         while cell in boxed:  # one box per cell: take the next free one
-            cell = (cell + 1) % n_cells
+            cell = (cell + 1) % cols
         boxed[cell] = k
-        if len(boxed) == n_cells:
+        if len(boxed) == cols:
             break
     for cell in range(n_cells):
         r, c = divmod(cell, cols)
@@ -317,8 +328,11 @@ def build_cell_shelf(b: SceneBuilder, v, name: str, x0: float, y0: float, z0: fl
         cy0 = ya + to + c * (cw + ti)
         if cell in boxed:
             bw, bd = v["box_width_frac"] * cw, v["box_depth_frac"] * D
-            build_basket(b, v, f"{name}_box_{boxed[cell]}", (x0 + 0.005 + bd / 2, cy0 + cw / 2), (bd, bw), zf, v["box_height_frac"] * ch)
+            pull = v["box_pull"] * bd
+            outside = rect(x0 - bd - 0.01, x0 - 0.005, cy0 - 0.01, cy0 + cw + 0.01)
+            footprints.append(build_basket(b, v, f"{name}_box_{boxed[cell]}", (x0 + 0.005 + bd / 2 - pull, cy0 + cw / 2),
+                                           (bd, bw), zf, v["box_height_frac"] * ch, surface_clip=outside))
             continue
         b.surface(f"{name}_cell_{r}_{c}", "on_shelf", rect(x0 + 0.003, x1 - 0.003, cy0 + 0.002, cy0 + cw - 0.002), zf, part)
     b.surface(f"{name}_top", "on_shelf", rect(x0 + 0.01, x1 - 0.01, ya + 0.01, yb - 0.01), z0 + H, f"{name}_top")
-    return x0, x1, ya, yb, z0 + H
+    return x0, x1, ya, yb, z0 + H, footprints

@@ -1,6 +1,6 @@
 """CellShelfDesk: a desk with a Kallax-like cell shelf (1-2 rows of open cells, some holding
-fabric storage boxes) standing on the back of its top; objects go on the free desk top, in
-the cells, on the shelf's top and into the boxes."""
+fabric storage boxes pulled part-way out) standing on the back of its top; objects go on the
+free desk top, in the cells, on the shelf's top and into the pulled-out part of the boxes."""
 from __future__ import annotations
 
 from ..params import ParamSpec, prefixed, sub_params
@@ -29,8 +29,10 @@ def build(values):
     slack = top.y1 - top.y0 - 0.02 - width
     yc = top.y0 + 0.01 + width / 2 + cv["slide"] * slack
     x_front = top.x1 - cv["back_inset"] - cv["depth"]
-    x0, x1, y0, y1, _ = build_cell_shelf(b, cv, "cells", x_front, yc, top.z, cols)
+    x0, x1, y0, y1, _, boxes = build_cell_shelf(b, cv, "cells", x_front, yc, top.z, cols)
     free = rect(top.x0 + 0.01, top.x1 - 0.01, top.y0 + 0.01, top.y1 - 0.01).difference(rect(x0 - 0.005, x1 + 0.1, y0 - 0.005, y1 + 0.005))
+    for box in boxes:  # nothing on the desk under a pulled-out box
+        free = free.difference(box.buffer(0.005))
     b.surface_region("desk_top", "on_table", free, top.z, top.part)
     return b.finish("CellShelfDesk", values)
 

@@ -21,7 +21,7 @@ def main() -> int:
     parser.add_argument("--docs", type=Path, default=ROOT / "docs", help="docs folder")
     args = parser.parse_args()
 
-    from fetchbench_ms.demo import _size
+    from fetchbench_ms.scenes.cli import _size
     from fetchbench_ms.scenes.gallery import render_gallery, write_gallery_page
     from fetchbench_ms.scenes.registry import scene_types
     from fetchbench_ms.scenes.stats import type_stats

@@ -145,3 +145,37 @@ def test_hand_clearance_without_ik(robot, shelf):
     clear = checker.hand_clearance(np.stack([inside_board, above_shelf]) @ to_hand)
     assert clear[0] < 0 < clear[1]
     assert checker.hand_clearance(np.zeros((0, 4, 4))).shape == (0,)
+
+
+def test_a_start_the_spheres_call_in_collision_is_escaped_not_deepened(robot, shelf):
+    """At rest the conservative spheres may overlap furniture the real arm does not touch:
+    the planner first moves out along a segment never deeper than the start."""
+    from fetchbench_ms.planning.rrt import densify, escape_start
+    from fetchbench_ms.planning.world import box_set, pose_matrix
+
+    world, _, checker = shelf
+    centers = robot.sphere_centers(torch.as_tensor(Q_DEFAULT[None]))[0].numpy()
+    radii = checker.radii.numpy()
+    top = int(np.argmax(centers[:, 2] + radii))  # the highest sphere: a box just above it
+    T_box = pose_matrix(centers[top] + [0.0, 0.0, radii[top]])  # a 2 cm tall box on the sphere's top: 1 cm overlap
+    world.add("intruder", box_set(T_box, [0.04, 0.04, 0.02]))
+    try:
+        start_check = CollisionChecker(robot, world)
+        depth = -float(start_check.clearance(Q_DEFAULT[None])[0])
+        assert 0.005 < depth < 0.02
+        q_goal = Q_DEFAULT.copy()
+        q_goal[0] += 0.6
+        q_goal[1] -= 0.3
+        assert start_check.valid(q_goal)[0]
+        assert plan_rrtconnect(start_check, Q_DEFAULT, q_goal, time_limit=5.0).status == "start_invalid"
+        assert escape_start(start_check, Q_DEFAULT, tolerance=depth / 2) is None  # deeper than allowed
+        result = plan_rrtconnect(start_check, Q_DEFAULT, q_goal, time_limit=10.0, start_tolerance=0.05)
+        assert result.success and result.start_escaped
+        assert np.allclose(result.path[0], Q_DEFAULT) and np.allclose(result.path[-1], q_goal)
+        first = densify(result.path[:2], 0.02)
+        assert (start_check.clearance(first).numpy() >= -depth - 1e-4).all()  # never deeper
+        assert start_check.valid(densify(result.path[1:], 0.02)).all()  # then collision-free
+        # Same start, same escape.
+        assert np.array_equal(escape_start(start_check, Q_DEFAULT, 0.05), escape_start(start_check, Q_DEFAULT, 0.05))
+    finally:
+        world.groups.pop("intruder")

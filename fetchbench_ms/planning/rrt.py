@@ -6,6 +6,12 @@ time callbacks. Before searching, the straight segment to each goal is tried (fr
 space is common once the hand is out of the furniture). After a solution, OMPL's
 PathSimplifier shortens it; the result is re-checked densely before it is returned.
 
+A start that the sphere model calls in collision (the spheres are conservative: the
+simulated robot at rest, or holding an object that still touches its support, can be
+"inside" furniture by a few cm) is escaped first, as MoveIt's start-state repair does:
+a nearby valid configuration reached by a straight segment that never goes deeper than
+the start, then the search from there (``start_tolerance``).
+
 Determinism: the ompl 2.0.1 bindings expose no per-planner seed or sampler hook, so
 RRTConnect's samples come from OMPL's process-wide RNG; everything around it (goal
 order, checks, simplification input) is deterministic.
@@ -29,6 +35,7 @@ class PlanResult:
     planning_time: float  # s
     n_checked: int  # configurations checked
     goal_index: int = -1  # which of the asked goals was reached
+    start_escaped: bool = False  # the path begins with a move out of an invalid start
 
     @property
     def success(self) -> bool:
@@ -52,15 +59,48 @@ def path_valid(checker: CollisionChecker, path: np.ndarray, resolution: float) -
     return bool(checker.valid(densify(np.asarray(path, float), resolution)).all())
 
 
+ESCAPE_RADII = (0.03, 0.06, 0.12, 0.25)  # rad: the boxes around the start searched in turn
+ESCAPE_SAMPLES = 64  # configurations tried per radius
+
+
+def escape_start(checker: CollisionChecker, q_start, tolerance: float, resolution: float = 0.02,
+                 seed: int = 0) -> np.ndarray | None:
+    """A valid configuration near an invalid ``q_start`` whose straight segment from the start
+    never goes deeper into collision than the start itself (so a real robot resting there
+    can make that move), or None: the start is outside the joint limits, deeper than
+    ``tolerance`` (m of sphere penetration beyond the checker's margin), or boxed in.
+    Samples grow in radius and are tried nearest first; seeded, so the same every time."""
+    q_start = np.asarray(q_start, float).reshape(7)
+    robot = checker.robot
+    if not robot.within_limits(q_start[None])[0]:
+        return None
+    depth = checker.margin - float(checker.clearance(q_start[None])[0])
+    if depth > tolerance:
+        return None
+    rng = np.random.default_rng(seed)
+    for radius in ESCAPE_RADII:
+        q = np.clip(q_start + rng.uniform(-radius, radius, (ESCAPE_SAMPLES, 7)), robot.q_min, robot.q_max)
+        ok = np.flatnonzero(checker.valid(q))
+        for i in ok[np.argsort(np.abs(q[ok] - q_start).max(axis=1), kind="stable")]:
+            segment = densify(np.stack([q_start, q[i]]), resolution)
+            # Never deeper than at the start (a small slack for float noise), valid at the end.
+            if bool((checker.clearance(segment) >= checker.margin - depth - 1e-4).all()):
+                return q[i]
+    return None
+
+
 def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
                     resolution: float = 0.02, simplify: bool = True, try_direct: bool = True,
-                    restart_after: float = 5.0, planner_range: float | None = None) -> PlanResult:
+                    restart_after: float = 5.0, planner_range: float | None = None,
+                    start_tolerance: float = 0.0) -> PlanResult:
     """Plan from ``q_start`` to any of ``q_goals`` ((7,) or (K, 7)), best goals first.
 
     RRTConnect's run time is heavy-tailed (a tree that grew into a pocket rarely gets
     out), so the search restarts with fresh trees every ``restart_after`` seconds until
     ``time_limit``. ``planner_range`` is RRTConnect's step (OMPL's default, a fifth of
     the space's extent, did best into a shelf cell; 0.3-1.0 rad did worse).
+    ``start_tolerance`` > 0: an invalid start up to that deep is escaped first
+    (``escape_start``); the path then begins with that move (``start_escaped``).
     """
     import ompl.base as ob
     import ompl.geometric as og
@@ -76,7 +116,14 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
         return PlanResult(status, path, time.perf_counter() - t0, checker.n_checked - n0, goal_index)
 
     if not checker.valid(q_start)[0]:
-        return result("start_invalid")
+        q_free = escape_start(checker, q_start, start_tolerance, resolution) if start_tolerance > 0 else None
+        if q_free is None:
+            return result("start_invalid")
+        rest = plan_rrtconnect(checker, q_free, q_goals, max(0.0, time_limit - (time.perf_counter() - t0)),
+                               resolution, simplify, try_direct, restart_after, planner_range)
+        path = None if rest.path is None else np.concatenate([q_start[None], rest.path])
+        return PlanResult(rest.status, path, time.perf_counter() - t0, checker.n_checked - n0, rest.goal_index,
+                          start_escaped=True)
     goal_ok = checker.valid(q_goals) if len(q_goals) else np.zeros(0, bool)
     goal_ids = np.flatnonzero(goal_ok)
     if len(goal_ids) == 0:

@@ -231,6 +231,38 @@ def _scene_key(r: SuiteRecipe, scene: ScenePlan) -> dict:
     return {"build_version": BUILD_VERSION, "recipe": r.to_dict(), "scene_seed": scene.scene_seed, "quota": scene.quota}
 
 
+def _new_scene_state(scene: ScenePlan) -> dict:
+    """A scene's build state, JSON-safe (it is what a progress file holds): the next
+    arrangement, what each category still lacks, the accepted tasks and the spare passing
+    objects as [arrangement, object, label], the kept arrangements, the filter counts."""
+    return {"next": 0, "need": dict(scene.quota), "accepted": [], "spare": [], "arrangements": [],
+            "rejected": {}, "candidates": 0, "seconds": 0.0}
+
+
+def _take_passing(state: dict, task: TaskSpec, check, wanted: list[int]) -> None:
+    """Count every object's verdict and keep the passing ones: as a task while its category
+    has quota, else as a spare; the arrangement is kept if any object passed."""
+    need, rejected, index = state["need"], state["rejected"], len(state["arrangements"])
+    state["candidates"] += len(task.objects)
+    kept = False
+    for i, placement in enumerate(task.objects):
+        label = placement.support_label
+        reason = check.rejection(i)
+        if reason == "reachable" and i not in check.reachable:
+            reason = "unchecked"  # stable and visible, but its category was full: no IK
+        rejected[reason or "passed"] = rejected.get(reason or "passed", 0) + 1
+        if reason is not None:
+            continue
+        if i in wanted and need[label] > 0:
+            need[label] -= 1
+            state["accepted"].append([index, i, label])
+        else:
+            state["spare"].append([index, i, label])
+        kept = True
+    if kept:
+        state["arrangements"].append(task.to_dict())
+
+
 def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress_path=None) -> dict:
     """Generate one scene's tasks. Returns a JSON-safe result: the accepted tasks, the
     per-filter rejection counts, the time it took.
@@ -240,8 +272,7 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
     arrangement of each scene in progress. The state is everything the remaining
     arrangements depend on, so the result is the same as an uninterrupted build's."""
     start = time.perf_counter()
-    state = {"next": 0, "need": dict(scene.quota), "accepted": [], "spare": [], "arrangements": [],
-             "rejected": {}, "candidates": 0, "seconds": 0.0}
+    state = _new_scene_state(scene)
     if progress_path is not None and Path(progress_path).exists():
         saved = json.loads(Path(progress_path).read_text())
         if saved.get("key") == _scene_key(r, scene):
@@ -249,52 +280,28 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
             if log:
                 log(f"scene {scene.index}: continuing at arrangement {state['next']}")
     need = state["need"]
-    accepted = [tuple(a) for a in state["accepted"]]  # (arrangement, object, label)
-    spare = [tuple(a) for a in state["spare"]]  # passing objects no quota wanted
-    arrangements: list[dict] = state["arrangements"]
-    rejected = Counter(state["rejected"])
-    candidates = state["candidates"]
     for k in range(state["next"], r.max_arrangements):
         if sum(need.values()) == 0:
             break
         task = sample_arrangement(r, scene, k, need)
         if task is None:
-            rejected["no_arrangement"] += 1
+            state["rejected"]["no_arrangement"] = state["rejected"].get("no_arrangement", 0) + 1
         else:
-            labels = [o.support_label for o in task.objects]
             # IK (the costly filter) only for objects whose category still has quota here.
-            wanted = [i for i, label in enumerate(labels) if need[label] > 0]
-            check = filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k))
-            candidates += len(labels)
-            index = len(arrangements)
-            kept = False
-            for i, label in enumerate(labels):
-                reason = check.rejection(i)
-                if reason == "reachable" and i not in check.reachable:
-                    reason = "unchecked"  # stable and visible, but its category was full: no IK
-                rejected[reason or "passed"] += 1
-                if reason is not None:
-                    continue
-                if i in wanted and need[label] > 0:
-                    need[label] -= 1
-                    accepted.append((index, i, label))
-                else:
-                    spare.append((index, i, label))
-                kept = True
-            if kept:
-                arrangements.append(task.to_dict())
+            wanted = [i for i, o in enumerate(task.objects) if need[o.support_label] > 0]
+            _take_passing(state, task, filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k)),
+                          wanted)
             if log:
                 log(f"scene {scene.index} {scene.scene_type} arrangement {k}: "
-                    f"{len(accepted)} tasks, still need {sum(need.values())}")
+                    f"{len(state['accepted'])} tasks, still need {sum(need.values())}")
+        state["next"] = k + 1
         if progress_path is not None:
-            state = {"next": k + 1, "need": need, "accepted": accepted, "spare": spare,
-                     "arrangements": arrangements, "rejected": dict(rejected), "candidates": candidates,
-                     "seconds": state["seconds"] + time.perf_counter() - start}
+            state["seconds"] += time.perf_counter() - start
             start = time.perf_counter()
             atomic_write_text(progress_path, canonical_json({"key": _scene_key(r, scene), "state": state}) + "\n")
     shortfall = {c: n for c, n in need.items() if n > 0}
-    missing = sum(shortfall.values())
-    accepted += spare[:missing]  # fill from other categories, in generation order
+    # Fill from other categories, in generation order.
+    accepted = state["accepted"] + state["spare"][:sum(shortfall.values())]
     used = sorted({a for a, _, _ in accepted})
     renumber = {a: j for j, a in enumerate(used)}
     return {
@@ -302,11 +309,11 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
         "recipe": r.to_dict(),
         "scene": {"index": scene.index, "scene_type": scene.scene_type, "scene_seed": scene.scene_seed,
                   "quota": scene.quota},
-        "arrangements": [arrangements[a] for a in used],
+        "arrangements": [state["arrangements"][a] for a in used],
         "tasks": [[renumber[a], i] for a, i, _ in accepted],
         "shortfall": shortfall,
-        "candidates": candidates,
-        "rejected": dict(sorted(rejected.items())),
+        "candidates": state["candidates"],
+        "rejected": dict(sorted(state["rejected"].items())),
         "seconds": state["seconds"] + time.perf_counter() - start,
     }
 
@@ -344,9 +351,7 @@ def _is_done(r: SuiteRecipe, plan: ScenePlan, work_dir: Path) -> bool:
 def _build_one(args) -> str:
     global _WORKER_ENV
     r, scene, work_dir = args
-    path = _scene_path(Path(work_dir), scene)
-    if _is_done(r, scene, Path(work_dir)):
-        return str(path)
+    path = _scene_path(Path(work_dir), scene)  # build_scenes hands out only scenes still to do
     if _WORKER_ENV is None:
         from .filters import FilterEnv
 

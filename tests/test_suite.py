@@ -277,3 +277,44 @@ def test_a_killed_scene_build_continues_from_its_progress_to_the_same_result(tmp
     other = SuiteRecipe("tiny", "test", seed=8, scale=0.1, tasks_per_scene=60, max_arrangements=2)
     state = json.loads(progress.read_text())
     assert state["key"] != suite_build._scene_key(other, suite_build.plan_scenes(other)[0])
+
+
+def test_a_larger_fill_budget_continues_only_short_scenes_to_a_fresh_builds_result(tmp_path):
+    """A scene short of its task count after ``max_arrangements`` goes on in the fill phase;
+    raising ``fill_arrangements`` continues such a scene from its result (no progress file
+    needed) and ends where a fresh build with that budget ends."""
+    from dataclasses import replace
+
+    from fetchbench_ms.tasks.filters import FilterEnv
+
+    with pytest.raises(ValueError, match="fill_arrangements"):
+        SuiteRecipe("tiny", max_arrangements=3, fill_arrangements=2)
+    short = SuiteRecipe("tiny", "test", seed=7, scale=0.1, tasks_per_scene=60, max_arrangements=1)
+    filled = replace(short, fill_arrangements=2)
+    scene = suite_build.plan_scenes(short)[0]
+    logs = []
+    try:
+        suite_build.build_scenes(short, tmp_path, workers=1, limit=1, log=logs.append)
+        path = suite_build._scene_path(tmp_path, scene)
+        first = json.loads(path.read_text())
+        assert first["tried"] == 1 and len(first["tasks"]) < 60  # 60 tasks never fit one arrangement
+        assert suite_build._is_done(short, scene, tmp_path) and not suite_build._is_done(filled, scene, tmp_path)
+        suite_build.build_scenes(filled, tmp_path, workers=1, limit=1, log=logs.append)
+        continued = json.loads(path.read_text())
+        env = FilterEnv(num_objects=filled.num_objects)
+        try:
+            fresh = suite_build.build_scene(filled, scene, env)
+        finally:
+            env.close()
+    finally:
+        if suite_build._WORKER_ENV is not None:
+            suite_build._WORKER_ENV.close()
+            suite_build._WORKER_ENV = None
+    assert any("continuing short scenes [0] up to 2 arrangements" in line for line in logs)
+    assert continued.pop("seconds") > first["seconds"] and fresh.pop("seconds") > 0
+    assert continued == fresh and continued["tried"] == 2
+    # The fill phase IK-checks every stable, visible object: more candidates, no "unchecked".
+    assert continued["candidates"] > first["candidates"]
+    assert continued["rejected"].get("unchecked", 0) == first["rejected"].get("unchecked", 0)
+    # A result made with a larger budget is stale for a smaller one (it would differ).
+    assert "more arrangements" in suite_build._stale_reason(short, scene, continued)

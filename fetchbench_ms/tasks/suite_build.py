@@ -19,7 +19,12 @@ depend on which worker made it or in which order):
    arrangements;
 3. a scene stops at its quota or after ``max_arrangements``; a category that still lacks
    tasks then is filled from the other categories' passing objects (recorded in the
-   scene result as ``shortfall``).
+   scene result as ``shortfall``);
+4. a scene that by then has fewer passing objects than tasks goes on (the *fill*
+   phase, up to ``fill_arrangements``): every stable, visible object is IK-checked and
+   every passing one counts, until the scene has its task count. Scenes that met their
+   count within ``max_arrangements`` are untouched by it, so raising the fill budget
+   continues only the short scenes, from their results.
 Per-scene results are written atomically to a work directory and skipped on re-run
 (resumable); the suite file is assembled from them in a fixed order, so it is
 byte-identical for the same seed whatever the worker count.
@@ -94,6 +99,10 @@ class SuiteRecipe:
     tasks_per_scene: int = TASKS_PER_SCENE
     max_arrangements: int = 160  # arrangements tried per scene before giving up on its quota
     num_objects: int = 15
+    #: Arrangements a scene short of its task count may try in all (the fill phase; None:
+    #: no fill). Left out of a scene result's identity: a result made with a smaller fill
+    #: budget is continued, not remade.
+    fill_arrangements: int | None = None
 
     def __post_init__(self):
         if self.object_split not in ("train", "test"):
@@ -102,14 +111,28 @@ class SuiteRecipe:
             raise ValueError(f"scale must be in (0, 1], got {self.scale}")
         if self.tasks_per_scene < 1:
             raise ValueError(f"tasks_per_scene must be positive, got {self.tasks_per_scene}")
+        if self.fill_arrangements is not None and self.fill_arrangements < self.max_arrangements:
+            raise ValueError(f"fill_arrangements ({self.fill_arrangements}) must be at least "
+                             f"max_arrangements ({self.max_arrangements}), or None for no fill")
+
+    @property
+    def arrangement_budget(self) -> int:
+        """The most arrangements any scene tries (quota phase plus fill phase)."""
+        return self.max_arrangements if self.fill_arrangements is None else self.fill_arrangements
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
+def _recipe_identity(recipe_dict: dict) -> dict:
+    """What a scene's result depends on besides its plan: the recipe without its fill budget
+    (a short scene's result for a smaller budget is where a larger budget's build passes)."""
+    return {k: v for k, v in recipe_dict.items() if k != "fill_arrangements"}
+
+
 RECIPES = {
-    "test": SuiteRecipe("test", "test", seed=0),
-    "val": SuiteRecipe("val", "train", seed=1, scale=0.1, tasks_per_scene=5, max_arrangements=15),
+    "test": SuiteRecipe("test", "test", seed=0, fill_arrangements=400),
+    "val": SuiteRecipe("val", "train", seed=1, scale=0.1, tasks_per_scene=5, max_arrangements=15, fill_arrangements=45),
 }
 
 
@@ -228,7 +251,8 @@ def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | No
 
 
 def _scene_key(r: SuiteRecipe, scene: ScenePlan) -> dict:
-    return {"build_version": BUILD_VERSION, "recipe": r.to_dict(), "scene_seed": scene.scene_seed, "quota": scene.quota}
+    return {"build_version": BUILD_VERSION, "recipe": _recipe_identity(r.to_dict()), "scene_seed": scene.scene_seed,
+            "quota": scene.quota}
 
 
 def _new_scene_state(scene: ScenePlan) -> dict:
@@ -279,16 +303,18 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
             state = saved["state"]
             if log:
                 log(f"scene {scene.index}: continuing at arrangement {state['next']}")
-    need = state["need"]
-    for k in range(state["next"], r.max_arrangements):
-        if sum(need.values()) == 0:
+    need, per_scene = state["need"], sum(scene.quota.values())
+    for k in range(state["next"], r.arrangement_budget):
+        filling = k >= r.max_arrangements
+        if sum(need.values()) == 0 or (filling and len(state["accepted"]) + len(state["spare"]) >= per_scene):
             break
         task = sample_arrangement(r, scene, k, need)
         if task is None:
             state["rejected"]["no_arrangement"] = state["rejected"].get("no_arrangement", 0) + 1
         else:
-            # IK (the costly filter) only for objects whose category still has quota here.
-            wanted = [i for i, o in enumerate(task.objects) if need[o.support_label] > 0]
+            # IK (the costly filter) only for objects whose category still has quota here;
+            # when filling, for all: any passing object then counts.
+            wanted = [i for i, o in enumerate(task.objects) if filling or need[o.support_label] > 0]
             _take_passing(state, task, filter_env.check(task, targets=wanted, seed=_arrangement_seed(r, scene, k)),
                           wanted)
             if log:
@@ -312,6 +338,7 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
         "arrangements": [state["arrangements"][a] for a in used],
         "tasks": [[renumber[a], i] for a, i, _ in accepted],
         "shortfall": shortfall,
+        "tried": state["next"],
         "candidates": state["candidates"],
         "rejected": dict(sorted(state["rejected"].items())),
         "seconds": state["seconds"] + time.perf_counter() - start,
@@ -332,31 +359,70 @@ def _scene_path(work_dir: Path, scene: ScenePlan) -> Path:
     return work_dir / f"scene_{scene.index:03d}.json"
 
 
+def _is_short(result: dict) -> bool:
+    return len(result["tasks"]) < sum(result["scene"]["quota"].values())
+
+
+def _tried(r: SuiteRecipe, result: dict) -> int:
+    """Arrangements a scene result tried. (Results made before this was recorded: a short
+    scene tried all ``max_arrangements``, a full one at most that many.)"""
+    return result.get("tried", r.max_arrangements)
+
+
 def _stale_reason(r: SuiteRecipe, plan: ScenePlan, result: dict) -> str | None:
-    """Why a per-scene result was not made for this plan's scene (None: it was)."""
-    if result.get("build_version") != BUILD_VERSION or result.get("recipe") != r.to_dict():
+    """Why a per-scene result was not made for this plan's scene (None: it was, or it is the
+    state a larger fill budget continues from)."""
+    if (result.get("build_version") != BUILD_VERSION
+            or _recipe_identity(result.get("recipe", {})) != _recipe_identity(r.to_dict())):
         return "made by another recipe or build version"
     if result["scene"]["scene_seed"] != plan.scene_seed:
         return "for another scene than the plan's"
     if result["scene"]["quota"] != plan.quota:
         return "made for other category quotas than the plan's"
+    if _tried(r, result) > r.arrangement_budget:
+        return f"made with more arrangements than this recipe's {r.arrangement_budget}"
     return None
+
+
+def _to_continue(r: SuiteRecipe, result: dict) -> bool:
+    """A (not stale) result short of its task count that the fill budget lets go on."""
+    return _is_short(result) and _tried(r, result) < r.arrangement_budget
+
+
+def _state_from_result(r: SuiteRecipe, result: dict) -> dict:
+    """The build state a short scene ended in, rebuilt from its result, to continue it with
+    a larger fill budget. Exact because a short scene kept every passing object: its tasks
+    are all accepted objects, then all spares, and it kept every arrangement, in order."""
+    assert _is_short(result), "only a short scene's result holds its whole state"
+    quota, shortfall = result["scene"]["quota"], result["shortfall"]
+    n_accepted = sum(quota.values()) - sum(shortfall.values())
+    labelled = [[a, i, result["arrangements"][a]["objects"][i]["support_label"]] for a, i in result["tasks"]]
+    return {"next": _tried(r, result), "need": {c: shortfall.get(c, 0) for c in quota},
+            "accepted": labelled[:n_accepted], "spare": labelled[n_accepted:],
+            "arrangements": result["arrangements"], "rejected": dict(result["rejected"]),
+            "candidates": result["candidates"], "seconds": result["seconds"]}
 
 
 def _is_done(r: SuiteRecipe, plan: ScenePlan, work_dir: Path) -> bool:
     path = _scene_path(work_dir, plan)
-    return path.exists() and _stale_reason(r, plan, json.loads(path.read_text())) is None
+    if not path.exists():
+        return False
+    result = json.loads(path.read_text())
+    return _stale_reason(r, plan, result) is None and not _to_continue(r, result)
 
 
 def _build_one(args) -> str:
     global _WORKER_ENV
-    r, scene, work_dir = args
+    r, scene, work_dir, continue_result = args
     path = _scene_path(Path(work_dir), scene)  # build_scenes hands out only scenes still to do
     if _WORKER_ENV is None:
         from .filters import FilterEnv
 
         _WORKER_ENV = FilterEnv(num_objects=r.num_objects)
     progress = path.with_suffix(".progress.json")
+    if continue_result and not progress.exists():  # a short scene that a larger fill budget continues
+        atomic_write_text(progress, canonical_json({"key": _scene_key(r, scene),
+                                                    "state": _state_from_result(r, json.loads(path.read_text()))}) + "\n")
     result = build_scene(r, scene, _WORKER_ENV, progress_path=progress)
     atomic_write_text(path, canonical_json(result) + "\n")
     progress.unlink(missing_ok=True)
@@ -370,10 +436,18 @@ def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None =
     work_dir.mkdir(parents=True, exist_ok=True)
     plans = plan_scenes(r)[:limit]
     todo = [p for p in plans if not _is_done(r, p, work_dir)]
-    stale = [p.index for p in todo if _scene_path(work_dir, p).exists()]
+    stale, short = [], []
+    for p in todo:
+        if _scene_path(work_dir, p).exists():
+            result = json.loads(_scene_path(work_dir, p).read_text())
+            if _stale_reason(r, p, result) is None:
+                short.append(p.index)
+            else:
+                stale.append(p.index)
     log(f"{r.name}: {len(plans) - len(todo)} of {len(plans)} scenes done, {len(todo)} to make with {workers} workers"
-        + (f" (remaking stale scenes {stale})" if stale else ""))
-    jobs = [(r, p, str(work_dir)) for p in todo]
+        + (f" (remaking stale scenes {stale})" if stale else "")
+        + (f" (continuing short scenes {short} up to {r.arrangement_budget} arrangements)" if short else ""))
+    jobs = [(r, p, str(work_dir), p.index in short) for p in todo]
     if workers <= 1:
         _worker_init()
         for job in jobs:
@@ -444,7 +518,7 @@ def assemble_suite(r: SuiteRecipe, work_dir) -> TaskSuite:
         "planned_scenes": len(planned),
         "planned_tasks": len(planned) * r.tasks_per_scene,
         "complete_scenes": len(results),
-        "complete": len(results) == len(planned),
+        "complete": len(results) == len(planned) and not any(_to_continue(r, res) for res in results),
         "complete_scene_indices": [res["scene"]["index"] for res in results],
         "shortfall": {str(res["scene"]["index"]): res["shortfall"] for res in results if res["shortfall"]},
         "candidates": sum(res["candidates"] for res in results),

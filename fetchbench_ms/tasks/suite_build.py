@@ -21,8 +21,12 @@ depend on which worker made it or in which order):
    tasks then is filled from the other categories' passing objects (recorded in the
    scene result as ``shortfall``);
 4. a scene that by then has fewer passing objects than tasks goes on (the *fill*
-   phase, up to ``fill_arrangements``): every stable, visible object is IK-checked and
-   every passing one counts, until the scene has its task count. Scenes that met their
+   phase, up to ``fill_arrangements``): arrangements are sampled as the original does
+   (its label weights; no lean to the missing categories, no fitting, cameras unweighted:
+   in a LayerShelf whose baskets the lean could not fill in 160 arrangements, leaning on
+   found 8 tasks in 136 more, the original's weights 4 in 20), every stable, visible
+   object is IK-checked and every passing one counts, until the scene has its task
+   count. Scenes that met their
    count within ``max_arrangements`` are untouched by it, so raising the fill budget
    continues only the short scenes, from their results.
 Per-scene results are written atomically to a work directory and skipped on re-run
@@ -308,7 +312,7 @@ def build_scene(r: SuiteRecipe, scene: ScenePlan, filter_env, log=None, progress
         filling = k >= r.max_arrangements
         if sum(need.values()) == 0 or (filling and len(state["accepted"]) + len(state["spare"]) >= per_scene):
             break
-        task = sample_arrangement(r, scene, k, need)
+        task = sample_arrangement(r, scene, k, {} if filling else need)
         if task is None:
             state["rejected"]["no_arrangement"] = state["rejected"].get("no_arrangement", 0) + 1
         else:

@@ -298,7 +298,8 @@ def test_a_larger_fill_budget_continues_only_short_scenes_to_a_fresh_builds_resu
         path = suite_build._scene_path(tmp_path, scene)
         first = json.loads(path.read_text())
         assert first["tried"] == 1 and len(first["tasks"]) < 60  # 60 tasks never fit one arrangement
-        assert suite_build._is_done(short, scene, tmp_path) and not suite_build._is_done(filled, scene, tmp_path)
+        assert suite_build._scene_status(short, scene, tmp_path) == "done"
+        assert suite_build._scene_status(filled, scene, tmp_path) == "short"
         suite_build.build_scenes(filled, tmp_path, workers=1, limit=1, log=logs.append)
         continued = json.loads(path.read_text())
         env = FilterEnv(num_objects=filled.num_objects)

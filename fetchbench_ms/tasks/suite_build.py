@@ -26,9 +26,8 @@ depend on which worker made it or in which order):
    in a LayerShelf whose baskets the lean could not fill in 160 arrangements, leaning on
    found 8 tasks in 136 more, the original's weights 4 in 20), every stable, visible
    object is IK-checked and every passing one counts, until the scene has its task
-   count. Scenes that met their
-   count within ``max_arrangements`` are untouched by it, so raising the fill budget
-   continues only the short scenes, from their results.
+   count. Scenes that met their count within ``max_arrangements`` are untouched by it,
+   so raising the fill budget continues only the short scenes, from their results.
 Per-scene results are written atomically to a work directory and skipped on re-run
 (resumable); the suite file is assembled from them in a fixed order, so it is
 byte-identical for the same seed whatever the worker count.
@@ -407,12 +406,16 @@ def _state_from_result(r: SuiteRecipe, result: dict) -> dict:
             "candidates": result["candidates"], "seconds": result["seconds"]}
 
 
-def _is_done(r: SuiteRecipe, plan: ScenePlan, work_dir: Path) -> bool:
+def _scene_status(r: SuiteRecipe, plan: ScenePlan, work_dir: Path) -> str:
+    """What a build does with a plan's scene: "new" (no result yet), "stale" (remade),
+    "short" (continued by the fill budget) or "done" (kept)."""
     path = _scene_path(work_dir, plan)
     if not path.exists():
-        return False
+        return "new"
     result = json.loads(path.read_text())
-    return _stale_reason(r, plan, result) is None and not _to_continue(r, result)
+    if _stale_reason(r, plan, result) is not None:
+        return "stale"
+    return "short" if _to_continue(r, result) else "done"
 
 
 def _build_one(args) -> str:
@@ -439,15 +442,10 @@ def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None =
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     plans = plan_scenes(r)[:limit]
-    todo = [p for p in plans if not _is_done(r, p, work_dir)]
-    stale, short = [], []
-    for p in todo:
-        if _scene_path(work_dir, p).exists():
-            result = json.loads(_scene_path(work_dir, p).read_text())
-            if _stale_reason(r, p, result) is None:
-                short.append(p.index)
-            else:
-                stale.append(p.index)
+    status = {p.index: _scene_status(r, p, work_dir) for p in plans}
+    todo = [p for p in plans if status[p.index] != "done"]
+    stale = [p.index for p in todo if status[p.index] == "stale"]
+    short = [p.index for p in todo if status[p.index] == "short"]
     log(f"{r.name}: {len(plans) - len(todo)} of {len(plans)} scenes done, {len(todo)} to make with {workers} workers"
         + (f" (remaking stale scenes {stale})" if stale else "")
         + (f" (continuing short scenes {short} up to {r.arrangement_budget} arrangements)" if short else ""))

@@ -1,7 +1,7 @@
 # The README's two commands are `make demo` and `make test`; both set up what they need
 # first (scripts/setup.sh: venv, editable install, software Vulkan if needed; idempotent).
 # FETCHBENCH_VENV picks another virtual environment (default .venv).
-.PHONY: setup demo test test-slow bench gallery
+.PHONY: setup demo test test-slow bench gallery lock
 
 VENV ?= $(or $(FETCHBENCH_VENV),.venv)
 PY := $(VENV)/bin/python
@@ -26,3 +26,7 @@ bench: setup
 
 gallery: setup
 	@$(PY) scripts/make_gallery.py
+
+# Regenerate requirements.lock from pyproject.toml's ranges (after changing dependencies).
+lock:
+	@bash scripts/lock.sh

@@ -37,11 +37,14 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PY" -m venv "$VENV"
 fi
 
-# 2. Packages. torch first, and its CPU build where the PyTorch CPU index is reachable, so
-#    that nothing pulls the CUDA wheels (several GB). Re-installed only when pyproject.toml
-#    changes (the package itself is editable: code changes need no re-install).
+# 2. Packages: exactly the versions of requirements.lock (every transitive dependency, as
+#    tested; `make lock` regenerates it from pyproject.toml's ranges), then this package
+#    editable without dependencies. torch first, and its CPU build where the PyTorch CPU
+#    index is reachable, so that nothing pulls the CUDA wheels (several GB); the lock's
+#    torch==2.13.0 then matches it. Re-installed only when pyproject.toml or the lock
+#    changes (code changes need no re-install).
 stamp="$VENV/.fetchbench-installed"
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+want=$(cat pyproject.toml requirements.lock | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
     extra=()
@@ -51,11 +54,13 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     say "installing torch==2.13.0 (CPU build)${extra:+ from $TORCH_INDEX}"
     "$VENV/bin/pip" install -q "torch==2.13.0" "${extra[@]}"
   fi
-  say "installing fetchbench_ms and its dependencies (editable)"
-  "$VENV/bin/pip" install -q -e ".[dev]"
+  say "installing the locked dependencies (requirements.lock, $(grep -vc '^#' requirements.lock) packages)"
+  "$VENV/bin/pip" install -q -r requirements.lock
+  say "installing fetchbench_ms (editable, dependencies from the lock)"
+  "$VENV/bin/pip" install -q --no-deps -e .
   echo "$want" > "$stamp"
 else
-  say "virtual environment $VENV is up to date"
+  say "virtual environment $VENV is up to date (requirements.lock)"
 fi
 
 # 3. Software Vulkan renderer. SAPIEN renders on CPU only with lavapipe >= 24.3; Debian 12's

@@ -16,6 +16,7 @@ import sapien
 
 from ..scenes.sapien_build import add_scene_parts
 from ..tasks.objects import load_object
+from ..utils.canonical import canonical_lengths, canonical_quat
 from .bodies import SIM_FREQ, add_object_shapes, apply_physx_config, box_half_size, default_sim_config
 
 SETTLE_SECONDS = 2.0  # at most
@@ -59,8 +60,12 @@ def _simulate(scene, bodies):
 
 
 def settle_placements(scene_spec, placements, table_center, table_size, rounds: int = 3):
-    """(settled placements, report dict). Dropped objects are left out of the result."""
-    placements = list(placements)
+    """(settled placements, report dict). Dropped objects are left out of the result.
+
+    Poses go in and come out on the grids of ``utils.canonical``: contact dynamics turn a
+    last-bit difference of a start pose into a different resting yaw (a lying jar spins),
+    so the simulation must start from the same bits on every machine."""
+    placements = [p.canonical() for p in placements]
     support_height = {s.name: s.height for s in scene_spec.support_surfaces}
     dropped = 0
     for _ in range(rounds):
@@ -76,13 +81,7 @@ def settle_placements(scene_spec, placements, table_center, table_size, rounds: 
         if all(keep):
             settled = []
             for placement, pose in zip(placements, poses):
-                q = np.asarray(pose.q, dtype=float)
-                q = q / np.linalg.norm(q)
-                if q[0] < 0:  # one sign for equal rotations: same task, same bytes
-                    q = -q
-                settled.append(replace(
-                    placement, position=tuple(float(v) for v in pose.p), quat_wxyz=tuple(float(v) for v in q),
-                ))
+                settled.append(replace(placement, position=canonical_lengths(pose.p), quat_wxyz=canonical_quat(pose.q)))
             return settled, {"settle_dropped": dropped}
         dropped += len(keep) - sum(keep)
         placements = [p for p, k in zip(placements, keep) if k]

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ..utils.canonical import canonical_fraction, canonical_lengths, canonical_lengths_array, canonical_quat
 from ..utils.io import sha256_bytes, sha256_file
 from ..utils.paths import assets_root
 from . import blobs, geometry as g, procedural, ycb
@@ -39,8 +40,9 @@ from .asset import SOURCES, SPLITS, ObjectAsset, ObjectRecord
 #: Version of the index / manifest layout; bump on any change of their fields.
 INDEX_FORMAT_VERSION = 1
 #: Version of the derived values (stable-pose settings, frame convention, repairs) on
-#: top of the procedural generators' own version.
-CATALOG_VERSION = 1
+#: top of the procedural generators' own version. 2: vertices snapped to the 1 um grid,
+#: stable poses in a canonical order (machine-independent bytes, ``utils.canonical``).
+CATALOG_VERSION = 2
 #: Procedural objects per category (29 categories x 165 = 4785).
 PROCEDURAL_PER_CATEGORY = 165
 #: Stable poses kept per object: the most likely ones, each at least this likely.
@@ -138,15 +140,27 @@ def fingerprint(parts) -> str:
 
 
 def stable_poses(parts, center_of_mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Most likely resting poses (T_support_object) and their probabilities on a plane."""
+    """Most likely resting poses (T_support_object) and their probabilities on a plane.
+
+    In a canonical form, so every machine stores the same ones: trimesh's poses snapped to
+    the grids of ``utils.canonical`` (a pose whose rotation is 180 degrees has w = 0, and its
+    quaternion's sign is otherwise last-bit noise), equal poses merged, ordered by rounded
+    probability and then by the pose itself. Symmetric shapes have facets of equal
+    probability (a box's opposite faces, a ball's many facets) whose order in trimesh's
+    output is noise; ranking by the rounded value and the pose makes the choice of the
+    ``MAX_STABLE_POSES`` kept ones independent of it."""
     points = np.concatenate([p.vertices for p in parts])
     transforms, probs = trimesh.poses.compute_stable_poses(
         g.hull(points), center_mass=center_of_mass, sigma=0.0, n_samples=1, threshold=0.0
     )
-    order = np.argsort(-probs, kind="stable")
-    keep = [i for i in order[:MAX_STABLE_POSES] if probs[i] >= MIN_STABLE_PROB] or [order[0]]
-    chosen = np.asarray(probs)[keep]
-    return np.asarray(transforms)[keep], chosen / chosen.sum()
+    merged: dict[tuple, float] = {}
+    for T, p in zip(transforms, probs):
+        key = tuple(_pose_vector(T))
+        merged[key] = merged.get(key, 0.0) + float(p)
+    ranked = sorted(merged.items(), key=lambda item: (-canonical_fraction(item[1]), item[0]))
+    keep = [item for item in ranked[:MAX_STABLE_POSES] if canonical_fraction(item[1]) >= MIN_STABLE_PROB] or ranked[:1]
+    chosen = np.array([p for _, p in keep])
+    return np.array([_pose_matrix(v) for v, _ in keep]), chosen / chosen.sum()
 
 
 def build_object(object_id: str, with_stable_poses: bool = True) -> tuple[ObjectAsset, list[str]]:
@@ -157,8 +171,11 @@ def build_object(object_id: str, with_stable_poses: bool = True) -> tuple[Object
     low, high = points.min(axis=0), points.max(axis=0)
     centre = (low + high) / 2.0
     shift = trimesh.transformations.translation_matrix(-centre)
-    for p in parts:
-        p.apply_transform(shift)
+    # The catalog's geometry on the 1 um grid: the same vertices (hence the same physics,
+    # hulls and stable poses) on every machine, whatever last bits the generator's
+    # trigonometry and the shift left. Snapping can dent a hull by a fraction of a micron,
+    # so each part is the hull of its snapped vertices.
+    parts = [g.hull(canonical_lengths_array(p.vertices - centre)) for p in parts]
     visual = trimesh.util.concatenate(parts) if visual is None else visual.copy()
     if metadata.get("scan"):
         visual.apply_transform(shift)
@@ -359,9 +376,7 @@ def get_object(object_id: str) -> ObjectAsset:
 
 def _pose_vector(matrix: np.ndarray) -> list[float]:
     q = trimesh.transformations.quaternion_from_matrix(matrix)  # wxyz
-    if q[0] < 0:
-        q = -q
-    return [round(float(v), 7) for v in (*q, *matrix[:3, 3])]
+    return [*canonical_quat(q), *canonical_lengths(matrix[:3, 3])]
 
 
 def _pose_matrix(vector) -> np.ndarray:
@@ -383,7 +398,7 @@ def index_entry(asset: ObjectAsset) -> dict:
         "n_parts": len(asset.convex_parts),
         "fingerprint": asset.metadata["fingerprint"],
         "stable_poses": [_pose_vector(T) for T in asset.stable_poses],
-        "stable_probs": [round(float(p), 6) for p in asset.stable_probs],
+        "stable_probs": [canonical_fraction(p) for p in asset.stable_probs],
     }
 
 

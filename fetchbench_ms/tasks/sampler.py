@@ -45,9 +45,10 @@ from shapely.geometry import Point, Polygon
 from ..scenes import SCENE_TYPES, generate, get_scene_type
 from .camera_views import Occluders, camera_axes, sample_camera_pair
 from .objects import collision_vertices, load_object, object_ids, object_source
+from ..utils.canonical import canonical_lengths, canonical_quat
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
 
-SAMPLER_VERSION = "3"  # 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
+SAMPLER_VERSION = "4"  # 4: poses on the grids of utils.canonical (machine-independent); 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
 
 #: The original's support-label weights for placing an object.
 LABEL_WEIGHTS = {"in_basket": 0.5, "on_shelf": 0.3, "in_drawer": 0.3, "on_table": 0.2}
@@ -191,6 +192,8 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
 
         placements, report = settle_placements(scene, placements, table_center, table_size)
         extra.update(report)
+    else:
+        placements = [p.canonical() for p in placements]
     eligible = [i for i, p in enumerate(placements) if target_label is None or p.support_label == target_label]
     if not eligible:
         return None
@@ -502,7 +505,10 @@ def _sample_robot(rng, scene, world: _BoxWorld, tries: int = 20):
         if world.hits(world.box((size_x, size_y, height), R, center)):
             continue
         quat = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-        return (x, y, z), quat, tuple(float(v) for v in center), (size_x, size_y, height)
+        # On the grids of ``utils.canonical``: trigonometry's last bits differ between
+        # machines, and the robot table goes into the settling simulation.
+        return (canonical_lengths((x, y, z)), canonical_quat(quat), canonical_lengths(center),
+                canonical_lengths((size_x, size_y, height)))
     return None
 
 
@@ -522,6 +528,6 @@ def _sample_cameras(rng, scene, robot, config) -> tuple[tuple[CameraPose, Camera
     weights = None if config.camera_label_weights is None else dict(config.camera_label_weights)
     pair, score, covered = sample_camera_pair(rng, scene, occluders, config.camera_fov_x, config.camera_aspect,
                                               config.camera_tries, label_weights=weights)
-    left, right = (CameraPose(tuple(float(v) for v in eye), look_at_quat(eye, target), config.camera_fov_x)
+    left, right = (CameraPose(canonical_lengths(eye), canonical_quat(look_at_quat(eye, target)), config.camera_fov_x)
                    for eye, target in pair)
     return (left, right), score, covered

@@ -14,11 +14,12 @@ Quaternions are wxyz.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..scenes.spec import SUPPORT_LABELS, _floats
+from ..utils.canonical import canonical_lengths, canonical_quat
 from ..utils.io import canonical_json, sha256_bytes
 
 #: Bump when the meaning of a field changes; loading another version fails loudly.
@@ -79,6 +80,10 @@ class ObjectPlacement:
             raise ValueError(f"object {self.object_id!r}: unknown support label {self.support_label!r}; valid: {', '.join(SUPPORT_LABELS)}")
         if self.density <= 0:
             raise ValueError(f"object {self.object_id!r}: density must be positive, got {self.density}")
+
+    def canonical(self) -> "ObjectPlacement":
+        """This placement with its pose on the grids of ``utils.canonical``."""
+        return replace(self, position=canonical_lengths(self.position), quat_wxyz=canonical_quat(self.quat_wxyz))
 
     def transform(self) -> np.ndarray:
         """4x4 pose of the object frame in the scene frame."""

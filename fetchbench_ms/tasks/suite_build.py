@@ -51,7 +51,7 @@ from ..utils.io import atomic_write_text, canonical_json
 from .spec import TaskSpec
 from .suite import TaskSuite
 
-BUILD_VERSION = "5"  # 5: CellShelfDesk boxes pulled out of bottom-row cells; 160 arrangements; 4: sampler v3
+BUILD_VERSION = "6"  # 6: catalog v2 + sampler v4 (machine-independent poses); 5: CellShelfDesk boxes pulled out of bottom-row cells; 160 arrangements; 4: sampler v3
 CATEGORY_ORDER = ("on_table", "on_shelf", "in_drawer", "in_basket")
 #: The paper's appendix table (test tasks): scenes, then tasks per category, per scene type.
 #: (The paper's Total row swaps the drawer and basket columns; the rows add up to

@@ -87,4 +87,5 @@ def generate(
         raise AssertionError(f"generator for {scene_type} returned a {spec.scene_type}")
     import dataclasses
 
-    return dataclasses.replace(spec, seed=None if isinstance(seed, np.random.Generator) else int(seed))
+    # On the 1 um grid: the same bytes (and the same physics) on every CPU (SceneSpec.on_grid).
+    return dataclasses.replace(spec.on_grid(), seed=None if isinstance(seed, np.random.Generator) else int(seed))

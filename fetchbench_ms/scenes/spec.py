@@ -23,6 +23,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..utils.canonical import canonical_length
 from ..utils.io import canonical_json, sha256_bytes
 
 SHAPES = ("box", "cylinder", "capsule", "convex_mesh")
@@ -269,6 +270,31 @@ class SceneSpec:
             generator_version=d.get("generator_version", "1"),
         )
 
+    def on_grid(self) -> "SceneSpec":
+        """This scene with every derived number (part sizes and poses, mesh vertices, support
+        polygons and heights, regions) on the grid of ``utils.canonical`` (1 um; radians
+        and unit-free numbers to 1e-6 alike). The parameters stay as drawn (they are exact).
+
+        Generators sum and average arrays, and NumPy's SIMD kernels for those differ between
+        CPUs in the last bit (an EketShelf's board positions on an Intel AVX-512 SPR machine
+        vs an AMD one), which changed the content hash and what the physics is given."""
+        d = self.to_dict()
+        params = d.pop("params")
+        snapped = _snap(d)
+        snapped["params"] = params
+        return SceneSpec.from_dict(snapped)
+
     def content_hash(self) -> str:
         """sha256 of the canonical JSON form: equal hashes mean byte-identical scenes."""
         return sha256_bytes(canonical_json(self.to_dict()).encode())
+
+
+def _snap(value):
+    """Every float inside ``value`` (dicts, lists) rounded to ``canonical_length``."""
+    if isinstance(value, dict):
+        return {k: _snap(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_snap(v) for v in value]
+    if isinstance(value, float):
+        return canonical_length(value)
+    return value

@@ -42,7 +42,7 @@ ROBOT_TABLE_HALF_WIDTH = 0.5
 #: Smallest piece of a split support polygon that is kept (m^2): smaller slivers hold no object.
 MIN_SURFACE_AREA = 0.012
 #: Version of the generators: bump when any type's geometry for a given seed changes.
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"  # 2: every derived number on the 1 um grid (SceneSpec.on_grid)
 
 IDENTITY_QUAT = (1.0, 0.0, 0.0, 0.0)
 

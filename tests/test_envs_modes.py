@@ -55,7 +55,9 @@ def test_every_obs_mode_with_every_control_mode(obs_mode, control_mode):
         obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
         assert _in_space(env.observation_space, obs), f"step obs of {obs_mode} outside the observation space"
         assert torch.isfinite(reward).all()
-        if obs_mode not in ("state", "none"):
+        if obs_mode.startswith("state+"):  # ManiSkill flattens agent and extra into one vector
+            assert obs["state"].ndim == 2 and "extra" not in obs
+        elif obs_mode not in ("state", "none"):
             assert obs["extra"]["tcp_pose"].shape == (1, 7)
         if obs_mode not in NO_RENDER_OBS_MODES:  # camera modes carry the cameras' data
             cameras = obs["pointcloud"] if obs_mode == "pointcloud" else obs["sensor_data"]

@@ -1,6 +1,7 @@
 """FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm."""
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from typing import Any, Optional
@@ -293,7 +294,8 @@ class FetchBenchEnv(BaseEnv):
         return seeds
 
     def _sample_task(self, seed: int) -> TaskSpec:
-        return _sample_task_cached(seed, self.scene_type, self.category, self.sampler_config)
+        # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
+        return copy.deepcopy(_sample_task_cached(seed, self.scene_type, self.category, self.sampler_config))
 
     def _tasks_from_options(self, options: dict) -> Optional[list[TaskSpec]]:
         given = [k for k in ("task", "tasks", "task_id") if k in options]
@@ -509,7 +511,7 @@ def _sample_task_cached(seed: int, scene_type: Optional[str], category: Optional
     """``sample_task``, remembered: a seeded reset samples the task only to compare it with
     the loaded one, ``gym.make`` samples ManiSkill's start seed (2022) every time, and
     sampling (scene, placement, camera ray casts, settling) takes 0.1-4 s. The same
-    arguments give the same task and a TaskSpec is immutable, so the copy is shared."""
+    arguments give the same task."""
     return sample_task(seed, scene_type=scene_type, category=category, config=config)
 
 

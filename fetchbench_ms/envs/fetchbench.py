@@ -137,11 +137,12 @@ class FetchBenchEnv(BaseEnv):
     (``fetchbench_ms.envs.settle_and_hold``).
 
     **Observations:** every ManiSkill obs mode (camera modes need a renderer: with
-    ``render_backend="none"`` only state, state_dict and none; others raise ValueError). ``extra`` holds the TCP pose, the robot base
-    pose and whether the target is grasped; in state modes also the target pose, its centre
-    of mass in the base frame and every object's pose. In ``pointcloud`` mode the cloud also
-    carries ``xyz_base`` and ``fetch_label`` (robot / target / object / furniture, cropped to
-    0.15-2.5 m depth), see ``fetchbench_ms.envs.pointcloud``.
+    ``render_backend="none"`` only state, state_dict and none; others raise ValueError).
+    ``extra`` holds the TCP pose, the robot base pose and whether the target is grasped; in
+    state modes also the target pose, its centre of mass in the base frame and every
+    object's pose. In ``pointcloud`` mode the cloud also carries ``xyz_base`` and
+    ``fetch_label`` (robot / target / object / furniture, cropped to 0.15-2.5 m depth), see
+    ``fetchbench_ms.envs.pointcloud``.
 
     **Rates:** physics 120 Hz, control 20 Hz (see ``fetchbench_ms.envs.bodies``).
     """

@@ -9,17 +9,75 @@ FetchBench trajectory it fails with ``NameNotFound``; this module imports the pl
 first (registering FetchBench-*-v0) and then runs the same tool. Worker processes
 (``--num-envs N`` on CPU) are spawned and re-import this module, so they register the
 envs too.
+
+A demo recorded without a renderer (``render_backend="none"`` in its env kwargs, e.g.
+state-only data collection) is replayed with ManiSkill's default renderer when the replay
+needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so.
 """
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
+import os
 
 import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
+from fetchbench_ms.envs.fetchbench import check_obs_mode, obs_mode_needs_renderer
 from mani_skill.trajectory import replay_trajectory as _maniskill_replay
 
 
+def _needs_renderer(args, env_kwargs: dict) -> bool:
+    obs_mode = args.obs_mode if args.obs_mode is not None else env_kwargs.get("obs_mode")
+    return obs_mode_needs_renderer(obs_mode) or bool(args.save_video) or bool(args.vis)
+
+
+def _replay_env_kwargs(args, env_kwargs: dict) -> dict | None:
+    """The recorded env kwargs to replay with, or None to keep them as recorded."""
+    if env_kwargs.get("render_backend", "gpu") not in (None, "none") or not _needs_renderer(args, env_kwargs):
+        return None
+    kwargs = {k: v for k, v in env_kwargs.items() if k != "render_backend"}  # ManiSkill's default renderer
+    what = f"obs mode {args.obs_mode or env_kwargs.get('obs_mode')!r}"
+    what += " and videos" if args.save_video or args.vis else ""
+    print(f"note: the demo was recorded with render_backend={env_kwargs['render_backend']!r}; "
+          f"replaying with ManiSkill's default renderer, which {what} need(s)")
+    return kwargs
+
+
+class _JsonOverride:
+    """Stands in for ``mani_skill.utils.io_utils`` inside the replay module while it reads
+    the demo's JSON, giving it other env kwargs. ManiSkill's ``main`` reads the env kwargs
+    from that file itself and offers no flag for the render backend; rewriting the
+    user's file (or a copy next to it, whose name would change the output names) is worse."""
+
+    def __init__(self, io_utils, json_path: str, env_kwargs: dict):
+        self._io_utils, self._json_path, self._env_kwargs = io_utils, os.path.abspath(json_path), env_kwargs
+
+    def load_json(self, path, *args, **kwargs):
+        data = self._io_utils.load_json(path, *args, **kwargs)
+        if os.path.abspath(str(path)) == self._json_path:
+            data = {**data, "env_info": {**data["env_info"], "env_kwargs": dict(self._env_kwargs)}}
+        return data
+
+    def __getattr__(self, name):
+        return getattr(self._io_utils, name)
+
+
 def main(argv: list[str] | None = None) -> None:
-    _maniskill_replay.main(_maniskill_replay.parse_args(argv))
+    args = _maniskill_replay.parse_args(argv)
+    check_obs_mode(args.obs_mode)  # a typo: the valid choices, before anything is built
+    json_path = args.traj_path.replace(".h5", ".json")  # as ManiSkill's tool finds it
+    with open(json_path) as f:
+        env_kwargs = json.load(f)["env_info"]["env_kwargs"]
+    override = _replay_env_kwargs(args, env_kwargs)
+    if override is None:
+        _maniskill_replay.main(args)
+        return
+    io_utils = _maniskill_replay.io_utils
+    _maniskill_replay.io_utils = _JsonOverride(io_utils, json_path, override)
+    try:
+        # Only ``main`` reads the env kwargs (and passes them to its workers as arguments).
+        _maniskill_replay.main(args)
+    finally:
+        _maniskill_replay.io_utils = io_utils
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ import torch
 
 import fetchbench_ms  # noqa: F401
 from fetchbench_ms import replay_trajectory
+from fetchbench_ms.envs.fetchbench import MANISKILL_OBS_MODES, NO_RENDER_OBS_MODES
 from mani_skill.utils.wrappers import RecordEpisode
 
 STEPS = 12
@@ -76,3 +77,47 @@ def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
     with h5py.File(out, "r") as f:
         actions = f["traj_0/actions"][:]
     assert actions.shape[1] == 8 and np.abs(actions).max() <= 1.0 + 1e-6  # normalised delta actions
+
+
+@pytest.fixture(scope="module")
+def demo_without_renderer(tmp_path_factory):
+    """A short demo recorded as state-only data collection does it: render_backend="none"."""
+    out = tmp_path_factory.mktemp("demo_norender")
+    env = gym.make("FetchBench-Desk-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=2,
+                   render_backend="none")
+    env = RecordEpisode(env, output_dir=str(out), trajectory_name="demo", save_video=False, source_type="scripted")
+    env.reset(seed=3)
+    q = env.unwrapped.agent.robot.get_qpos()[0, :8].clone()
+    for t in range(3):
+        q[0] += 0.05
+        env.step(q[None])
+    env.close()
+    assert json.loads((out / "demo.json").read_text())["env_info"]["env_kwargs"]["render_backend"] == "none"
+    return out / "demo.h5"
+
+
+@pytest.mark.parametrize("obs_mode", MANISKILL_OBS_MODES)
+def test_replay_of_a_demo_without_renderer_works_in_every_obs_mode(demo_without_renderer, obs_mode, capsys):
+    """Camera obs modes switch the replay to ManiSkill's default renderer (with a note);
+    the others replay as recorded."""
+    demo = demo_without_renderer
+    replay_trajectory.main(["--traj-path", str(demo), "-o", obs_mode, "--save-traj", "--allow-failure"])
+    noted = "replaying with ManiSkill's default renderer" in capsys.readouterr().out
+    assert noted == (obs_mode not in NO_RENDER_OBS_MODES)
+    out = demo.parent / f"demo.{obs_mode}.pd_joint_pos.physx_cpu.h5"
+    actors, robot, _ = _states(demo)
+    r_actors, r_robot, _ = _states(out)
+    np.testing.assert_allclose(r_robot, robot, atol=1e-5)  # the same episode
+    with h5py.File(out, "r") as f:
+        obs = f["traj_0/obs"]
+        if obs_mode == "pointcloud":
+            assert obs["pointcloud/xyz_base"].shape[0] == 4
+        elif obs_mode not in NO_RENDER_OBS_MODES:
+            assert set(obs["sensor_data"]) == {"left_camera", "right_camera"}
+    meta = json.loads((demo.parent / f"demo.{obs_mode}.pd_joint_pos.physx_cpu.json").read_text())
+    assert meta["env_info"]["env_kwargs"].get("render_backend", "gpu") != "none" or obs_mode in NO_RENDER_OBS_MODES
+
+
+def test_replay_names_valid_obs_modes_for_a_typo(demo_without_renderer):
+    with pytest.raises(ValueError, match="unknown obs_mode 'pointclod'; valid: state, state_dict, none"):
+        replay_trajectory.main(["--traj-path", str(demo_without_renderer), "-o", "pointclod"])

@@ -149,6 +149,7 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     in-process, as a worker runs it)."""
     from fetchbench_ms.evaluation.methods import TaskRunner
     from fetchbench_ms.evaluation.runner import seed_items
+    from fetchbench_ms.tasks.objects import object_ids
 
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", "{}")
     items = seed_items("FetchBench-Shelf-v0", 2, 7)
@@ -156,7 +157,11 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     runner = TaskRunner("evaluation_faults:numpy_record")
     try:
         record = runner(items[1])
-        assert runner.envs[("FetchBench-Shelf-v0", "none")].unwrapped.tasks[0].seed == 8
+        task = runner.envs[("FetchBench-Shelf-v0", "none")].unwrapped.tasks[0]
+        assert task.seed == 8
+        # Sampled tasks are an evaluation: test objects, although the env's default is train.
+        test_objects = set(object_ids("test"))
+        assert task.objects and all(o.object_id in test_objects for o in task.objects)
         odd = runner(seed_items("FetchBench-Shelf-v0", 1, 7)[0])
     finally:
         runner.close()

@@ -1,14 +1,19 @@
 """FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm."""
 from __future__ import annotations
 
+import copy
+import functools
 import math
 from typing import Any, Optional
 
+import gymnasium as gym
 import numpy as np
 import sapien
 import torch
 from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.envs.utils.observations import ALL_VISUAL_TEXTURES
+from mani_skill.envs.utils.system.backend import sim_backend_name_mapping
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import common, sapien_utils
 from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
@@ -37,11 +42,68 @@ HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
 # this, the fingers cannot touch it.
 FINGER_REACH = 0.08  # m
 DENSE_REWARD_MAX = 6.0
+#: Where seed-sampled tasks take their objects from. "train" by default, so an env made
+#: for learning never shows a policy a test object; evaluation asks for "test" explicitly
+#: (the eval runner does) or loads suite tasks, which carry their own objects.
+OBJECT_SPLITS = ("train", "test")
+DEFAULT_OBJECT_SPLIT = "train"
+#: Observation modes that need no renderer (no camera data); every other mode renders.
+NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
+#: ManiSkill's named obs modes; any "+"-joined combination of camera textures
+#: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
+NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud")
+#: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
+MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
+                       "rgb+depth", "rgb+depth+segmentation", "rgb+segmentation", "depth+segmentation",
+                       "pointcloud")
 
 
 def control_modes() -> tuple[str, ...]:
     """The Panda's control modes (its controller configs are class-level, no robot needed)."""
     return tuple(Panda._controller_configs.fget(Panda))
+
+
+def obs_mode_needs_renderer(obs_mode: Optional[str]) -> bool:
+    """Whether ``obs_mode`` reads the cameras (None: ManiSkill's default, "state")."""
+    return obs_mode is not None and obs_mode not in NO_RENDER_OBS_MODES
+
+
+def check_obs_mode(obs_mode: Optional[str], render_backend: Optional[str] = "gpu") -> None:
+    """ValueError naming the valid choices for an obs mode ManiSkill would reject (it
+    asserts deep in its parser) or one that cannot work with ``render_backend``: without
+    a renderer the cameras are never built and the first observation fails on a missing
+    camera (a KeyError), so it is refused here, before anything is built."""
+    valid = (f"{', '.join(NAMED_OBS_MODES)}, or camera textures joined by '+' "
+             f"({', '.join(ALL_VISUAL_TEXTURES)}; e.g. rgb+depth, optionally with +state or +state_dict)")
+    if obs_mode is not None and obs_mode not in NAMED_OBS_MODES:
+        parts = obs_mode.split("+")
+        textures = [p for p in parts if p in ALL_VISUAL_TEXTURES]
+        unknown = [p for p in parts if p not in ALL_VISUAL_TEXTURES and p not in ("state", "state_dict")]
+        if unknown or not textures or len(set(parts)) != len(parts):
+            raise ValueError(f"unknown obs_mode {obs_mode!r}; valid: {valid}")
+    if render_backend in (None, "none") and obs_mode_needs_renderer(obs_mode):
+        raise ValueError(f"obs_mode {obs_mode!r} reads the cameras, which need a renderer, but render_backend="
+                         f"{render_backend!r}; without a renderer valid obs modes: {', '.join(NO_RENDER_OBS_MODES)} "
+                         "(or leave render_backend at its default)")
+
+
+def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
+    """ValueErrors naming the valid choices for ManiSkill's own kwargs, raised before any
+    scene is built (ManiSkill raises NotImplementedError, KeyError or an assertion)."""
+    control_mode = kwargs.get("control_mode")
+    if control_mode is not None and control_mode not in control_modes():
+        raise ValueError(f"unknown control mode {control_mode!r}; valid: {', '.join(control_modes())}")
+    reward_mode = kwargs.get("reward_mode")
+    if reward_mode is not None and reward_mode not in cls.SUPPORTED_REWARD_MODES:
+        raise ValueError(f"unknown reward_mode {reward_mode!r}; valid: {', '.join(cls.SUPPORTED_REWARD_MODES)}")
+    render_mode = kwargs.get("render_mode")
+    if render_mode is not None and render_mode not in cls.SUPPORTED_RENDER_MODES:
+        raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, {', '.join(cls.SUPPORTED_RENDER_MODES)}")
+    sim_backend = kwargs.get("sim_backend", "auto")
+    if sim_backend != "auto" and str(sim_backend).split(":")[0] not in sim_backend_name_mapping:
+        valid = ", ".join(["auto", *sim_backend_name_mapping])
+        raise ValueError(f"unknown sim_backend {sim_backend!r}; valid: {valid} (a GPU may be named, e.g. cuda:1)")
+    check_obs_mode(kwargs.get("obs_mode"), kwargs.get("render_backend", "gpu"))
 
 
 class FetchBenchEnv(BaseEnv):
@@ -55,14 +117,17 @@ class FetchBenchEnv(BaseEnv):
     **Randomizations:**
     - each episode is a task (``fetchbench_ms.tasks.TaskSpec``) sampled from the episode seed:
       scene type (fixed by the env id or drawn with the paper's scene mix), furniture
-      parameters, the objects (catalog test split), their support label (weights basket .5,
+      parameters, the objects (catalog **train** split by default; ``object_split="test"``
+      for evaluation on sampled tasks), their support label (weights basket .5,
       shelf .3, drawer .3, table .2), position on the eroded support polygon, stable pose and
       yaw; the target among the placed objects (on the env's category if it has one)
     - per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution U(0, 0.1)
     - robot base position in the scene type's robot region; robot table size x U(0.4, 0.7) m,
       y U(0.6, 1.0) m; two cameras left and right (mirrored), aimed at the supports
-    - ``reset(options={"task": task_dict})`` replays a given task instead; a changed task
-      rebuilds the scene (reconfigure)
+    - ``reset(options={"task": task_dict})`` replays a given task instead (a task of a suite,
+      e.g. ``task_suite="test"`` with ``options={"task_id": ...}``, keeps the suite's
+      objects, test objects for the test suite); a changed task rebuilds the scene
+      (reconfigure)
 
     **Success Conditions:**
     - the target's centre of mass in the robot-base frame has z > 0.30 m and x < 0.0 m
@@ -71,16 +136,20 @@ class FetchBenchEnv(BaseEnv):
     FetchBench judges after a 10 s settle-and-hold with the gripper closed
     (``fetchbench_ms.envs.settle_and_hold``).
 
-    **Observations:** every ManiSkill obs mode. ``extra`` holds the TCP pose, the robot base
-    pose and whether the target is grasped; in state modes also the target pose, its centre
-    of mass in the base frame and every object's pose. In ``pointcloud`` mode the cloud also
-    carries ``xyz_base`` and ``fetch_label`` (robot / target / object / furniture, cropped to
-    0.15-2.5 m depth), see ``fetchbench_ms.envs.pointcloud``.
+    **Observations:** every ManiSkill obs mode (camera modes need a renderer: with
+    ``render_backend="none"`` only state, state_dict and none; others raise ValueError).
+    ``extra`` holds the TCP pose, the robot base pose and whether the target is grasped; in
+    state modes also the target pose, its centre of mass in the base frame and every
+    object's pose. In ``pointcloud`` mode the cloud also carries ``xyz_base`` and
+    ``fetch_label`` (robot / target / object / furniture, cropped to 0.15-2.5 m depth), see
+    ``fetchbench_ms.envs.pointcloud``.
 
     **Rates:** physics 120 Hz, control 20 Hz (see ``fetchbench_ms.envs.bodies``).
     """
 
     SUPPORTED_ROBOTS = ["panda"]
+    # gymnasium's render check wants a frame rate; videos play at the control rate.
+    metadata = {**BaseEnv.metadata, "render_fps": default_sim_config().control_freq}
     SUPPORTED_REWARD_MODES = ("normalized_dense", "dense", "sparse", "none")
     agent: Panda
 
@@ -94,7 +163,7 @@ class FetchBenchEnv(BaseEnv):
         camera_height: int = 240,
         success_criteria: str = "paper",
         num_objects: int = 15,
-        object_split: str = "test",
+        object_split: str = DEFAULT_OBJECT_SPLIT,
         task_suite: Optional[str] = None,
         robot_init_qpos_noise: float = 0.0,
         num_envs: int = 1,
@@ -112,9 +181,9 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"camera resolution {camera_width}x{camera_height} is not supported; valid: {valid}")
         if robot_uids != "panda":
             raise ValueError(f"robot {robot_uids!r} is not supported; valid: panda")
-        control_mode = kwargs.get("control_mode")
-        if control_mode is not None and control_mode not in control_modes():
-            raise ValueError(f"unknown control mode {control_mode!r}; valid: {', '.join(control_modes())}")
+        if object_split not in OBJECT_SPLITS:
+            raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
+        _check_maniskill_kwargs(type(self), kwargs)
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
@@ -178,6 +247,8 @@ class FetchBenchEnv(BaseEnv):
         task of the env's ``task_suite``). A task other than the loaded one reconfigures.
         On GPU (num_envs > 1) a seed samples new tasks only when reconfiguring
         (``reconfigure=True`` or ``reconfiguration_freq``); otherwise the loaded tasks restart."""
+        if seed is not None:
+            self._seed_np_random(seed)
         options = dict(options) if options else {}
         partial = "env_idx" in options and len(options["env_idx"]) != self.num_envs
         tasks = self._tasks_from_options(options)
@@ -200,6 +271,20 @@ class FetchBenchEnv(BaseEnv):
             self._pending_tasks = tasks
         return super().reset(seed=seed, options=options)
 
+    def _seed_np_random(self, seed) -> None:
+        """Seed gymnasium's ``np_random`` from the reset seed, as ``gymnasium.Env.reset`` does.
+
+        ManiSkill seeds its own main / episode RNGs and never calls ``gymnasium.Env.reset``,
+        so ``env.np_random`` would otherwise be seeded from OS entropy on first use: code
+        (wrappers, methods) drawing from it would not repeat, and gymnasium's checker
+        rejects the env. The env itself draws nothing from it."""
+        seeds = [int(s) for s in np.atleast_1d(np.asarray(seed, dtype=np.int64))]
+        if len(seeds) == 1:
+            gym.Env.reset(self, seed=seeds[0])
+        else:  # one seed per sub-scene: one generator from all of them
+            self._np_random = np.random.Generator(np.random.PCG64(np.random.SeedSequence(seeds)))
+            self._np_random_seed = seeds[0]
+
     def _episode_seeds(self, seed) -> list[int]:
         """The per-sub-scene episode seeds ManiSkill derives from ``seed``."""
         seeds = [int(s) for s in np.atleast_1d(np.asarray(seed, dtype=np.int64))]
@@ -210,7 +295,8 @@ class FetchBenchEnv(BaseEnv):
         return seeds
 
     def _sample_task(self, seed: int) -> TaskSpec:
-        return sample_task(seed, scene_type=self.scene_type, category=self.category, config=self.sampler_config)
+        # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
+        return copy.deepcopy(_sample_task_cached(seed, self.scene_type, self.category, self.sampler_config))
 
     def _tasks_from_options(self, options: dict) -> Optional[list[TaskSpec]]:
         given = [k for k in ("task", "tasks", "task_id") if k in options]
@@ -418,6 +504,16 @@ class FetchBenchEnv(BaseEnv):
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         return self.compute_dense_reward(obs=obs, action=action, info=info) / DENSE_REWARD_MAX
+
+
+@functools.lru_cache(maxsize=64)
+def _sample_task_cached(seed: int, scene_type: Optional[str], category: Optional[str],
+                        config: SamplerConfig) -> TaskSpec:
+    """``sample_task``, remembered: a seeded reset samples the task only to compare it with
+    the loaded one, ``gym.make`` samples ManiSkill's start seed (2022) every time, and
+    sampling (scene, placement, camera ray casts, settling) takes 0.1-4 s. The same
+    arguments give the same task."""
+    return sample_task(seed, scene_type=scene_type, category=category, config=config)
 
 
 def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:

@@ -42,7 +42,9 @@ def add_commands(subparsers) -> None:
                    help="ga-mesh-rrt, ga-ptd-rrt, idle, or an importable module:function")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
-    p.add_argument("--env", default=None, help="instead of a suite: sample tasks from this env id's seeds")
+    p.add_argument("--env", default=None,
+                   help="instead of a suite: sample tasks from this env id's seeds, with test-split objects "
+                        "(an evaluation; the env's own default for seeds is the train split)")
     p.add_argument("--episodes", type=int, default=10, help="with --env: number of seeds")
     p.add_argument("--seed", type=int, default=0, help="with --env: first seed")
     p.add_argument("--workers", type=int, default=1, help="worker processes (one core each)")

@@ -21,6 +21,10 @@ from pathlib import Path
 from typing import Callable, Optional
 
 IDLE = "idle"
+#: Objects of the tasks an env id samples from seeds (``--env ID --episodes N``): those
+#: runs are evaluations, so test objects, as the suites use. The envs' own default is the
+#: train split (safe for learning); suite tasks carry their objects and ignore this.
+SAMPLED_TASK_SPLIT = "test"
 ERROR_FAILURE = "error"  # the failure class of a task that crashed or timed out
 
 
@@ -131,7 +135,8 @@ class TaskRunner:
         key = (env_id, self.method.obs_mode)
         if key not in self.envs:
             extra = {"render_mode": "rgb_array"} if self.video_dir else {}
-            self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos", **extra)
+            self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos",
+                                  object_split=SAMPLED_TASK_SPLIT, **extra)
         return self.envs[key]
 
     def close(self) -> None:

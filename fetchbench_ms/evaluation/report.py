@@ -204,13 +204,15 @@ def render_starts(run: Run, records: list[dict]) -> dict[str, bytes]:
     from PIL import Image
 
     from ..envs import make
+    from .methods import SAMPLED_TASK_SPLIT
 
     envs, images = {}, {}
     try:
         for r in records:
             env_id, reset = _task_for(run, r)
             if env_id not in envs:
-                envs[env_id] = make(env_id, obs_mode="rgb")
+                # Seed records rebuild their task only with the split the run sampled from.
+                envs[env_id] = make(env_id, obs_mode="rgb", object_split=SAMPLED_TASK_SPLIT)
             obs, _ = envs[env_id].reset(**reset)
             views = [obs["sensor_data"][f"{side}_camera"]["rgb"][0].cpu().numpy() for side in ("left", "right")]
             buffer = io.BytesIO()

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Optional
 
 from ..utils.io import sha256_bytes
-from .methods import RunnerSpec, WorkItem, resolve_method, task_seed
+from .methods import SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, resolve_method, task_seed
 from .store import VIDEO_DIR, ResultsStore
 
 BACKENDS = ("local", "ray")
@@ -72,7 +72,9 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     else:
         env_id = env_id or "FetchBench-v0"
         items = seed_items(env_id, episodes, seed)
-        source, source_sha, selection = f"env:{env_id}", None, {"env_id": env_id, "episodes": episodes, "seed": seed}
+        # (the split is recorded for the reader; resuming compares method and source only)
+        source, source_sha = f"env:{env_id}", None
+        selection = {"env_id": env_id, "episodes": episodes, "seed": seed, "object_split": SAMPLED_TASK_SPLIT}
     store = ResultsStore(Path(out_dir))
     store.open_run({"method": method, "source": source, "source_sha256": source_sha,
                     "method_options": {"retries": retries}, "selection": selection})

@@ -1,7 +1,9 @@
 # The README's two commands are `make demo` and `make test`; both set up what they need
 # first (scripts/setup.sh: venv, editable install, software Vulkan if needed; idempotent).
-# FETCHBENCH_VENV picks another virtual environment (default .venv).
-.PHONY: setup demo test test-slow bench gallery lock
+# FETCHBENCH_VENV picks another virtual environment (default .venv). setup installs the
+# exact versions in requirements.lock; `make lock` regenerates that file (after changing
+# dependencies in pyproject.toml); `make bundle` makes the GPU machine's offline wheels.
+.PHONY: setup demo test test-slow bench gallery lock bundle
 
 VENV ?= $(or $(FETCHBENCH_VENV),.venv)
 PY := $(VENV)/bin/python
@@ -27,6 +29,10 @@ bench: setup
 gallery: setup
 	@$(PY) scripts/make_gallery.py
 
-# Regenerate requirements.lock from pyproject.toml's ranges (after changing dependencies).
+# Not a dependency of setup: the lock changes only when someone means it to.
 lock:
 	@bash scripts/lock.sh
+
+# The GPU machine's offline install bundle in .whl/ (docs/gpu-machine.md); pip download only.
+bundle:
+	@python3 scripts/offline_bundle.py

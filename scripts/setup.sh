@@ -4,14 +4,14 @@
 # when SAPIEN finds no Vulkan device. Every step first checks whether it is already done,
 # says what it does, and is skipped when there is nothing to do.
 #
-# Environment: FETCHBENCH_VENV (default .venv), PYTHON (default python3, >= 3.10),
-# FETCHBENCH_TORCH_INDEX (where torch's CPU build comes from when it is reachable;
-# default https://download.pytorch.org/whl/cpu; set it empty to use the package index only).
+# Environment: FETCHBENCH_VENV (default .venv), PYTHON (default python3, >= 3.10; the lock is
+# tested on the version its header names), FETCHBENCH_TORCH_INDEX (where torch's CPU build
+# comes from when it is reachable; default https://download.pytorch.org/whl/cpu; set it
+# empty to use the package index only), FETCHBENCH_UNLOCKED=1 (see step 2).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${FETCHBENCH_VENV:-.venv}
 PY=${PYTHON:-python3}
-TORCH_INDEX=${FETCHBENCH_TORCH_INDEX-https://download.pytorch.org/whl/cpu}
 say() { echo "[setup] $*"; }
 SUDO=""; [ "$(id -u)" != "0" ] && SUDO=sudo
 apt_install() {
@@ -37,30 +37,52 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PY" -m venv "$VENV"
 fi
 
-# 2. Packages: exactly the versions of requirements.lock (every transitive dependency, as
-#    tested; `make lock` regenerates it from pyproject.toml's ranges), then this package
-#    editable without dependencies. torch first, and its CPU build where the PyTorch CPU
-#    index is reachable, so that nothing pulls the CUDA wheels (several GB); the lock's
-#    torch==2.13.0 then matches it. Re-installed only when pyproject.toml or the lock
-#    changes (code changes need no re-install).
+# 2. Packages, exactly the tested versions: torch's CPU build first (scripts/torch_cpu.sh: so
+#    that nothing pulls the CUDA wheels, several GB), then every dependency at its version in
+#    requirements.lock (`make lock` regenerates it), then this package in editable mode with
+#    --no-deps (its dependencies are all in the lock). Redone only when requirements.lock or
+#    pyproject.toml changes (editable: code changes need no re-install).
+#    FETCHBENCH_UNLOCKED=1 installs the newest versions pyproject.toml allows instead
+#    (untested; for a Python version the lock cannot be installed on).
+LOCK=requirements.lock
 stamp="$VENV/.fetchbench-installed"
-want=$(cat pyproject.toml requirements.lock | sha256sum | cut -d' ' -f1)
+want=$(cat pyproject.toml "$LOCK" | sha256sum | cut -d' ' -f1)
+[ "${FETCHBENCH_UNLOCKED:-}" = 1 ] && want="unlocked-$want"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-  if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
-    extra=()
-    if [ -n "$TORCH_INDEX" ] && "$VENV/bin/python" -c "import sys, urllib.request; urllib.request.urlopen(sys.argv[1] + '/torch/', timeout=5)" "$TORCH_INDEX" 2>/dev/null; then
-      extra=(--extra-index-url "$TORCH_INDEX")
-    fi
-    say "installing torch==2.13.0 (CPU build)${extra:+ from $TORCH_INDEX}"
-    "$VENV/bin/pip" install -q "torch==2.13.0" "${extra[@]}"
+  torch_pin=$(sed -n 's/^torch==//p' "$LOCK")
+  have_torch=$("$VENV/bin/python" -c "import importlib.metadata as m; print(m.version('torch').split('+')[0])" 2>/dev/null || true)
+  if [ "$have_torch" != "$torch_pin" ]; then
+    . scripts/torch_cpu.sh
+    install_torch_cpu "$VENV" "$torch_pin"
   fi
-  say "installing the locked dependencies (requirements.lock, $(grep -vc '^#' requirements.lock) packages)"
-  "$VENV/bin/pip" install -q -r requirements.lock
-  say "installing fetchbench_ms (editable, dependencies from the lock)"
-  "$VENV/bin/pip" install -q --no-deps -e .
+  if [ "${FETCHBENCH_UNLOCKED:-}" = 1 ]; then
+    say "FETCHBENCH_UNLOCKED=1: installing fetchbench_ms (editable) with the newest dependencies pyproject.toml allows (not the tested versions)"
+    "$VENV/bin/pip" install -q -e ".[dev]"
+  else
+    lock_py=$(sed -n 's/^# Made on .* with Python \([0-9]*\.[0-9]*\).*/\1/p' "$LOCK")
+    venv_py=$("$VENV/bin/python" -c 'import sys; print("%d.%d" % sys.version_info[:2])')
+    if [ -n "$lock_py" ] && [ "$lock_py" != "$venv_py" ]; then
+      say "note: $LOCK was made on Python $lock_py, $VENV has Python $venv_py; installing it anyway"
+    fi
+    say "installing the locked dependencies ($LOCK: $(grep -c '^[^#]' "$LOCK") packages)"
+    if ! "$VENV/bin/pip" install -q -r "$LOCK"; then
+      say "pip could not install $LOCK on Python $venv_py. Choices: PYTHON=python$lock_py (the tested version," \
+          "with a new FETCHBENCH_VENV), FETCHBENCH_UNLOCKED=1 (newest versions allowed by pyproject.toml," \
+          "untested), or \`make lock\` to lock for this Python"
+      exit 1
+    fi
+    say "installing fetchbench_ms (editable, --no-deps: its dependencies come from the lock)"
+    "$VENV/bin/pip" install -q --no-deps -e .
+    # --no-deps would hide a dependency added to pyproject.toml but not yet to the lock
+    if ! "$VENV/bin/pip" check >/dev/null; then
+      "$VENV/bin/pip" check || true
+      say "the installed packages do not satisfy pyproject.toml: run \`make lock\` after changing its dependencies"
+      exit 1
+    fi
+  fi
   echo "$want" > "$stamp"
 else
-  say "virtual environment $VENV is up to date (requirements.lock)"
+  say "virtual environment $VENV is up to date ($LOCK unchanged)"
 fi
 
 # 3. Software Vulkan renderer. SAPIEN renders on CPU only with lavapipe >= 24.3; Debian 12's

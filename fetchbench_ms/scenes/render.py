@@ -127,6 +127,9 @@ def render_scene(spec: SceneSpec, width: int = 640, height: int = 480, highlight
     build_static_scene(scene, spec)
     if highlight:
         _add_overlays(scene, spec)
+    # The camera shader is a process-wide SAPIEN setting that ManiSkill switches (to
+    # "minimal" for its sensors) when it builds an env: ask for the full one here.
+    sapien.render.set_camera_shader_dir("default")
     camera = scene.add_camera("view", width, height, VERTICAL_FOV, 0.02, 20.0)
     camera.entity.set_pose(camera_pose(spec, width, height))
     scene.update_render()

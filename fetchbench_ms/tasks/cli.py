@@ -28,7 +28,8 @@ def add_commands(subparsers) -> None:
     s.add_argument("--scene-type", default=None, help="one of the 13 scene types (default: the paper's mix)")
     s.add_argument("--category", default=None, help="target support: Table, Shelf, Drawer or Basket")
     s.add_argument("--objects", type=int, default=15, help="objects to place (default 15)")
-    s.add_argument("--split", default="test", help="object split: train or test")
+    s.add_argument("--split", default="train", choices=("train", "test"),
+                   help="object split (default train, as the envs' seeded resets)")
     s.add_argument("-o", "--out", default=None, help="write the task JSON here instead of printing it")
     s.set_defaults(func=_sample)
 

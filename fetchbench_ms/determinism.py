@@ -56,7 +56,9 @@ def rebuild_objects(ids: list[str]) -> tuple[dict, list[str]]:
     return entries, mismatches
 
 
-def rebuild_scenes(seeds_per_type: int) -> tuple[dict, list[str]]:
+def rebuild_scenes(seeds_per_type: int, suites=("test", "val")) -> tuple[dict, list[str]]:
+    """Content hashes of ``seeds_per_type`` scenes of every type and of every scene of the
+    shipped ``suites`` (those compared with the hash their tasks store)."""
     from .scenes import SCENE_TYPES, generate
     from .tasks.suite import load_suite
 
@@ -64,7 +66,7 @@ def rebuild_scenes(seeds_per_type: int) -> tuple[dict, list[str]]:
     for scene_type in SCENE_TYPES:
         for seed in range(seeds_per_type):
             hashes[f"{scene_type}/{seed}"] = generate(scene_type, seed).content_hash()
-    for name in ("test", "val"):
+    for name in suites:
         for task in load_suite(name).tasks.values():
             key = f"{task.scene_type}/{task.scene_seed}"
             if key not in hashes:

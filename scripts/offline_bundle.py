@@ -155,6 +155,70 @@ def pure_wheel_from_sdist(name: str, version: str, cache: Path) -> str | None:
     return None
 
 
+# --slim: what the GPU machine's FetchBench runs never read. ManiSkill's wheel is 97 MiB,
+# mostly other robots' meshes and HDR environment maps; FetchBench uses the Panda alone and
+# its own lighting. Dropping them saves about two transfers (each costs a call's upload).
+SLIM_DROP = {
+    "mani_skill": ("mani_skill/assets/environment_maps/", "mani_skill/assets/maniskill2-scene-2.glb",
+                   *(f"mani_skill/assets/robots/{r}/" for r in (
+                       "allegro", "anymal_c", "dclaw", "fetch", "floating_robotiq_2f_85_gripper", "g1_humanoid",
+                       "googlerobot", "so100", "stompy", "trifinger", "unitree_g1", "unitree_go2", "unitree_h1",
+                       "ur10e", "widowx", "xarm6", "xmate3"))),
+}
+# pybullet has no cp312 wheel anywhere we can reach (and its sdist is the Bullet engine), but
+# FetchBench reads only its data folder (the blob meshes, objects/blobs.py): --slim packs
+# that folder, from this machine's install, into a data-only wheel of the same package name.
+PYBULLET_DATA_WHEEL = "fetchbench_pybullet_data-{version}-py3-none-any.whl"
+
+
+def slim_wheel(wheel: Path, drop: tuple[str, ...], out_dir: Path) -> Path:
+    """A copy of ``wheel`` without the members under ``drop`` (RECORD rewritten to match)."""
+    import zipfile
+
+    out = out_dir / wheel.name
+    if out.exists() and out.stat().st_mtime >= wheel.stat().st_mtime:
+        return out
+    tmp = out.with_suffix(".tmp")
+    with zipfile.ZipFile(wheel) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
+        for info in src.infolist():
+            if info.filename.startswith(drop):
+                continue
+            data = src.read(info.filename)
+            if info.filename.endswith(".dist-info/RECORD"):
+                data = "".join(line for line in data.decode().splitlines(keepends=True)
+                               if not line.startswith(drop)).encode()
+            dst.writestr(info, data)
+    tmp.replace(out)
+    return out
+
+
+def pybullet_data_wheel(version: str, out_dir: Path) -> Path | None:
+    """A pure wheel of ``pybullet_data/random_urdfs`` (plus its __init__) from the project's
+    virtual environment (scripts/setup.sh installs pybullet there), or None without it."""
+    import zipfile
+
+    venv = Path(os.environ.get("FETCHBENCH_VENV", ROOT / ".venv"))
+    roots = [p for p in venv.glob("lib/python3*/site-packages/pybullet_data") if (p / "random_urdfs").is_dir()]
+    if not roots:
+        return None
+    root = roots[0]
+    out = out_dir / PYBULLET_DATA_WHEEL.format(version=version)
+    if out.exists():
+        return out
+    dist = f"fetchbench_pybullet_data-{version}.dist-info"
+    files = [root / "__init__.py", *sorted(p for p in (root / "random_urdfs").rglob("*") if p.is_file())]
+    tmp = out.with_suffix(".tmp")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+        for f in files:
+            z.write(f, f"pybullet_data/{f.relative_to(root)}")
+        z.writestr(f"{dist}/METADATA", f"Metadata-Version: 2.1\nName: fetchbench-pybullet-data\nVersion: {version}\n")
+        z.writestr(f"{dist}/WHEEL", "Wheel-Version: 1.0\nGenerator: fetchbench offline_bundle\nRoot-Is-Purelib: true\n"
+                                    "Tag: py3-none-any\n")
+        z.writestr(f"{dist}/RECORD", "")
+    tmp.replace(out)
+    return out
+
+
 def sha256(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -227,6 +291,9 @@ def main(argv=None) -> int:
     ap.add_argument("--transfer-mib", type=float, default=None,
                     help=f"size of one transfer (default: {CALL_LIMIT_MIB} MiB less the working tree that "
                          "travels with it, less 2 MiB)")
+    ap.add_argument("--slim", action="store_true",
+                    help="leave out what FetchBench never reads (other robots' meshes, environment maps) and "
+                         "add pybullet's blob meshes as a data-only wheel (pybullet has no cp312 wheel)")
     args = ap.parse_args(argv)
 
     lock = (ROOT / args.lock)
@@ -253,6 +320,20 @@ def main(argv=None) -> int:
             w.unlink()
     missing = download(wanted, cache, args.python_version)
     wheels = sorted(cache.glob("*.whl"))
+    if args.slim:
+        slim_dir = out / "slim"
+        slim_dir.mkdir(exist_ok=True)
+        for k, w in enumerate(wheels):
+            drop = SLIM_DROP.get(wheel_key(w.name)[0].replace("-", "_"))
+            if drop:
+                wheels[k] = slim_wheel(w, drop, slim_dir)
+                say(f"slim {w.name}: {w.stat().st_size / MIB:.1f} -> {wheels[k].stat().st_size / MIB:.1f} MiB")
+        pybullet = [v for n, v, _ in missing if n == "pybullet"]
+        data = pybullet_data_wheel(pybullet[0], slim_dir) if pybullet else None
+        if data is not None:
+            wheels.append(data)
+            missing = [m for m in missing if m[0] != "pybullet"]
+            say(f"pybullet: its data folder as {data.name} ({data.stat().st_size / MIB:.1f} MiB)")
 
     tree = travelling_tree_mib()
     transfer_mib = args.transfer_mib or CALL_LIMIT_MIB - tree - 2

@@ -8,7 +8,7 @@ import importlib.util
 import sys
 
 # Sub-packages that may contribute commands, in the order they appear in --help.
-COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "evaluation")
+COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "demos", "evaluation")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -13,8 +13,11 @@ release, filter grasps by IK (collision-aware) in their own world.
 
 Execution drives the env's ``pd_joint_pos`` controller open loop with the time-
 parametrised plan. Rendering cameras at every control step would only slow an open-loop
-executor down, so steps go through ``BaseEnv._step_action`` (the simulation part of
-``env.step``); the observation is taken once per try, at its start.
+executor down, so for evaluation steps go through ``BaseEnv._step_action`` (the simulation
+part of ``env.step``); the observation is taken once per try, at its start. The
+demonstration expert (``solutions.expert``) sets ``EpisodeState.via_env_step``: every step
+then goes through ``env.step`` (wrappers such as ManiSkill's ``RecordEpisode`` see it) and
+is labelled with its stage (``STAGES``).
 """
 from __future__ import annotations
 
@@ -42,6 +45,10 @@ FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failu
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
 FREE_SPACE_POSITIONS = ((-0.2, 0.25, 0.66), (-0.2, -0.25, 0.66))
 PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval_plan", "held_at_end")
+#: Stages of a fetch, as the original's demonstrations label them: move to the pre-grasp and
+#: approach, close the gripper, retrieve (lift, back out, carry to free space).
+STAGES = ("approach", "close", "retrieve")
+GRASP_ORDERS = ("random", "clearance")
 
 
 @dataclass
@@ -73,6 +80,10 @@ class SolveConfig:
     # test tasks failed their first plan on that with no tolerance).
     start_tolerance: float = 0.05
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
+    # "random": the seeded order of choose_grasps (the baselines: no verified grasp is better
+    # than another); "clearance": the open hand's clearance at pre-grasp and grasp, largest
+    # first (the expert's "best first": roomier grasps plan and execute more reliably).
+    grasp_order: str = "random"
     retry_target_moved: float = 0.12  # a retry needs the target moved <= this
     retry_others_moved: float = 0.10  # and every other object moved < this
 
@@ -87,6 +98,12 @@ class EpisodeState:
     phases: dict = field(default_factory=lambda: {p: False for p in PHASES})
     grasp_source: str = ""
     notes: list = field(default_factory=list)  # what each try did, for diagnosis
+    via_env_step: bool = False  # step through env.step (recordable) instead of _step_action
+    stage: str = STAGES[0]  # the stage the next steps belong to
+    stage_log: list = field(default_factory=list)  # the stage of every step taken
+    last_step: tuple | None = None  # the last env.step result (via_env_step only)
+    grasp_id: int | None = None  # the executed grasp's index in the object's grasp list
+    last_arm_target: np.ndarray | None = None  # the last commanded arm joint targets
 
     def timed(self, fn, *args, **kwargs):
         t = time.perf_counter()
@@ -119,8 +136,13 @@ class Executor:
         if gripper is not None:
             self.gripper = gripper
         action = np.concatenate([q_arm, [self.gripper]]).astype(np.float32)
-        self.u._step_action(action)
-        self.u._elapsed_steps += 1
+        self.state.last_arm_target = np.asarray(q_arm, float)
+        if self.state.via_env_step:
+            self.state.last_step = self.env.step(action)
+        else:
+            self.u._step_action(action)
+            self.u._elapsed_steps += 1
+        self.state.stage_log.append(self.state.stage)
         qpos = self.qpos_full()
         self.state.cspace_length += float(np.abs(qpos - self.last_qpos).sum())
         self.last_qpos = qpos
@@ -235,10 +257,14 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     # Cheap filter before IK: the open hand alone must be free at the pre-grasp (target
     # included) and at the grasp (target left out: the fingers close on it).
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
-    free = state.timed(lambda: (open_checker.hand_clearance(T_pre_tcp @ to_hand) > cfg.margin)
-                       & (near_target.hand_clearance(T_grasp_tcp @ to_hand) > cfg.margin))
-    keep = [k for k, f in zip(keep, free) if f][: cfg.ik_grasps]
-    T_grasp_tcp, T_pre_tcp = T_grasp_tcp[free][: cfg.ik_grasps], T_pre_tcp[free][: cfg.ik_grasps]
+    clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(T_pre_tcp @ to_hand),
+                                               near_target.hand_clearance(T_grasp_tcp @ to_hand)))
+    order = np.flatnonzero(clearance > cfg.margin)
+    if cfg.grasp_order == "clearance":
+        order = order[np.argsort(-clearance[order], kind="stable")]
+    order = order[: cfg.ik_grasps]
+    keep = [keep[i] for i in order]
+    T_grasp_tcp, T_pre_tcp = T_grasp_tcp[order], T_pre_tcp[order]
     if not keep:
         return "no_grasp_candidate"
     q_now = ex.q
@@ -268,6 +294,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["pregrasp_plan"] = True
     chosen, _, approach_path = candidates[plan.goal_index]
     tried.add(keep[chosen])
+    state.grasp_id = keep[chosen]
     ex.follow(plan.path, cfg.speed_scale)
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
     T_tcp_actual = u.agent.tcp.pose.raw_pose[0].cpu().numpy()
@@ -275,7 +302,9 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_end = retreat(T_pre_tcp[chosen], -cfg.pregrasp_distance * cfg.approach_overshoot)
     state.phases["approach_reached"] = bool(np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]) < 0.01)
 
+    state.stage = "close"
     ex.hold(GRIPPER_CLOSED, cfg.close_seconds)
+    state.stage = "retrieve"
     T_lift = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
     T_lift[2, 3] += cfg.lift_height  # the base is upright: base z is world z
     lift = state.timed(_follow_cartesian, robot, ex.q, [T_lift], None)
@@ -376,6 +405,8 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
     if retries < 1:
         raise ValueError(f"retries must be >= 1, got {retries}")
+    if config is not None and config.grasp_order not in GRASP_ORDERS:
+        raise ValueError(f"unknown grasp_order {config.grasp_order!r}; valid: {', '.join(GRASP_ORDERS)}")
     if METHODS[method]["world"] == "pointcloud" and env.unwrapped.obs_mode != "pointcloud":
         raise ValueError(f"{method} plans in the observed point clouds: make the env with obs_mode='pointcloud' "
                          f"(it has {env.unwrapped.obs_mode!r})")

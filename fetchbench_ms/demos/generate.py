@@ -1,0 +1,321 @@
+"""Expert demonstrations in ManiSkill's trajectory format (the Fetch dataset).
+
+The tasks are those of a task suite (``train`` by default: filtered tasks of train-split
+objects) that the env id admits (its category or scene type), in the suite's order, which is
+stratified, so any prefix is a fair sample. Task ``i`` of that list is episode seed ``i``:
+the env is reset with ``reset(seed=i, options={"task_id": ...})``, which the trajectory's
+JSON records, so ManiSkill's replay tool resets to the same task.
+
+Per task the expert (``solutions.expert``) makes up to ``per_task`` successful trajectories,
+each from another annotated grasp (the paper has about 4.8 a task); failed tries are not
+kept. Every step goes through ``env.step`` inside ManiSkill's ``RecordEpisode``, which writes
+the env states and the ``pd_joint_pos`` actions; each ``traj_N`` group also gets
+
+- ``stage`` (int8, one per action): 0 approach, 1 close, 2 retrieve (``STAGES``);
+- ``stage_end`` (bool): the original's end-of-stage flag, True at a stage's last step;
+
+and each episode in the JSON its ``task_id``, ``grasp_id``, ``scene_type``, ``category``,
+``target_object`` and ``cspace_length``.
+
+Files: ``<record_dir>/<env_id>/motionplanning/<name>.h5`` and ``.json`` (ManiSkill's layout,
+merged with ManiSkill's ``merge_trajectories``), made from one part per task in
+``<name>.parts/`` (``task_NNNNNN.h5`` + ``.json``). A part is written under a temporary
+name and renamed, its JSON last, so a killed run (even ``kill -9``) leaves only whole parts
+and a rerun continues with the tasks that have none. The merged file takes the parts in
+task order, so its contents do not depend on the number of processes.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import multiprocessing as mp
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..solutions.sense_plan_act import STAGES
+
+PART_PREFIX = "task_"
+DEFAULT_PER_TASK = 5
+DEFAULT_MAX_TRIES = 8  # expert tries per task, successful or not
+SOURCE_DESC = "FetchBench-MS expert: annotated grasps, oracle mesh world, RRTConnect (fetchbench_ms.solutions.expert)"
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    """What a generator run makes (everything a part's content depends on)."""
+
+    env_id: str = "FetchBench-v0"
+    task_suite: str = "train"
+    obs_mode: str = "none"
+    per_task: int = DEFAULT_PER_TASK
+    max_tries: int = DEFAULT_MAX_TRIES
+    save_video: bool = False
+    method: str = "ga-mesh-rrt"
+
+    def env_kwargs(self) -> dict:
+        kwargs = dict(obs_mode=self.obs_mode, control_mode="pd_joint_pos", task_suite=self.task_suite)
+        if not self.save_video and self.obs_mode in ("none", "state", "state_dict"):
+            kwargs["render_backend"] = "none"  # nothing to render: no renderer to start
+        else:
+            kwargs["render_mode"] = "rgb_array"
+        return kwargs
+
+
+def suite_task_ids(env_id: str, task_suite: str) -> list[str]:
+    """The suite's task ids the env id admits, in suite order (episode seed i -> the i-th)."""
+    from ..envs import ENV_IDS, ENV_KWARGS
+    from ..tasks.spec import CATEGORY_LABELS
+    from ..tasks.suite import load_suite
+
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown FetchBench env id {env_id!r}; valid: {', '.join(ENV_IDS)}")
+    fixed = ENV_KWARGS[env_id]
+    suite = load_suite(task_suite)
+    label = CATEGORY_LABELS.get(fixed.get("category"))
+    ids = [tid for tid in suite.ids()
+           if label in (None, suite.get(tid).target_label) and fixed.get("scene_type") in (None, suite.get(tid).scene_type)]
+    if not ids:
+        raise ValueError(f"suite {task_suite!r} has no task that {env_id} admits ({fixed})")
+    return ids
+
+
+def parts_dir(record_dir: str | Path, env_id: str, name: str) -> Path:
+    return Path(record_dir) / env_id / "motionplanning" / f"{name}.parts"
+
+
+def part_path(parts: Path, seed: int) -> Path:
+    return parts / f"{PART_PREFIX}{seed:06d}.h5"
+
+
+def done_parts(parts: Path) -> dict[int, dict]:
+    """seed -> the part's summary (tries, successes, frames, ...), for every finished part
+    (a part is finished once its JSON is in)."""
+    out = {}
+    if parts.is_dir():
+        for j in parts.glob(f"{PART_PREFIX}*.json"):
+            seed = int(j.stem[len(PART_PREFIX):])
+            if part_path(parts, seed).exists():
+                out[seed] = json.loads(j.read_text())["fetchbench"]["summary"]
+    return out
+
+
+# ----------------------------------------------------------------------------- one task
+_ENV = None
+
+
+def _worker_env(job: DemoJob):
+    global _ENV
+    if _ENV is None:
+        import gymnasium as gym
+        import torch
+
+        import fetchbench_ms  # noqa: F401  (registers the ids)
+
+        torch.set_num_threads(1)
+        _ENV = gym.make(job.env_id, **job.env_kwargs())
+    return _ENV
+
+
+def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
+    """The expert's trajectories of one task, written as one part; returns its summary."""
+    from mani_skill.utils.io_utils import dump_json
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    from ..solutions.expert import expert_config, solve_demo, stage_end_flags
+
+    env = _worker_env(job)
+    tmp = parts / f".tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    name = part_path(parts, seed).stem
+    rec = RecordEpisode(env, output_dir=str(tmp), trajectory_name=name, save_video=job.save_video,
+                        source_type="motionplanning", source_desc=SOURCE_DESC, record_reward=False,
+                        save_on_reset=False, video_fps=env.unwrapped.control_freq)
+    task = env.unwrapped.task_suite.get(task_id)
+    tried: set = set()
+    summary = dict(seed=seed, task_id=task_id, scene_type=task.scene_type, category=task.target_label,
+                   tries=0, successes=0, frames=0, failures={})
+    t0 = time.perf_counter()
+    for _ in range(job.max_tries):
+        n_tried = len(tried)
+        demo = solve_demo(rec, seed, reset_options={"task_id": task_id}, tried=tried, method=job.method,
+                          config=expert_config())
+        summary["tries"] += 1
+        if demo.success:
+            if demo.steps != len(rec._trajectory_buffer.done) - 1:
+                raise RuntimeError(f"{task_id}: {demo.steps} labelled steps, {len(rec._trajectory_buffer.done) - 1} recorded")
+            rec.flush_trajectory()
+            group = rec._h5_file[f"traj_{rec._episode_id}"]
+            group.create_dataset("stage", data=demo.stages, dtype=np.int8)
+            group.create_dataset("stage_end", data=stage_end_flags(demo.stages), dtype=bool)
+            rec._json_data["episodes"][-1].update(
+                task_id=task_id, grasp_id=demo.grasp_id, scene_type=task.scene_type, category=task.target_label,
+                target_object=task.target.object_id, cspace_length=round(demo.cspace_length, 4))
+            if job.save_video:
+                rec.flush_video(name=f"{name}_{rec._episode_id}")
+            summary["successes"] += 1
+            summary["frames"] += demo.steps
+        else:
+            rec.flush_trajectory(save=False)
+            if job.save_video:
+                rec.flush_video(save=False)
+            summary["failures"][demo.failure] = summary["failures"].get(demo.failure, 0) + 1
+        if summary["successes"] >= job.per_task or len(tried) == n_tried:
+            break  # enough, or the try executed no new grasp: another would do the same
+    summary["wall_time"] = round(time.perf_counter() - t0, 2)
+    rec._json_data["fetchbench"] = {"job": dataclasses.asdict(job), "summary": {
+        k: v for k, v in summary.items() if k != "wall_time"}}
+    dump_json(rec._json_path, rec._json_data, indent=2)
+    rec._h5_file.close()
+    # Whole parts only: the h5 first, then the JSON, which marks the part finished.
+    for suffix in (".h5", ".json"):
+        os.replace(tmp / f"{name}{suffix}", parts / f"{name}{suffix}")
+    for video in tmp.glob("*.mp4"):
+        os.replace(video, parts / video.name)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return summary
+
+
+def _run_task_star(args):
+    return run_task(*args)
+
+
+# ----------------------------------------------------------------------------- a run
+def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, only_count_success: bool = True,
+             num_procs: int = 1, backend: str = "local", progress: bool = True, start_seed: int = 0) -> Path:
+    """Runs the expert over the suite's tasks until ``num_traj`` successful trajectories
+    (``only_count_success``) or ``num_traj`` tasks are done, resuming from finished parts;
+    then merges them. Returns the merged .h5 path."""
+    from tqdm import tqdm
+
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; valid: local, ray")
+    if num_traj < 1 or num_procs < 1:
+        raise ValueError(f"num_traj and num_procs must be positive (got {num_traj}, {num_procs})")
+    ids = suite_task_ids(job.env_id, job.task_suite)
+    parts = parts_dir(record_dir, job.env_id, name)
+    parts.mkdir(parents=True, exist_ok=True)
+    job_file = parts / "job.json"
+    if job_file.exists() and json.loads(job_file.read_text()) != dataclasses.asdict(job):
+        raise ValueError(f"{parts} holds parts of another job {job_file.read_text()}; this one is "
+                         f"{dataclasses.asdict(job)}: use another --traj-name or --record-dir")
+    _atomic_write(job_file, json.dumps(dataclasses.asdict(job), indent=1))
+    finished = done_parts(parts)
+
+    def enough(done: dict) -> int | None:
+        """The number of leading tasks that make the run (None: not yet)."""
+        total = 0
+        for k, seed in enumerate(range(start_seed, start_seed + len(ids))):
+            if seed not in done:
+                return None
+            total += done[seed]["successes"] if only_count_success else 1
+            if total >= num_traj:
+                return k + 1
+        return len(ids)  # the suite ran out
+
+    bar = tqdm(total=num_traj, desc=f"{job.env_id} {name}", disable=not progress, unit="traj")
+
+    def count(done):
+        return sum(s["successes"] if only_count_success else 1 for s in done.values())
+
+    bar.update(min(num_traj, count(finished)))
+    seeds = (s for s in range(start_seed, start_seed + len(ids)) if s not in finished)
+    if enough(finished) is None:
+        pool = _pool(backend, num_procs, job)
+        try:
+            pending = []
+            while True:
+                while len(pending) < 2 * num_procs:
+                    seed = next(seeds, None)
+                    if seed is None:
+                        break
+                    pending.append(pool.apply_async(_run_task_star, ((job, parts, seed, ids[seed - start_seed]),)))
+                if not pending:
+                    break
+                pending[0].wait()
+                done_now = [p for p in pending if p.ready()]
+                pending = [p for p in pending if not p.ready()]
+                for p in done_now:
+                    s = p.get()
+                    finished[s["seed"]] = s
+                    bar.update(min(s["successes"] if only_count_success else 1, max(0, num_traj - bar.n)))
+                    bar.set_postfix(tasks=len(finished), success_rate=f"{_yield(finished):.2f}")
+                if enough(finished) is not None:
+                    break
+        finally:
+            pool.terminate()  # tasks still running are dropped: their parts were never renamed in
+            pool.join()
+    for tmp in parts.glob(".tmp-*"):
+        shutil.rmtree(tmp, ignore_errors=True)
+    bar.close()
+    return merge(record_dir, job.env_id, name, num_traj, only_count_success, start_seed)
+
+
+def _yield(done: dict) -> float:
+    return float(np.mean([d["successes"] > 0 for d in done.values()])) if done else 0.0
+
+
+def _pool(backend: str, num_procs: int, job: DemoJob):
+    if backend == "ray":
+        from ray.util.multiprocessing import Pool
+
+        return Pool(num_procs)
+    return mp.get_context("spawn").Pool(num_procs)
+
+
+def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success: bool = True,
+          start_seed: int = 0) -> Path:
+    """``<name>.h5`` + ``.json`` from the leading finished parts (task order), cut at
+    ``num_traj`` trajectories, with ManiSkill's ``merge_trajectories`` (written beside and
+    renamed: a reader never sees half a file)."""
+    import h5py
+    from mani_skill.trajectory.merge_trajectory import merge_trajectories
+    from mani_skill.utils.io_utils import dump_json, load_json
+
+    parts = parts_dir(record_dir, env_id, name)
+    finished = done_parts(parts)
+    chosen, total, seed = [], 0, start_seed
+    while seed in finished and total < num_traj:
+        n = finished[seed]["successes"] if only_count_success else 1
+        if finished[seed]["successes"]:
+            chosen.append(part_path(parts, seed))
+        total += n
+        seed += 1
+    out = parts.parent / f"{name}.h5"
+    tmp = parts.parent / f".{name}.merging.h5"
+    merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp, parts)
+    data = load_json(str(tmp).replace(".h5", ".json"))
+    keep = min(len(data["episodes"]), num_traj) if only_count_success else len(data["episodes"])
+    if keep < len(data["episodes"]):
+        with h5py.File(tmp, "a") as f:
+            for ep in data["episodes"][keep:]:
+                del f[f"traj_{ep['episode_id']}"]
+        data["episodes"] = data["episodes"][:keep]
+    data.pop("fetchbench", None)
+    data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"])}
+    dump_json(str(tmp).replace(".h5", ".json"), data, indent=2)
+    os.replace(tmp, out)
+    os.replace(str(tmp).replace(".h5", ".json"), out.with_suffix(".json"))
+    return out
+
+
+def _empty(tmp: Path, parts: Path) -> None:
+    import h5py
+
+    h5py.File(tmp, "w").close()
+    tmp.with_suffix(".json").write_text(json.dumps({"env_info": None, "episodes": []}))
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def stage_names() -> tuple[str, ...]:
+    return STAGES

@@ -1,0 +1,152 @@
+"""What a demonstration file holds (``fetchbench demos stats``) and a video of one of its
+trajectories (``fetchbench demos show``)."""
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from ..tasks.spec import CATEGORY_LABELS
+
+CATEGORY_ORDER = tuple(CATEGORY_LABELS.values())  # on_table, on_shelf, in_drawer, in_basket
+
+
+def resolve(path: str | Path) -> Path:
+    """The .h5 of a trajectory file given as .h5, .json or a folder holding exactly one."""
+    path = Path(path)
+    if path.is_dir():
+        found = sorted(path.rglob("*.h5"))
+        found = [p for p in found if not any(part.endswith(".parts") for part in p.parts)]
+        if len(found) != 1:
+            raise ValueError(f"{path} holds {len(found)} trajectory files"
+                             + (f" ({', '.join(str(p) for p in found[:5])})" if found else "") + "; name one")
+        return found[0]
+    if path.suffix == ".json":
+        path = path.with_suffix(".h5")
+    if not path.exists() or not path.with_suffix(".json").exists():
+        raise FileNotFoundError(f"no trajectory {path} with its .json beside it")
+    return path
+
+
+def _episodes(path: Path) -> list[dict]:
+    return json.loads(path.with_suffix(".json").read_text())["episodes"]
+
+
+def demo_stats(path: str | Path) -> dict:
+    """Counts of a trajectory file: trajectories, frames, tasks, by category and scene type."""
+    path = resolve(path)
+    data = json.loads(path.with_suffix(".json").read_text())
+    eps = data["episodes"]
+    steps = np.array([e["elapsed_steps"] for e in eps], dtype=int)
+    tasks = Counter(e.get("task_id") for e in eps)
+    by_category = Counter(e.get("category") for e in eps)
+    by_type = Counter(e.get("scene_type") for e in eps)
+    cspace = np.array([e["cspace_length"] for e in eps if "cspace_length" in e], dtype=float)
+    return {
+        "path": str(path),
+        "env_id": (data.get("env_info") or {}).get("env_id"),
+        "control_mode": eps[0]["control_mode"] if eps else None,
+        "trajectories": len(eps),
+        "frames": int(steps.sum()),
+        "tasks": len(tasks),
+        "tasks_tried": (data.get("fetchbench") or {}).get("tasks"),
+        "trajectories_per_task": round(len(eps) / len(tasks), 3) if tasks else 0.0,
+        "mean_frames": round(float(steps.mean()), 1) if len(steps) else 0.0,
+        "mean_cspace_length": round(float(cspace.mean()), 3) if len(cspace) else None,
+        "success": int(sum(bool(e.get("success")) for e in eps)),
+        "by_category": {c: by_category.get(c, 0) for c in CATEGORY_ORDER},
+        "by_scene_type": dict(sorted(by_type.items(), key=lambda kv: str(kv[0]))),
+    }
+
+
+def format_stats(s: dict) -> str:
+    lines = [f"{s['path']}: {s['trajectories']} trajectories ({s['success']} successful), {s['frames']} frames, "
+             f"{s['tasks']} tasks" + (f" of {s['tasks_tried']} tried" if s.get("tasks_tried") else ""),
+             f"  env {s['env_id']}, control mode {s['control_mode']}; {s['trajectories_per_task']} trajectories a "
+             f"task, {s['mean_frames']} frames a trajectory, C-space length {s['mean_cspace_length']} rad"]
+    lines.append("  by category:   " + ", ".join(f"{c} {n}" for c, n in s["by_category"].items()))
+    lines.append("  by scene type: " + ", ".join(f"{t} {n}" for t, n in s["by_scene_type"].items()))
+    return "\n".join(lines)
+
+
+def plot_stats(path: str | Path, png: str | Path) -> Path:
+    """Histograms of trajectory length (frames) and C-space length (rad)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eps = _episodes(resolve(path))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
+    axes[0].hist([e["elapsed_steps"] for e in eps], bins=30, color="tab:blue")
+    axes[0].set(xlabel="frames (control steps at 20 Hz)", ylabel="trajectories", title="trajectory length")
+    axes[1].hist([e.get("cspace_length", np.nan) for e in eps], bins=30, color="tab:orange")
+    axes[1].set(xlabel="C-space length (rad, 9 joints)", title="C-space length")
+    fig.tight_layout()
+    png = Path(png)
+    png.parent.mkdir(parents=True, exist_ok=True)
+    tmp = png.with_name(f".{png.stem}.tmp{png.suffix}")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(png)
+    return png
+
+
+def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str = "render_camera") -> Path:
+    """A video of trajectory ``traj``: the env is reset as recorded and set to each recorded
+    env state in turn (no physics), rendered by ``camera`` at the control rate."""
+    import gymnasium as gym
+    import h5py
+    import imageio.v2 as imageio
+    from mani_skill.trajectory.utils import dict_to_list_of_dicts
+
+    import fetchbench_ms  # noqa: F401
+
+    path = resolve(path)
+    data = json.loads(path.with_suffix(".json").read_text())
+    episodes = {e["episode_id"]: e for e in data["episodes"]}
+    if traj not in episodes:
+        raise ValueError(f"no trajectory {traj} in {path}; valid: 0..{len(episodes) - 1}" if episodes
+                         else f"{path} holds no trajectory")
+    ep = episodes[traj]
+    kwargs = {k: v for k, v in data["env_info"]["env_kwargs"].items() if k != "render_backend"}
+    kwargs.update(obs_mode="none", render_mode="rgb_array")
+    env = gym.make(data["env_info"]["env_id"], **kwargs)
+    try:
+        env.reset(**ep["reset_kwargs"])
+        u = env.unwrapped
+        if camera not in u._human_render_cameras:
+            raise ValueError(f"unknown camera {camera!r}; valid: {', '.join(u._human_render_cameras)}")
+        with h5py.File(path, "r") as f:
+            states = dict_to_list_of_dicts(_read_group(f[f"traj_{traj}"]["env_states"]))
+        frames = []
+        for state in states:
+            u.set_state_dict({k: _to_torch(v) for k, v in state.items()})
+            image = env.render()
+            image = image.cpu().numpy() if hasattr(image, "cpu") else np.asarray(image)
+            frames.append(image.reshape(image.shape[-3:]))
+    finally:
+        env.close()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
+    fps = data["env_info"].get("env_kwargs", {}).get("control_freq") or 20
+    imageio.mimsave(tmp, frames, fps=fps)
+    tmp.replace(out)
+    return out
+
+
+def _read_group(group) -> dict:
+    import h5py
+
+    return {k: (_read_group(v) if isinstance(v, h5py.Group) else v[()]) for k, v in group.items()}
+
+
+def _to_torch(value):
+    import torch
+
+    if isinstance(value, dict):
+        return {k: _to_torch(v) for k, v in value.items()}
+    return torch.as_tensor(np.asarray(value))[None]

@@ -1,0 +1,129 @@
+"""The Fetch dataset's expert, in the style of ManiSkill's motion-planning solutions.
+
+``solve(env, seed=None, debug=False, vis=False)`` resets the env, fetches the target with
+the oracle sense-plan-act pipeline (annotated grasps, the exact mesh world, the project's
+best planner) and returns what ManiSkill's solutions return: the last ``env.step`` result
+``(obs, reward, terminated, truncated, info)``, or ``-1`` when it found no way. Every
+control step goes through ``env.step`` with a ``pd_joint_pos`` action, so ManiSkill's
+``RecordEpisode`` wrapper records the whole trajectory (env states and actions).
+
+``solve_demo`` is the same with what the demonstration generator needs besides: which
+annotated grasp was executed (so the next trajectory of the task takes another one), each
+step's stage (``STAGES``: approach, close, retrieve) and why it failed.
+
+What differs from the evaluation baselines (``sense_plan_act.solve``):
+- grasps are tried best first: the open hand's clearance at pre-grasp and grasp, largest
+  first (``SolveConfig.grasp_order="clearance"``), skipping grasps given in ``tried``;
+- the trajectory ends once the target is out and the env's success has held for
+  ``confirm_steps`` control steps (ManiSkill's demos end at success), not after FetchBench's
+  10 s settle-and-hold: those idle frames teach a policy nothing;
+- one try: a failed try has moved the scene, and a demonstration with a failed grasp in it
+  is not what imitation should copy. The generator resets and tries the next grasp.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .sense_plan_act import METHODS, STAGES, EpisodeState, SolveConfig, _attempt
+
+#: The expert's planner set-up: the oracle mesh world and the best planner the project has
+#: (RRTConnect with path shortcutting); any METHODS entry whose world is the mesh drops in.
+EXPERT_METHOD = "ga-mesh-rrt"
+CONFIRM_STEPS = 5  # control steps (0.25 s at 20 Hz) the env's success must hold at the end
+MAX_CONFIRM_STEPS = 40  # steps to wait for success after the retrieval path (the object swings)
+
+
+#: The expert moves faster than the evaluation baselines (0.4 / 0.1 of the velocity limits,
+#: 1.5 s to close): its trajectories are what a policy imitates step by step, and long idle
+#: stretches teach nothing (about 200 control steps a trajectory instead of 300; the paper's
+#: average is 131). 0.7 keeps every joint's step under 0.1 rad at 20 Hz, the clip of
+#: ManiSkill's pd_joint_delta_pos controller, so conversion to it loses nothing.
+EXPERT_SPEEDS = dict(speed_scale=0.7, approach_speed_scale=0.2, close_seconds=1.0)
+
+
+def expert_config(**overrides) -> SolveConfig:
+    return dataclasses.replace(SolveConfig(grasp_order="clearance", **EXPERT_SPEEDS), **overrides)
+
+
+@dataclass
+class Demo:
+    """One expert try on a task (what the demonstration generator keeps or drops)."""
+
+    success: bool
+    failure: str | None  # sense_plan_act.FAILURE_CLASSES, or "not_retrieved" (success never held)
+    last_step: tuple | None  # the last env.step result
+    grasp_id: int | None  # the executed grasp's index in the object's annotated-grasp list
+    stages: np.ndarray  # (steps,) int8 index into STAGES, one per env.step
+    cspace_length: float  # rad, all 9 joints
+    computation_time: float  # s of planning, IK and world building
+
+    @property
+    def steps(self) -> int:
+        return len(self.stages)
+
+
+def stage_end_flags(stages: np.ndarray) -> np.ndarray:
+    """The original's end-of-stage flag: True at the last step of each stage."""
+    stages = np.asarray(stages)
+    end = np.zeros(len(stages), dtype=bool)
+    if len(stages):
+        end[:-1] = stages[1:] != stages[:-1]
+        end[-1] = True
+    return end
+
+
+def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_options: dict | None = None,
+               tried: set | None = None, method: str = EXPERT_METHOD, config: SolveConfig | None = None,
+               confirm_steps: int = CONFIRM_STEPS) -> Demo:
+    """One expert try; ``tried`` (grasp ids) is updated with the grasp it executed."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    if METHODS[method]["world"] != "mesh":
+        raise ValueError(f"the expert plans in the oracle mesh world; {method!r} plans in "
+                         f"{METHODS[method]['world']!r}. Valid: "
+                         + ", ".join(m for m, v in METHODS.items() if v["world"] == "mesh"))
+    torch.set_num_threads(1)
+    if reset:
+        env.reset(seed=seed, options=reset_options)
+    config = config or expert_config()
+    state = EpisodeState(config, planning_time_left=config.plan_time_total, via_env_step=True)
+    rng = np.random.default_rng(seed if seed is not None else 0)
+    failure = _attempt(env, method, state, rng, tried if tried is not None else set())
+    if failure is None:
+        failure = _confirm(env, state, confirm_steps)
+    return Demo(
+        success=failure is None,
+        failure=failure,
+        last_step=state.last_step,
+        grasp_id=state.grasp_id,
+        stages=np.array([STAGES.index(s) for s in state.stage_log], dtype=np.int8),
+        cspace_length=state.cspace_length,
+        computation_time=state.computation_time,
+    )
+
+
+def _confirm(env, state: EpisodeState, confirm_steps: int) -> str | None:
+    """Hold the last configuration until the env's success has held ``confirm_steps`` steps."""
+    from .sense_plan_act import GRIPPER_CLOSED, Executor
+
+    ex = Executor(env, state)
+    q_hold, streak = state.last_arm_target, 0
+    for _ in range(MAX_CONFIRM_STEPS):
+        if state.last_step is not None and bool(state.last_step[3]):  # truncated: out of steps
+            return "not_retrieved"
+        ex.step(q_hold, GRIPPER_CLOSED)
+        streak = streak + 1 if bool(state.last_step[-1]["success"]) else 0
+        if streak >= confirm_steps:
+            return None
+    return "not_retrieved"
+
+
+def solve(env, seed: int | None = None, debug: bool = False, vis: bool = False):
+    """ManiSkill's motion-planning signature: the last ``env.step`` result, or -1 on failure.
+    (``debug`` and ``vis`` are accepted for compatibility; the planner has no viewer.)"""
+    demo = solve_demo(env, seed)
+    return demo.last_step if demo.success else -1

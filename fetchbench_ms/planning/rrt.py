@@ -14,7 +14,12 @@ the start, then the search from there (``start_tolerance``).
 
 Determinism: the ompl 2.0.1 bindings expose no per-planner seed or sampler hook, so
 RRTConnect's samples come from OMPL's process-wide RNG; everything around it (goal
-order, checks, simplification input) is deterministic.
+order, checks, simplification input) is deterministic. With ``seed``, the planner is
+repeatable: OMPL's seed generator is re-seeded before the planner, its sampler and the
+path simplifier are made (every RNG they create then draws the same seeds; OMPL logs a
+misleading error for a re-seed, silenced here), and the restarts and the end of the search
+count collision checks instead of seconds (``restart_checks``, ``max_checks``), so the
+machine's speed and load change nothing; the time limit stays as a safety net only.
 """
 from __future__ import annotations
 
@@ -92,7 +97,8 @@ def escape_start(checker: CollisionChecker, q_start, tolerance: float, resolutio
 def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
                     resolution: float = 0.02, simplify: bool = True, try_direct: bool = True,
                     restart_after: float = 5.0, planner_range: float | None = None,
-                    start_tolerance: float = 0.0) -> PlanResult:
+                    start_tolerance: float = 0.0, seed: int | None = None, restart_checks: int = 15000,
+                    max_checks: int = 30000) -> PlanResult:
     """Plan from ``q_start`` to any of ``q_goals`` ((7,) or (K, 7)), best goals first.
 
     RRTConnect's run time is heavy-tailed (a tree that grew into a pocket rarely gets
@@ -101,6 +107,8 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
     the space's extent, did best into a shelf cell; 0.3-1.0 rad did worse).
     ``start_tolerance`` > 0: an invalid start up to that deep is escaped first
     (``escape_start``); the path then begins with that move (``start_escaped``).
+    ``seed``: a repeatable search (module docstring), restarting every ``restart_checks``
+    collision checks and giving up after ``max_checks`` (about 3,000-6,000 checks a second).
     """
     import ompl.base as ob
     import ompl.geometric as og
@@ -120,7 +128,8 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
         if q_free is None:
             return result("start_invalid")
         rest = plan_rrtconnect(checker, q_free, q_goals, max(0.0, time_limit - (time.perf_counter() - t0)),
-                               resolution, simplify, try_direct, restart_after, planner_range)
+                               resolution, simplify, try_direct, restart_after, planner_range, seed=seed,
+                               restart_checks=restart_checks, max_checks=max_checks)
         path = None if rest.path is None else np.concatenate([q_start[None], rest.path])
         return PlanResult(rest.status, path, time.perf_counter() - t0, checker.n_checked - n0, rest.goal_index,
                           start_escaped=True)
@@ -133,6 +142,10 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
             if checker.motion_valid(q_start, q_goals[g], resolution):
                 return result("direct", np.stack([q_start, q_goals[g]]), int(g))
 
+    if seed is not None:
+        ou.setLogLevel(ou.LOG_NONE)
+        ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)  # 0 would mean "from the clock"
+        ou.setLogLevel(ou.LOG_WARN)
     robot = checker.robot
     space = ob.RealVectorStateSpace(7)
     bounds = ob.RealVectorBounds(7)
@@ -165,15 +178,22 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
         goals.addState(s)
     pdef.setGoal(goals)
     deadline = t0 + time_limit
-    while not pdef.hasExactSolution() and time.perf_counter() < deadline:
+    n_search = checker.n_checked
+    while (not pdef.hasExactSolution() and time.perf_counter() < deadline
+           and (seed is None or checker.n_checked - n_search < max_checks)):
         pdef.clearSolutionPaths()
         planner = og.RRTConnect(si)
         if planner_range is not None:
             planner.setRange(planner_range)
         planner.setProblemDefinition(pdef)
         planner.setup()
-        stop = min(deadline, time.perf_counter() + restart_after)
-        planner.solve(ob.PlannerTerminationCondition(lambda: time.perf_counter() > stop))
+        if seed is None:
+            stop = min(deadline, time.perf_counter() + restart_after)
+            done = (lambda: time.perf_counter() > stop)
+        else:
+            stop_checks = min(checker.n_checked + restart_checks, n_search + max_checks)
+            done = (lambda: checker.n_checked >= stop_checks or time.perf_counter() > deadline)
+        planner.solve(ob.PlannerTerminationCondition(done))
     if not pdef.hasExactSolution():
         return result("timeout")
     path_geo = pdef.getSolutionPath()

@@ -17,6 +17,8 @@ What differs from the evaluation baselines (``sense_plan_act.solve``):
 - the trajectory ends once the target is out and the env's success has held for
   ``confirm_steps`` control steps (ManiSkill's demos end at success), not after FetchBench's
   10 s settle-and-hold: those idle frames teach a policy nothing;
+- repeatable planning (``SolveConfig.repeatable_planning``): the same task and seed give
+  the same trajectory whatever the machine's load;
 - one try: a failed try has moved the scene, and a demonstration with a failed grasp in it
   is not what imitation should copy. The generator resets and tries the next grasp.
 """
@@ -46,7 +48,8 @@ EXPERT_SPEEDS = dict(speed_scale=0.7, approach_speed_scale=0.2, close_seconds=1.
 
 
 def expert_config(**overrides) -> SolveConfig:
-    return dataclasses.replace(SolveConfig(grasp_order="clearance", **EXPERT_SPEEDS), **overrides)
+    return dataclasses.replace(SolveConfig(grasp_order="clearance", repeatable_planning=True, **EXPERT_SPEEDS),
+                               **overrides)
 
 
 @dataclass

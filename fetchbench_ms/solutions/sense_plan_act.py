@@ -84,6 +84,10 @@ class SolveConfig:
     # than another); "clearance": the open hand's clearance at pre-grasp and grasp, largest
     # first (the expert's "best first": roomier grasps plan and execute more reliably).
     grasp_order: str = "random"
+    # Repeatable planning (planning.rrt's ``seed``): each plan seeded from the episode's rng
+    # and bounded by collision checks rather than seconds, so the same task and seed give
+    # the same trajectory on a busy or an idle machine (the demonstration expert uses it).
+    repeatable_planning: bool = False
     retry_target_moved: float = 0.12  # a retry needs the target moved <= this
     retry_others_moved: float = 0.10  # and every other object moved < this
 
@@ -284,8 +288,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["ik_found"] = True
 
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    plan = state.timed(plan_rrtconnect, open_checker, q_now, np.stack([c[1] for c in candidates]), budget,
-                       start_tolerance=cfg.start_tolerance)
+    plan = _plan(state, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
@@ -361,8 +364,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if len(goals) == 0 or budget <= 0:
         return "motion_planning_failure"
-    plan = state.timed(plan_rrtconnect, carry, ex.q, goals[: cfg.goal_set_size], budget,
-                       start_tolerance=cfg.start_tolerance)
+    plan = _plan(state, rng, carry, ex.q, goals[: cfg.goal_set_size], budget)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s"
                        + (" (start escaped)" if plan.start_escaped else ""))
@@ -371,6 +373,13 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["retrieval_plan"] = True
     ex.follow(plan.path, cfg.speed_scale)
     return None
+
+
+def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float):
+    cfg = state.config
+    seed = int(rng.integers(2**31)) if cfg.repeatable_planning else None
+    return state.timed(plan_rrtconnect, checker, q_start, q_goals, budget, start_tolerance=cfg.start_tolerance,
+                       seed=seed)
 
 
 def _return_home(env, method: str, state: EpisodeState) -> bool:

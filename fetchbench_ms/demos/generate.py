@@ -37,9 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..solutions.sense_plan_act import STAGES
+from ..utils.io import append_jsonl_atomic, atomic_write_text
 
 PART_PREFIX = "task_"
+TIMING_FILE = "timing.jsonl"  # seconds each task took in its worker (benchmarks read it)
 DEFAULT_PER_TASK = 5
 DEFAULT_MAX_TRIES = 8  # expert tries per task, successful or not
 SOURCE_DESC = "FetchBench-MS expert: annotated grasps, oracle mesh world, RRTConnect (fetchbench_ms.solutions.expert)"
@@ -204,7 +205,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     if job_file.exists() and json.loads(job_file.read_text()) != dataclasses.asdict(job):
         raise ValueError(f"{parts} holds parts of another job {job_file.read_text()}; this one is "
                          f"{dataclasses.asdict(job)}: use another --traj-name or --record-dir")
-    _atomic_write(job_file, json.dumps(dataclasses.asdict(job), indent=1))
+    atomic_write_text(job_file, json.dumps(dataclasses.asdict(job), indent=1))
     finished = done_parts(parts)
 
     def enough(done: dict) -> int | None:
@@ -243,6 +244,9 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
                 for p in done_now:
                     s = p.get()
                     finished[s["seed"]] = s
+                    # Timings vary from run to run, so they stay out of the parts (same bytes).
+                    append_jsonl_atomic(parts / TIMING_FILE, {"seed": s["seed"], "wall_time": s["wall_time"],
+                                                              "successes": s["successes"], "frames": s["frames"]})
                     bar.update(min(s["successes"] if only_count_success else 1, max(0, num_traj - bar.n)))
                     bar.set_postfix(tasks=len(finished), success_rate=f"{_yield(finished):.2f}")
                 if enough(finished) is not None:
@@ -299,9 +303,32 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
     data.pop("fetchbench", None)
     data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"])}
     dump_json(str(tmp).replace(".h5", ".json"), data, indent=2)
-    os.replace(tmp, out)
+    compressed = tmp.with_name(f".{name}.compressing.h5")
+    compress_h5(tmp, compressed)
+    os.replace(compressed, out)
+    tmp.unlink()
     os.replace(str(tmp).replace(".h5", ".json"), out.with_suffix(".json"))
     return out
+
+
+def compress_h5(src: Path, dst: Path, level: int = 4) -> None:
+    """A copy of a trajectory file with every array gzip-compressed (byte shuffle first):
+    env states change smoothly, so this about halves the file. h5py reads it transparently,
+    ManiSkill's tools included; groups keep their order."""
+    import h5py
+
+    def copy(a, b):
+        for key, item in a.items():
+            if isinstance(item, h5py.Group):
+                copy(item, b.create_group(key, track_order=True))
+            else:
+                data = item[()]
+                big = getattr(data, "size", 1) > 16
+                b.create_dataset(key, data=data, dtype=item.dtype, compression="gzip" if big else None,
+                                 compression_opts=level if big else None, shuffle=big)
+
+    with h5py.File(src, "r") as a, h5py.File(dst, "w", track_order=True) as b:
+        copy(a, b)
 
 
 def _empty(tmp: Path, parts: Path) -> None:
@@ -309,13 +336,3 @@ def _empty(tmp: Path, parts: Path) -> None:
 
     h5py.File(tmp, "w").close()
     tmp.with_suffix(".json").write_text(json.dumps({"env_info": None, "episodes": []}))
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def stage_names() -> tuple[str, ...]:
-    return STAGES

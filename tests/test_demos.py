@@ -1,0 +1,164 @@
+"""The Fetch dataset's generator: ManiSkill trajectories that ManiSkill's replay tool converts
+and replays to success, resumable, the same bytes for the same tasks."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import h5py
+import numpy as np
+import pytest
+
+import fetchbench_ms  # noqa: F401
+from fetchbench_ms.cli import main
+from fetchbench_ms.demos.generate import DemoJob, done_parts, merge, parts_dir, suite_task_ids
+from fetchbench_ms.solutions.expert import solve, stage_end_flags
+from fetchbench_ms.solutions.sense_plan_act import STAGES
+
+SUITE = "val"  # train-split tasks; the demos' suite in these tests
+ENV_ID = "FetchBench-v0"
+
+
+def _run(record_dir, n, name="trajectory", extra=()):
+    args = ["demos", "run", "-e", ENV_ID, "--task-suite", SUITE, "-n", str(n), "--only-count-success",
+            "--record-dir", str(record_dir), "--traj-name", name, "--per-task", "2", "--no-progress", *extra]
+    assert main(args) == 0
+    return Path(record_dir) / ENV_ID / "motionplanning" / f"{name}.h5"
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("demos"), 3)
+
+
+def _replay(path, *args):
+    """ManiSkill's replay tool (through the plugin's entry point); returns the output file."""
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(path),
+                          "--save-traj", *args], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    line = [ln for ln in out.stdout.replace("\r", "\n").splitlines() if ln.startswith("Replayed")]
+    return line[-1] if line else out.stdout[-2000:]
+
+
+def test_files_are_maniskill_trajectories_with_stage_labels(demos):
+    data = json.loads(demos.with_suffix(".json").read_text())
+    env_info = data["env_info"]
+    assert env_info["env_id"] == ENV_ID and env_info["max_episode_steps"] == 400
+    assert env_info["env_kwargs"]["control_mode"] == "pd_joint_pos"
+    assert env_info["env_kwargs"]["task_suite"] == SUITE
+    eps = data["episodes"]
+    assert len(eps) == 3 and all(e["success"] for e in eps)
+    ids = suite_task_ids(ENV_ID, SUITE)
+    with h5py.File(demos, "r") as f:
+        for e in eps:
+            assert e["reset_kwargs"]["options"]["task_id"] == ids[e["episode_seed"]] == e["task_id"]
+            traj = f[f"traj_{e['episode_id']}"]
+            n = e["elapsed_steps"]
+            assert traj["actions"].shape == (n, 8) and traj["success"][-1] and not traj["truncated"][()].any()
+            stage = traj["stage"][()]
+            # approach, then close, then retrieve: one block each, in that order
+            assert len(stage) == n and list(dict.fromkeys(stage.tolist())) == [0, 1, 2]
+            assert (np.diff(stage) >= 0).all()
+            assert traj["stage_end"][()].sum() == len(STAGES) and traj["stage_end"][-1]
+    # two trajectories of one task use distinct grasps
+    by_task = {}
+    for e in eps:
+        by_task.setdefault(e["task_id"], []).append(e["grasp_id"])
+    assert all(len(set(g)) == len(g) for g in by_task.values()) and max(map(len, by_task.values())) == 2
+
+
+def test_stage_end_flags():
+    assert stage_end_flags(np.array([0, 0, 1, 2, 2])).tolist() == [False, True, True, False, True]
+
+
+def test_replay_tool_converts_and_replays_to_success(demos):
+    assert "3/3" in _replay(demos, "--use-env-states", "-o", "state")
+    assert "3/3" in _replay(demos, "-c", "pd_joint_delta_pos", "-o", "state")
+    converted = demos.with_name(f"{demos.stem}.state.pd_joint_delta_pos.physx_cpu.h5")
+    data = json.loads(converted.with_suffix(".json").read_text())
+    # what ManiSkill's own imitation baselines read from the json
+    assert data["env_info"]["env_id"] == ENV_ID and data["env_info"]["max_episode_steps"] == 400
+    assert data["env_info"]["env_kwargs"]["control_mode"] == "pd_joint_delta_pos"
+    with h5py.File(converted, "r") as f:
+        actions = f["traj_0"]["actions"][()]
+    assert np.abs(actions[:, :7]).max() <= 1.0  # normalised deltas, none clipped past the limit
+
+
+def test_resume_keeps_finished_parts_and_same_bytes(demos, tmp_path):
+    """A second directory built in two steps (2, then 3) equals the one built at once."""
+    path = _run(tmp_path, 2)
+    parts = parts_dir(tmp_path, ENV_ID, "trajectory")
+    first = {p.name: p.stat().st_mtime_ns for p in parts.glob("task_*")}
+    # a killed worker's leftovers: a temp folder and an h5 without its json (not finished)
+    (parts / ".tmp-999").mkdir()
+    stray = parts / "task_000099.h5"
+    stray.write_bytes(b"half")
+    assert 99 not in done_parts(parts)
+    path = _run(tmp_path, 3)
+    assert {p.name: p.stat().st_mtime_ns for p in parts.glob("task_*") if p.name in first} == first
+    assert not (parts / ".tmp-999").exists()
+    with h5py.File(path, "r") as a, h5py.File(demos, "r") as b:
+        assert list(a) == list(b)
+        for k in a:
+            assert np.array_equal(a[k]["actions"][()], b[k]["actions"][()])
+            assert np.array_equal(a[k]["stage"][()], b[k]["stage"][()])
+    strip = lambda d: {k: v for k, v in d.items() if k != "commit_info"}  # noqa: E731
+    assert strip(json.loads(path.with_suffix(".json").read_text())) == strip(
+        json.loads(demos.with_suffix(".json").read_text()))
+
+
+def test_another_job_in_the_same_parts_is_refused(demos):
+    record_dir = demos.parents[2]
+    with pytest.raises(ValueError, match="another job"):
+        from fetchbench_ms.demos.generate import generate
+
+        generate(DemoJob(env_id=ENV_ID, task_suite=SUITE, per_task=1), record_dir, "trajectory", 1, progress=False)
+
+
+def test_merge_cuts_at_n(demos):
+    record_dir = demos.parents[2]
+    out = merge(record_dir, ENV_ID, "trajectory", 1)
+    assert len(json.loads(out.with_suffix(".json").read_text())["episodes"]) == 1
+    merge(record_dir, ENV_ID, "trajectory", 3)  # leave the fixture as it was
+
+
+def test_bad_input_names_valid_choices(tmp_path, capsys):
+    assert main(["demos", "run", "-e", "FetchBench-Nope-v0", "--record-dir", str(tmp_path), "--no-progress"]) == 2
+    assert "valid: FetchBench-v0" in capsys.readouterr().err
+    assert main(["demos", "run", "--task-suite", "nope", "--record-dir", str(tmp_path), "--no-progress"]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def test_stats_and_show(demos, tmp_path, capsys):
+    assert main(["demos", "stats", str(demos), "--png", str(tmp_path / "h.png")]) == 0
+    out = capsys.readouterr().out
+    assert "3 trajectories (3 successful)" in out and (tmp_path / "h.png").stat().st_size > 1000
+    assert main(["demos", "show", str(demos), "--traj", "0", "--out", str(tmp_path / "t.gif")]) == 0
+    assert (tmp_path / "t.gif").stat().st_size > 1000
+    assert main(["demos", "show", str(demos), "--traj", "9", "--out", str(tmp_path / "x.gif")]) == 2
+
+
+def test_maniskill_style_solve_returns_the_last_step_or_minus_one():
+    env = gym.make(ENV_ID, obs_mode="none", control_mode="pd_joint_pos", task_suite=SUITE, render_backend="none")
+    try:
+        res = solve(env, seed=0)
+        assert res == -1 or (len(res) == 5 and bool(res[-1]["success"]))
+        with pytest.raises(ValueError, match="pd_joint_pos"):
+            solve(gym.make(ENV_ID, obs_mode="none", task_suite=SUITE, render_backend="none"), seed=0)
+    finally:
+        env.close()
+
+
+def test_demo_suites_hold_train_objects_only():
+    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.tasks.suite import load_suite, shipped_suites
+
+    test_objects = set(object_ids("test"))
+    for name in ("train", "val"):
+        assert name in shipped_suites()
+        suite = load_suite(name)
+        used = {o.object_id for t in suite.tasks.values() for o in t.objects}
+        assert used and not used & test_objects, name

@@ -28,7 +28,6 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from ..scenes.sapien_build import add_scene_parts
-from ..tasks.objects import collision_vertices, load_object
 from ..tasks.spec import TaskSpec
 from .bodies import add_object_shapes, box_half_size
 
@@ -78,7 +77,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
             builder = scene.create_actor_builder()
             if k < len(task.objects):
                 placement = task.objects[k]
-                add_object_shapes(builder, load_object(placement.object_id), placement, with_visual=scene.can_render())
+                add_object_shapes(builder, placement.object_id, placement, with_visual=scene.can_render())
                 pose = sapien.Pose(p=list(placement.position), q=list(placement.quat_wxyz))
                 valid[i, k] = True
             else:
@@ -100,7 +99,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         slots.append(merged)
     target = Actor.merge([per_slot[t.target_index][i] for i, t in enumerate(tasks)], name="target")
     target_radius = [
-        float(np.linalg.norm(collision_vertices(load_object(t.target.object_id)) - com_local[i, t.target_index], axis=1).max())
+        float(np.linalg.norm(_collision_vertices(per_slot[t.target_index][i]) - com_local[i, t.target_index], axis=1).max())
         for i, t in enumerate(tasks)
     ]
 
@@ -155,6 +154,16 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         camera_pose=camera_pose,
         base_pose=base_pose,
     )
+
+
+def _collision_vertices(actor: Actor) -> np.ndarray:
+    """(N, 3) vertices of an actor's convex collision shapes, in its body frame."""
+    body = actor._objs[0].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+    points = []
+    for shape in body.collision_shapes:
+        vertices = shape.get_vertices() * shape.scale
+        points.append(vertices @ shape.local_pose.to_transformation_matrix()[:3, :3].T + shape.local_pose.p)
+    return np.concatenate(points)
 
 
 def initialize_tasks(built: BuiltTasks, env_idx: torch.Tensor) -> None:

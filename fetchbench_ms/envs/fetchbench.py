@@ -460,6 +460,26 @@ class FetchBenchEnv(BaseEnv):
     def close(self):
         BaseEnv._clear(self)  # with the full collection
 
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
+        """ManiSkill's, plus what its state leaves out: whether an object was asleep. PhysX
+        reports exactly zero velocity for a sleeping body (an awake one at rest jitters at
+        ~1e-3 m/s), and setting a pose wakes a body up, so without this a replayed resting
+        object would start to jitter (and a precarious one to slide) where the recording
+        had it still. On CPU an object whose recorded velocities are all zero goes back to
+        sleep; the next contact wakes it as in the recording. (Not at an episode's first
+        step: after a reset the objects are awake at zero velocity, and so they stay.)"""
+        super().set_state_dict(state, env_idx)
+        if self.gpu_sim_enabled or int(self.elapsed_steps.max()) == 0:
+            return
+        actors = state.get("actors", {})
+        for slot in self.object_slots:
+            values = actors.get(slot.name)
+            if values is None:
+                continue
+            velocities = common.to_numpy(values).reshape(-1, 13)[0, 7:13]
+            if not np.any(velocities):
+                slot._objs[0].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent).put_to_sleep()
+
     def _load_agent(self, options: dict):
         base = torch.tensor([list(t.robot_base_position) + list(t.robot_base_quat_wxyz) for t in self._pending_tasks])
         super()._load_agent(options, Pose.create(base))

@@ -11,6 +11,7 @@ Two kinds of reset, each to a task other than the loaded one (a rebuild of the s
   this includes sampling and settling the task).
 
     PYTHONPATH=. python scripts/bench_reset.py [--resets 30] [--kinds suite seed] [--task-source sampled]
+        [--task-suite val]
 
 Run it on the code to compare (``PYTHONPATH=<checkout>``); the figures are wall-clock on
 this machine, so compare runs made under the same load.
@@ -75,6 +76,8 @@ def main() -> None:
     parser.add_argument("--kinds", nargs="+", default=["suite", "seed"], choices=["suite", "seed"])
     parser.add_argument("--task-source", default=None,
                         help="the env's task_source kwarg for the seed resets (code of issue 20 on)")
+    parser.add_argument("--task-suite", default=None,
+                        help="the env's task_suite kwarg for the seed resets (e.g. val while train is not shipped)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     kwargs = {}
@@ -82,6 +85,8 @@ def main() -> None:
         if "task_source" not in inspect.signature(FetchBenchEnv.__init__).parameters:
             raise SystemExit("this code has no task_source kwarg")
         kwargs["task_source"] = args.task_source
+    if args.task_suite is not None:
+        kwargs["task_suite"] = args.task_suite
     if "suite" in args.kinds:
         first, again = suite_resets(args.suite, args.resets)
         print(f"new suite task ({args.suite}, task_id option), first load in the process: {summary(first)}")

@@ -26,6 +26,7 @@ from ..scenes import SCENE_TYPES
 from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, sample_task
 from ..tasks.spec import CATEGORY_LABELS, TaskSpec
+from ..utils.io import canonical_json
 from . import pointcloud
 from .bodies import default_sim_config
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
@@ -608,7 +609,7 @@ class FetchBenchEnv(BaseEnv):
             is_lifted=lifted,
             is_retrieved=retrieved,
             others_undisturbed=undisturbed,
-            task_filtered=self._task_filtered,
+            task_filtered=self._task_filtered.clone(),
         )
 
     # ------------------------------------------------------------------ observations
@@ -701,19 +702,21 @@ def _own_arrays(obs):
     return obs
 
 
-_SCENES: dict = {}  # scene hash -> SceneSpec, the furniture of recently loaded tasks
+_SCENES: dict = {}  # (type, seed, params, hash) -> SceneSpec, the furniture of recently loaded tasks
 _SCENES_KEPT = 64
 
 
 def _scene_of(task: TaskSpec):
-    """``task.scene()``, remembered by the scene's content hash: the tasks of a suite share
-    scenes, and regenerating one takes 10-100 ms. (``task.scene()`` checks the hash.)"""
-    spec = _SCENES.get(task.scene_hash)
+    """``task.scene()``, remembered: the tasks of a suite share scenes, and regenerating
+    one takes 10-100 ms. The key is everything ``task.scene()`` reads and checks (the
+    generator's inputs and the stored content hash), so a cached scene was checked."""
+    key = (task.scene_type, task.scene_seed, canonical_json(task.scene_params), task.scene_hash)
+    spec = _SCENES.get(key)
     if spec is None:
         spec = task.scene()
         if len(_SCENES) >= _SCENES_KEPT:
             del _SCENES[next(iter(_SCENES))]
-        _SCENES[task.scene_hash] = spec
+        _SCENES[key] = spec
     return spec
 
 

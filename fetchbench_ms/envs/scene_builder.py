@@ -102,7 +102,8 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0, wit
         slots.append(merged)
     target = Actor.merge([per_slot[t.target_index][i] for i, t in enumerate(tasks)], name="target")
     target_radius = [
-        float(np.linalg.norm(_collision_vertices(per_slot[t.target_index][i]) - com_local[i, t.target_index], axis=1).max())
+        float(np.linalg.norm(_collision_vertices(per_slot[t.target_index][i]) - com_local[i, t.target_index],
+                             axis=1).max())
         for i, t in enumerate(tasks)
     ]
 

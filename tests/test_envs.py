@@ -18,7 +18,7 @@ FAST_IDS = ("FetchBench-v0", "FetchBench-Basket-v0", "FetchBench-LargeShelf-v0")
 
 
 def _make_reset_step(env_id: str, seeds=(0, 1, 2)):
-    env = gym.make(env_id, obs_mode="state", num_objects=8)
+    env = gym.make(env_id, task_source="sampled", obs_mode="state", num_objects=8)
     try:
         for seed in seeds:
             obs, info = env.reset(seed=seed)
@@ -56,7 +56,7 @@ def test_registered_ids():
 
 @pytest.fixture(scope="module")
 def env():
-    env = gym.make("FetchBench-v0", obs_mode="state_dict", control_mode="pd_joint_delta_pos")
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state_dict", control_mode="pd_joint_delta_pos")
     yield env
     env.close()
 
@@ -127,7 +127,7 @@ def test_success_logic_on_scripted_states(env):
 
 
 def test_release_thresholds_are_selectable():
-    env = gym.make("FetchBench-v0", obs_mode="state", success_criteria="release", num_objects=4)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", success_criteria="release", num_objects=4)
     try:
         env.reset(seed=41)
         _place_target_com_in_base(env, [0.1, 0.0, 0.29])  # retrieved by the release's rule, not the paper's
@@ -161,7 +161,7 @@ def test_at_rest_in_first_two_seconds_100_tasks():
 
 
 def _at_rest_fraction(seeds, required: float):
-    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos")
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", control_mode="pd_joint_delta_pos")
     still, moved = 0, []
     try:
         action = torch.zeros(env.action_space.shape)
@@ -178,7 +178,7 @@ def _at_rest_fraction(seeds, required: float):
 
 
 def test_pointcloud_obs_segmented_in_base_frame():
-    env = gym.make("FetchBench-v0", obs_mode="pointcloud", num_objects=10)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="pointcloud", num_objects=10)
     try:
         obs, info = env.reset(seed=61)
         pcd = obs["pointcloud"]
@@ -223,7 +223,7 @@ def test_pointcloud_obs_segmented_in_base_frame():
 
 def test_rewards_are_finite_and_normalised():
     for mode in ("normalized_dense", "dense", "sparse"):
-        env = gym.make("FetchBench-v0", obs_mode="state", reward_mode=mode, num_objects=4)
+        env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", reward_mode=mode, num_objects=4)
         try:
             env.reset(seed=71)
             _, reward, _, _, _ = env.step(torch.zeros(env.action_space.shape))
@@ -281,7 +281,7 @@ def test_category_env_rejects_a_task_of_another_category(env):
     env.reset(seed=91)
     task = env.unwrapped.tasks[0]
     other = next(c for c, label in CATEGORY_LABELS.items() if label != task.target_label)
-    shelf = gym.make(f"FetchBench-{other}-v0", obs_mode="state", num_objects=4)
+    shelf = gym.make(f"FetchBench-{other}-v0", task_source="sampled", obs_mode="state", num_objects=4)
     try:
         loaded = shelf.unwrapped.tasks
         with pytest.raises(ValueError, match=f"this env is for {other} targets"):
@@ -299,7 +299,7 @@ FAST_MODES = ("pd_joint_pos", "pd_joint_delta_pos", "pd_ee_delta_pose")
     "mode", [m if m in FAST_MODES else pytest.param(m, marks=pytest.mark.slow) for m in control_modes()]
 )
 def test_every_control_mode_steps(mode):
-    env = gym.make("FetchBench-v0", obs_mode="state", control_mode=mode, num_objects=3)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", control_mode=mode, num_objects=3)
     try:
         env.reset(seed=5)
         start = env.unwrapped.agent.robot.get_qpos().clone()
@@ -342,7 +342,7 @@ def _close_gripper_on_target_in_free_space(env):
 # close above grasps; seed 4's target under sampler v4 (a 19 cm flashlight) is not grasped by it.
 @pytest.mark.parametrize("seed", [1, 2])
 def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
-    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
     try:
         env.reset(seed=seed)
         info = _close_gripper_on_target_in_free_space(env)
@@ -361,7 +361,7 @@ def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
 
 
 def test_state_obs_size_is_fixed_across_tasks_with_padded_slots():
-    env = gym.make("FetchBench-v0", obs_mode="state", num_objects=15)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", num_objects=15)
     try:
         sizes, padded = set(), 0
         for seed in (0, 1, 2, 3):
@@ -381,7 +381,7 @@ def test_runs_under_maniskills_vector_wrapper_as_ppo_uses_it():
     """ManiSkill's PPO baseline wraps envs in ManiSkillVectorEnv (auto-reset, metrics)."""
     from mani_skill.vector.wrappers.gymnasium import ManiSkillVectorEnv
 
-    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", reward_mode="normalized_dense",
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", control_mode="pd_joint_delta_pos", reward_mode="normalized_dense",
                    num_objects=6, max_episode_steps=3)
     envs = ManiSkillVectorEnv(env, ignore_terminations=False, record_metrics=True)
     try:

@@ -28,7 +28,7 @@ GRID = [(o, c) for o in MANISKILL_OBS_MODES for c in control_modes()] + [(o, "pd
 #: ManiSkill's start seed 2022; resetting to the same seed restarts it without a rebuild.
 GRID_ENV, GRID_SEED = "FetchBench-Desk-v0", 2022
 #: Small cameras (ManiSkill's sensor override): rendering is most of a camera cell's time.
-GRID_KWARGS = dict(num_objects=2, sensor_configs=dict(width=80, height=60))
+GRID_KWARGS = dict(task_source="sampled", num_objects=2, sensor_configs=dict(width=80, height=60))
 
 
 def _in_space(space, obs) -> bool:
@@ -115,7 +115,7 @@ def test_gymnasium_env_checker_passes_on_maniskills_cpu_gym_wrapper():
     from gymnasium.utils.passive_env_checker import env_render_passive_checker
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
-    env = CPUGymWrapper(gym.make("FetchBench-v0", obs_mode="state", num_objects=4))
+    env = CPUGymWrapper(gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", num_objects=4))
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -135,7 +135,7 @@ def test_gymnasium_env_checker_passes_on_maniskills_cpu_gym_wrapper():
     for mode in ("rgb_array", "sensors", "all"):
         # The "human" viewer needs a display; the other render modes as check_env's render part checks them.
         assert mode in env.metadata["render_modes"] and env.metadata["render_fps"] == 20
-        shown = CPUGymWrapper(gym.make("FetchBench-v0", obs_mode="state", num_objects=4, render_mode=mode))
+        shown = CPUGymWrapper(gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", num_objects=4, render_mode=mode))
         shown.reset(seed=5)
         frame = env_render_passive_checker(shown)
         assert isinstance(frame, np.ndarray) and frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3

@@ -21,7 +21,7 @@ STEPS = 12
 def demo(tmp_path_factory):
     """A scripted pd_joint_pos episode: swing the arm, then close the gripper."""
     out = tmp_path_factory.mktemp("demo")
-    env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
+    env = gym.make("FetchBench-v0", task_source="sampled", obs_mode="state", control_mode="pd_joint_pos", num_objects=6)
     env = RecordEpisode(env, output_dir=str(out), trajectory_name="demo", save_video=False,
                         source_type="scripted", source_desc="test swing")
     env.reset(seed=3)
@@ -83,7 +83,7 @@ def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
 def demo_without_renderer(tmp_path_factory):
     """A short demo recorded as state-only data collection does it: render_backend="none"."""
     out = tmp_path_factory.mktemp("demo_norender")
-    env = gym.make("FetchBench-Desk-v0", obs_mode="state", control_mode="pd_joint_pos", num_objects=2,
+    env = gym.make("FetchBench-Desk-v0", task_source="sampled", obs_mode="state", control_mode="pd_joint_pos", num_objects=2,
                    render_backend="none")
     env = RecordEpisode(env, output_dir=str(out), trajectory_name="demo", save_video=False, source_type="scripted")
     env.reset(seed=3)

@@ -12,6 +12,7 @@ from ..scenes import SCENE_TYPES
 from ..tasks.spec import CATEGORY_LABELS
 from .fetchbench import FetchBenchEnv, control_modes, settle_and_hold
 from .pointcloud import FetchClouds, fetch_clouds
+from .vector import make_vec_env
 
 MAX_EPISODE_STEPS = 400  # 20 s at 20 Hz
 
@@ -29,7 +30,9 @@ ENV_KWARGS.update({scene_type_env_id(t): {"scene_type": t} for t in SCENE_TYPES}
 ENV_IDS = tuple(ENV_KWARGS)
 
 for _env_id, _kwargs in ENV_KWARGS.items():
-    register_env(_env_id, max_episode_steps=MAX_EPISODE_STEPS, **_kwargs)(FetchBenchEnv)
+    # id_fixes: what the id fixes, so a contradicting kwarg (FetchBench-Shelf-v0 with
+    # category="Table") is refused rather than silently overriding the id.
+    register_env(_env_id, max_episode_steps=MAX_EPISODE_STEPS, id_fixes=dict(_kwargs), **_kwargs)(FetchBenchEnv)
 
 
 def make(env_id: str, **kwargs):
@@ -41,4 +44,5 @@ def make(env_id: str, **kwargs):
     return gym.make(env_id, **kwargs)
 
 
-__all__ = ["ENV_IDS", "FetchBenchEnv", "FetchClouds", "control_modes", "fetch_clouds", "make", "settle_and_hold"]
+__all__ = ["ENV_IDS", "FetchBenchEnv", "FetchClouds", "control_modes", "fetch_clouds", "make", "make_vec_env",
+           "settle_and_hold"]

@@ -12,14 +12,16 @@ the PD gripper squeeze without jitter.
 from __future__ import annotations
 
 import functools
+import json
+import os
+from dataclasses import dataclass
 
 import numpy as np
 import sapien
 from mani_skill.utils.structs.types import DefaultMaterialsConfig, SceneConfig, SimConfig
 
-from ..objects.sapien_build import add_object_shapes as add_catalog_object_shapes
-from ..utils.io import sha256_bytes
-from ..utils.mesh_cache import mesh_file
+from ..utils.io import atomic_write_text, sha256_bytes
+from ..utils.mesh_cache import cache_dir, mesh_file
 
 SIM_FREQ = 120  # Hz
 CONTROL_FREQ = 20  # Hz
@@ -53,22 +55,59 @@ def apply_physx_config(sim_config: SimConfig) -> None:
     sapien.physx.set_default_material(**sim_config.default_materials_config.dict())
 
 
-def add_object_shapes(builder, asset, placement, with_visual: bool = True) -> None:
+@dataclass(frozen=True)
+class ObjectFiles:
+    """What SAPIEN needs to build one catalog object: its convex parts' and visual mesh's
+    files (content-addressed, ``utils.mesh_cache``) and its colour."""
+
+    parts: tuple[str, ...]
+    visual: str
+    rgba: tuple[float, float, float, float]
+
+
+@functools.lru_cache(maxsize=None)
+def object_files(object_id: str) -> ObjectFiles:
+    """The mesh files of ``object_id``, remembered in memory and on disk (next to the
+    mesh files, under the catalog's version), so building a task's objects into a scene
+    neither rebuilds the catalog's geometry (20-60 ms an object) nor re-hashes meshes.
+    A record whose files have gone (cache cleared) is rebuilt."""
+    from ..tasks.objects import load_object, object_source
+
+    key = sha256_bytes(f"{object_source()}|{object_id}".encode())[:32]
+    path = cache_dir() / "object_files" / f"{key}.json"
+    if path.exists():
+        try:
+            d = json.loads(path.read_text())
+            files = ObjectFiles(tuple(d["parts"]), d["visual"], tuple(d["rgba"]))
+            if d.get("object_id") == object_id and all(map(os.path.exists, files.parts + (files.visual,))):
+                return files
+        except (ValueError, KeyError, TypeError):
+            pass  # unreadable: rebuilt below
+    asset = load_object(object_id)
+    files = ObjectFiles(tuple(mesh_file(p) for p in asset.convex_parts), mesh_file(asset.visual_mesh),
+                        _object_rgba(asset))
+    atomic_write_text(path, json.dumps({"object_id": object_id, "parts": files.parts, "visual": files.visual,
+                                        "rgba": files.rgba}))
+    return files
+
+
+def add_object_shapes(builder, object_id: str, placement, with_visual: bool = True) -> None:
     """Collision (one convex shape per convex part, at the task's density and material)
     and visual shapes of one object, in the object frame."""
+    files = object_files(object_id)
     material = sapien.physx.PhysxMaterial(placement.static_friction, placement.dynamic_friction, placement.restitution)
-    add_catalog_object_shapes(builder, asset, density=placement.density, physx_material=material, with_visual=False)
-    if with_visual:  # the visual here, with a cached material (see object_render_material)
-        builder.add_visual_from_file(mesh_file(asset.visual_mesh), material=object_render_material(asset))
+    for part in files.parts:
+        builder.add_convex_collision_from_file(part, material=material, density=placement.density)
+    if with_visual:
+        builder.add_visual_from_file(files.visual, material=_render_material(files.rgba))
 
 
-def object_render_material(asset):
-    """The object's own colour (procedural objects) or a fixed one per id (scans)."""
+def _object_rgba(asset) -> tuple:
     rgba = getattr(asset, "rgba", None)
     if rgba is None:
         digest = bytes.fromhex(sha256_bytes(asset.object_id.encode())[:6])
         rgba = tuple(0.25 + 0.6 * b / 255 for b in digest[:3]) + (1.0,)
-    return _render_material(tuple(float(c) for c in rgba))
+    return tuple(float(c) for c in rgba)
 
 
 @functools.lru_cache(maxsize=None)

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import copy
 import functools
+import gc
 import math
+import warnings
 from typing import Any, Optional
 
 import gymnasium as gym
@@ -24,6 +26,7 @@ from ..scenes import SCENE_TYPES
 from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, sample_task
 from ..tasks.spec import CATEGORY_LABELS, TaskSpec
+from ..utils.io import canonical_json
 from . import pointcloud
 from .bodies import default_sim_config
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
@@ -42,16 +45,23 @@ HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
 # this, the fingers cannot touch it.
 FINGER_REACH = 0.08  # m
 DENSE_REWARD_MAX = 6.0
+FULL_GC_EVERY = 16  # CPU reconfigures between full garbage collections (see FetchBenchEnv._clear)
 #: Where seed-sampled tasks take their objects from. "train" by default, so an env made
 #: for learning never shows a policy a test object; evaluation asks for "test" explicitly
 #: (the eval runner does) or loads suite tasks, which carry their own objects.
 OBJECT_SPLITS = ("train", "test")
 DEFAULT_OBJECT_SPLIT = "train"
+#: Where a seed's task comes from: "suite", a task of a filtered task suite (every one
+#: passes the stable, visible and reachable filters), picked by the seed; "sampled", a
+#: task sampled procedurally from the seed (unlimited, unfiltered).
+TASK_SOURCES = ("suite", "sampled")
+#: The suite seed resets draw from by default: the filtered train-split tasks.
+DEFAULT_TASK_SUITE = "train"
 #: Observation modes that need no renderer (no camera data); every other mode renders.
 NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
 #: ManiSkill's named obs modes; any "+"-joined combination of camera textures
 #: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
-NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud")
+NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE)
 #: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
 MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
                        "rgb+depth", "rgb+depth+segmentation", "rgb+segmentation", "depth+segmentation",
@@ -87,6 +97,24 @@ def check_obs_mode(obs_mode: Optional[str], render_backend: Optional[str] = "gpu
                          "(or leave render_backend at its default)")
 
 
+def check_num_envs(num_envs: int, sim_backend: str = "auto") -> None:
+    """ValueError for several sub-scenes where GPU simulation is impossible (ManiSkill
+    raises a bare RuntimeError about a missing "cuda" device or a CPU backend), naming
+    both ways to run many environments."""
+    if num_envs <= 1:
+        return
+    backend = str(sim_backend).split(":")[0]
+    cpu = backend in ("cpu", "physx_cpu")
+    if cpu or not torch.cuda.is_available():
+        why = (f"sim_backend={sim_backend!r} simulates one sub-scene" if cpu
+               else "no CUDA device is available here")
+        raise ValueError(
+            f"num_envs={num_envs} needs GPU simulation, but {why}. Either run sim_backend='physx_cuda' on a "
+            "machine with a CUDA GPU (and SAPIEN's PhysX GPU runtime), or on the CPU use "
+            f"fetchbench_ms.envs.make_vec_env(env_id, {num_envs}, **kwargs): a gymnasium AsyncVectorEnv of "
+            "single-scene CPU envs")
+
+
 def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
     """ValueErrors naming the valid choices for ManiSkill's own kwargs, raised before any
     scene is built (ManiSkill raises NotImplementedError, KeyError or an assertion)."""
@@ -104,6 +132,70 @@ def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
         valid = ", ".join(["auto", *sim_backend_name_mapping])
         raise ValueError(f"unknown sim_backend {sim_backend!r}; valid: {valid} (a GPU may be named, e.g. cuda:1)")
     check_obs_mode(kwargs.get("obs_mode"), kwargs.get("render_backend", "gpu"))
+
+
+def _check_id_fixes(id_fixes: Optional[dict], **given) -> None:
+    """ValueError when a kwarg contradicts what the env id fixes (e.g.
+    ``gym.make("FetchBench-Shelf-v0", category="Table")``). ``id_fixes``: the kwargs the id
+    was registered with (``fetchbench_ms.envs.ENV_KWARGS``)."""
+    for key, fixed in (id_fixes or {}).items():
+        if given.get(key) != fixed:
+            from . import ENV_KWARGS
+
+            env_id = next(i for i, kw in ENV_KWARGS.items() if kw == id_fixes)
+            wanted = [i for i, kw in ENV_KWARGS.items() if kw == {key: given.get(key)}]
+            raise ValueError(
+                f"{env_id} is the env for {key}={fixed!r}, but {key}={given.get(key)!r} was given; valid: leave "
+                f"{key} out (or give {key}={fixed!r}), or make " + (f"{wanted[0]} or " if wanted else "")
+                + f"FetchBench-v0 with {key}={given.get(key)!r}")
+
+
+def _resolve_task_source(task_source: Optional[str], task_suite, object_split: str, scene_type: Optional[str],
+                         category: Optional[str]):
+    """(task source, loaded suite or None, ids of the suite tasks a seed may pick) for the
+    env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets."""
+    from ..tasks.suite import SUITES_DIR, load_suite
+
+    if task_source is None:
+        if task_suite is not None:
+            task_source = "suite"
+        elif object_split != DEFAULT_OBJECT_SPLIT:
+            # Test objects: the default suite holds train objects only (evaluation on
+            # test objects samples them, or names the test suite).
+            task_source = "sampled"
+        elif not (SUITES_DIR / f"{DEFAULT_TASK_SUITE}.json.gz").exists():
+            warnings.warn(f"the default task suite {DEFAULT_TASK_SUITE!r} is not shipped with this install "
+                          f"({SUITES_DIR}); seed resets sample raw, unfiltered tasks (task_source='sampled'). "
+                          "Give task_suite=NAME_OR_PATH for filtered tasks.", stacklevel=3)
+            task_source = "sampled"
+        else:
+            task_source = "suite"
+    if task_source == "sampled":
+        return task_source, (load_suite(task_suite) if task_suite is not None else None), None
+    if task_suite is None:
+        if object_split != DEFAULT_OBJECT_SPLIT:
+            raise ValueError(f"object_split={object_split!r} with task_source='suite': the default suite "
+                             f"{DEFAULT_TASK_SUITE!r} has {DEFAULT_OBJECT_SPLIT} objects only; valid: "
+                             "task_suite='test' (filtered test tasks) or task_source='sampled'")
+        task_suite = DEFAULT_TASK_SUITE
+        if not (SUITES_DIR / f"{DEFAULT_TASK_SUITE}.json.gz").exists():
+            from ..tasks.suite import shipped_suites
+
+            raise ValueError(f"task_source='suite' draws from the default task suite {DEFAULT_TASK_SUITE!r}, which is "
+                             f"not shipped with this install ({SUITES_DIR}); valid: task_suite=one of "
+                             f"{', '.join(shipped_suites()) or '(none shipped)'} or a suite file's path, "
+                             "or task_source='sampled'")
+    suite = load_suite(task_suite)
+    label = CATEGORY_LABELS[category] if category is not None else None
+    pool = [i for i, t in suite.tasks.items()
+            if (scene_type is None or t.scene_type == scene_type) and (label is None or t.target_label == label)]
+    if not pool:
+        what = " and ".join(f"{k} {v!r}" for k, v in (("scene type", scene_type), ("category", category)) if v)
+        types = sorted({t.scene_type for t in suite.tasks.values() if label is None or t.target_label == label})
+        raise ValueError(f"task suite {suite.name!r} has no task for {what}; its tasks cover scene types "
+                         f"{', '.join(types) or '(none)'}" + (f" for category {category!r}" if category else "")
+                         + "; valid: another env id / suite, or task_source='sampled'")
+    return task_source, suite, pool
 
 
 class FetchBenchEnv(BaseEnv):
@@ -165,11 +257,14 @@ class FetchBenchEnv(BaseEnv):
         num_objects: int = 15,
         object_split: str = DEFAULT_OBJECT_SPLIT,
         task_suite: Optional[str] = None,
+        task_source: Optional[str] = None,
         robot_init_qpos_noise: float = 0.0,
         num_envs: int = 1,
         reconfiguration_freq: Optional[int] = None,
+        id_fixes: Optional[dict] = None,
         **kwargs,
     ):
+        _check_id_fixes(id_fixes, scene_type=scene_type, category=category)
         if scene_type is not None and scene_type not in SCENE_TYPES:
             raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
         if category is not None and category not in CATEGORY_LABELS:
@@ -183,20 +278,26 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"robot {robot_uids!r} is not supported; valid: panda")
         if object_split not in OBJECT_SPLITS:
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
+        if task_source is not None and task_source not in TASK_SOURCES:
+            raise ValueError(f"unknown task_source {task_source!r}; valid: {', '.join(TASK_SOURCES)}")
         _check_maniskill_kwargs(type(self), kwargs)
+        check_num_envs(num_envs, kwargs.get("sim_backend", "auto"))
+        # compact_pointcloud: ManiSkill's pointcloud mode underneath, compacted in get_obs.
+        self._compact_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPACT_OBS_MODE
+        if self._compact_pointcloud:
+            kwargs["obs_mode"] = "pointcloud"
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
         self.success_criteria = success_criteria
         self.sampler_config = SamplerConfig(num_objects=num_objects, object_split=object_split)
-        self.task_suite = None
-        if task_suite is not None:
-            from ..tasks.suite import load_suite
-
-            self.task_suite = load_suite(task_suite)
+        self.task_source, self.task_suite, self._suite_pool = _resolve_task_source(
+            task_source, task_suite, object_split, scene_type, category)
+        self._task_ids: Optional[list[Optional[str]]] = None
         self.robot_init_qpos_noise = robot_init_qpos_noise
         self._tasks: Optional[list[TaskSpec]] = None
         self._pending_tasks: Optional[list[TaskSpec]] = None
+        self._pending_ids: Optional[list[Optional[str]]] = None
         self.built: Optional[BuiltTasks] = None
         if reconfiguration_freq is None:
             # CPU: the content follows the task of each reset (a new task reconfigures).
@@ -219,6 +320,11 @@ class FetchBenchEnv(BaseEnv):
     def tasks(self) -> list[TaskSpec]:
         """The task of each sub-scene in the current episode."""
         return list(self._tasks)
+
+    @property
+    def task_ids(self) -> list[Optional[str]]:
+        """The suite id of each sub-scene's task (None for a sampled or given task)."""
+        return list(self._task_ids)
 
     @property
     def _default_sensor_configs(self):
@@ -252,6 +358,7 @@ class FetchBenchEnv(BaseEnv):
         options = dict(options) if options else {}
         partial = "env_idx" in options and len(options["env_idx"]) != self.num_envs
         tasks = self._tasks_from_options(options)
+        ids = [options["task_id"]] * self.num_envs if "task_id" in options else [None] * self.num_envs
         if tasks is not None and partial and tasks != [self._tasks[int(i)] for i in options["env_idx"]]:
             raise ValueError("a partial reset (env_idx) cannot load new tasks; reset all sub-scenes to change tasks")
         reconfiguring = (
@@ -263,12 +370,17 @@ class FetchBenchEnv(BaseEnv):
                 # Draw the episode seed here (from ManiSkill's main RNG) so the recorded
                 # seed alone rebuilds the task.
                 seed = [int(s) for s in np.atleast_1d(self._batched_main_rng.randint(2**31))]
-            tasks = [self._sample_task(int(s)) for s in self._episode_seeds(seed)]
+            seeds = self._episode_seeds(seed)
+            if self.task_source == "suite":
+                ids = [self.suite_task_id(s) for s in seeds]
+                tasks = [self.task_suite.get(i) for i in ids]
+            else:
+                tasks = [self._sample_task(s) for s in seeds]
         if tasks is not None and not partial and tasks != self._tasks:
             for task in tasks:  # before anything is torn down: a refused task leaves the env as it was
                 self._check_task(task)
             options["reconfigure"] = True
-            self._pending_tasks = tasks
+            self._pending_tasks, self._pending_ids = tasks, ids
         return super().reset(seed=seed, options=options)
 
     def _seed_np_random(self, seed) -> None:
@@ -293,6 +405,11 @@ class FetchBenchEnv(BaseEnv):
         if len(seeds) != self.num_envs:
             raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} sub-scenes; give 1 or {self.num_envs}")
         return seeds
+
+    def suite_task_id(self, seed: int) -> str:
+        """The id of the suite task a seed picks (``task_source="suite"``): uniform over the
+        suite's tasks of this env's scene type / category, from the seed alone."""
+        return self._suite_pool[int(np.random.default_rng(seed).integers(len(self._suite_pool)))]
 
     def _sample_task(self, seed: int) -> TaskSpec:
         # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
@@ -324,14 +441,60 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"task's target is {task.target_label} but this env is for {self.category} targets "
                              f"({CATEGORY_LABELS[self.category]})")
 
+    def _clear(self):
+        """ManiSkill's ``_clear``, without its full garbage collection on every CPU
+        reconfigure: with the catalog and suites loaded a full collection takes ~0.3 s, the
+        larger part of loading a new task. A young-generation collection runs every time
+        and a full one every ``FULL_GC_EVERY`` rebuilds (and on close and on GPU, where it
+        frees GPU memory), so old scenes are freed all the same."""
+        self._rebuilds = getattr(self, "_rebuilds", 0) + 1
+        if getattr(self, "scene", None) is None or self.gpu_sim_enabled or self._rebuilds % FULL_GC_EVERY == 0:
+            return super()._clear()
+        self._close_viewer()
+        self.agent = None
+        self._sensors = dict()
+        self._human_render_cameras = dict()
+        self.scene = None
+        self._hidden_objects = []
+        gc.collect(1)
+
+    def close(self):
+        BaseEnv._clear(self)  # with the full collection
+
+    def set_state_dict(self, state: dict, env_idx: torch.Tensor = None):
+        """ManiSkill's, plus what its state leaves out: whether an object was asleep. PhysX
+        reports exactly zero velocity for a sleeping body (an awake one at rest jitters at
+        ~1e-3 m/s), and setting a pose wakes a body up, so without this a replayed resting
+        object would start to jitter (and a precarious one to slide) where the recording
+        had it still. On CPU an object whose recorded velocities are all zero goes back to
+        sleep; the next contact wakes it as in the recording. (Not at an episode's first
+        step: after a reset the objects are awake at zero velocity, and so they stay.)"""
+        super().set_state_dict(state, env_idx)
+        if self.gpu_sim_enabled or int(self.elapsed_steps.max()) == 0:
+            return
+        actors = state.get("actors", {})
+        for slot in self.object_slots:
+            values = actors.get(slot.name)
+            if values is None:
+                continue
+            velocities = common.to_numpy(values).reshape(-1, 13)[0, 7:13]
+            if not np.any(velocities):
+                slot._objs[0].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent).put_to_sleep()
+
     def _load_agent(self, options: dict):
         base = torch.tensor([list(t.robot_base_position) + list(t.robot_base_quat_wxyz) for t in self._pending_tasks])
         super()._load_agent(options, Pose.create(base))
 
     def _load_scene(self, options: dict):
         self._tasks = self._pending_tasks
-        self._scene_specs = [t.scene() for t in self._tasks]
-        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects)
+        self._task_ids = self._pending_ids
+        self._task_filtered = torch.tensor([i is not None for i in self._task_ids], device=self.device)
+        self._scene_specs = [_scene_of(t) for t in self._tasks]
+        # Render meshes only where something can show them: a camera obs mode or a render
+        # mode (with state obs and no render_mode, skipping them saves ~0.1 s a new task).
+        with_visual = obs_mode_needs_renderer(self._obs_mode) or self.render_mode is not None
+        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects,
+                                 with_visual=with_visual)
         self.object_slots = self.built.slots
         self.target = self.built.target
 
@@ -450,6 +613,7 @@ class FetchBenchEnv(BaseEnv):
             is_lifted=lifted,
             is_retrieved=retrieved,
             others_undisturbed=undisturbed,
+            task_filtered=self._task_filtered.clone(),
         )
 
     # ------------------------------------------------------------------ observations
@@ -483,7 +647,17 @@ class FetchBenchEnv(BaseEnv):
         if self._obs_mode == "pointcloud":
             pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
             pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
+        if self._compact_pointcloud:
+            steps = common.to_numpy(self.elapsed_steps).reshape(-1)
+            seeds = [pointcloud.compact_seed(int(e), int(t)) for e, t in zip(np.atleast_1d(self._episode_seed), steps)]
+            obs = pointcloud.compact_pointcloud_obs(obs, seeds)
+        obs = _own_arrays(obs)
         return obs if unflattened else self._flatten_raw_obs(obs)
+
+    @property
+    def obs_mode(self) -> str:
+        """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath)."""
+        return pointcloud.COMPACT_OBS_MODE if self._compact_pointcloud else self._obs_mode
 
     # ------------------------------------------------------------------ rewards
     def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
@@ -514,6 +688,40 @@ def _sample_task_cached(seed: int, scene_type: Optional[str], category: Optional
     sampling (scene, placement, camera ray casts, settling) takes 0.1-4 s. The same
     arguments give the same task."""
     return sample_task(seed, scene_type=scene_type, category=category, config=config)
+
+
+#: Observation entries made fresh by every render (large): not copied by ``_own_arrays``.
+RENDERED_OBS_KEYS = ("sensor_data", "pointcloud")
+
+
+def _own_arrays(obs):
+    """``obs`` with every tensor its own copy, but the freshly rendered camera data:
+    ManiSkill hands out some buffers as they are (the base pose, camera parameters, on
+    CPU the robot's state), so a kept observation would change under its owner's feet
+    (gymnasium's data-not-reused check). Small tensors: ~2 us each."""
+    if isinstance(obs, torch.Tensor):
+        return obs.clone()
+    if isinstance(obs, dict):
+        return {k: v if k in RENDERED_OBS_KEYS else _own_arrays(v) for k, v in obs.items()}
+    return obs
+
+
+_SCENES: dict = {}  # (type, seed, params, hash) -> SceneSpec, the furniture of recently loaded tasks
+_SCENES_KEPT = 64
+
+
+def _scene_of(task: TaskSpec):
+    """``task.scene()``, remembered: the tasks of a suite share scenes, and regenerating
+    one takes 10-100 ms. The key is everything ``task.scene()`` reads and checks (the
+    generator's inputs and the stored content hash), so a cached scene was checked."""
+    key = (task.scene_type, task.scene_seed, canonical_json(task.scene_params), task.scene_hash)
+    spec = _SCENES.get(key)
+    if spec is None:
+        spec = task.scene()
+        if len(_SCENES) >= _SCENES_KEPT:
+            del _SCENES[next(iter(_SCENES))]
+        _SCENES[key] = spec
+    return spec
 
 
 def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:

@@ -145,3 +145,100 @@ def fetch_clouds(
         scene_labels=labels[picks["scene"]].astype(np.uint8),
         target_segmentation_id=int(_np(obs["extra"]["target_segmentation_id"][env_index])),
     )
+
+
+# ---------------------------------------------------------------------- compact clouds
+#: ``obs_mode="compact_pointcloud"``: the fixed-size cloud below in place of ManiSkill's raw one.
+COMPACT_OBS_MODE = "compact_pointcloud"
+#: Points per segment, in this order in the compact cloud (the imitation baselines' sizes).
+COMPACT_SIZES = {"scene": 16384, "target": 2048, "robot": 4096}
+#: Voxel edge (m) per segment: one point per occupied voxel is kept before the fixed-size draw.
+COMPACT_VOXEL = {"scene": 0.01, "target": 0.003, "robot": 0.005}
+#: The workspace box in the robot-base frame, ((x0, x1), (y0, y1), (z0, z1)) m: every task
+#: object rests at x 0.15-0.86, |y| < 0.73, z 0.01-1.31 (the test suite); the box adds
+#: room for the arm carrying the target back (success: x < 0) and leaves out the floor.
+WORKSPACE_BOX = ((-0.8, 1.4), (-1.0, 1.0), (-0.2, 1.6))
+_SEGMENT_LABELS = {"scene": (LABEL_FURNITURE, LABEL_OBJECT), "target": (LABEL_TARGET,), "robot": (LABEL_ROBOT,)}
+
+
+def compact_seed(episode_seed: int, step: int) -> int:
+    """The seed of the compact cloud of step ``step`` of an episode: the same episode and
+    step give the same points whoever computes them (the env, a replay, a conversion)."""
+    return int(np.random.SeedSequence([int(episode_seed) % 2**63, int(step)]).generate_state(1)[0])
+
+
+def _voxel_draw(points: np.ndarray, voxel: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of ``n`` points: one random point per occupied voxel, then ``n`` of those
+    (all, plus random repeats, when fewer voxels are occupied)."""
+    perm = rng.permutation(len(points))
+    cells = np.floor(points[perm] / voxel).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    _, first = np.unique(key, return_index=True)
+    reps = perm[first]  # one point per voxel (voxels in key order)
+    if len(reps) >= n:
+        return reps[rng.permutation(len(reps))[:n]]
+    return np.concatenate([reps, reps[rng.integers(len(reps), size=n - len(reps))]])
+
+
+def _segment_table() -> np.ndarray:
+    table = np.full(256, -1, dtype=np.int8)
+    for k, labels in enumerate(_SEGMENT_LABELS.values()):
+        table[list(labels)] = k
+    return table
+
+
+def compact_cloud(xyz_base, labels, seed: int, sizes: dict | None = None, box=WORKSPACE_BOX,
+                  voxel: dict | None = None) -> dict:
+    """A fixed-size, segment-aware cloud from one camera cloud (``xyz_base`` (N, 3) in the
+    robot-base frame, ``labels`` (N,) ``LABEL_*``, numpy or torch).
+
+    Points outside ``box`` (base frame) are dropped; each segment (scene = furniture and
+    other objects, target, robot) is voxel-downsampled (``voxel`` m) and drawn to its size
+    (``sizes``, default ``COMPACT_SIZES``) with a generator seeded by ``seed``. Returns
+    ``{"xyz": (M, 3) float16, "seg": (M,) uint8}`` (numpy), M = sum of the sizes, the
+    segments one after the other in ``sizes`` order; ``seg`` is each point's label
+    (furniture or object within the scene block). A segment with no point is filled with
+    zeros labelled ``LABEL_NONE``. (``seg``: ManiSkill's recorder gzips datasets of that name.)"""
+    sizes = COMPACT_SIZES if sizes is None else sizes
+    voxel = COMPACT_VOXEL if voxel is None else voxel
+    unknown = sorted(set(sizes) - set(_SEGMENT_LABELS))
+    if unknown:
+        raise ValueError(f"unknown segments {unknown}; valid: {', '.join(_SEGMENT_LABELS)}")
+    points = _np(xyz_base).reshape(-1, 3).astype(np.float32, copy=False)
+    labels = _np(labels).reshape(-1).astype(np.uint8, copy=False)
+    low, high = np.array([b[0] for b in box]), np.array([b[1] for b in box])
+    segment = _segment_table()[labels]
+    segment[~((points >= low) & (points <= high)).all(axis=1)] = -1
+    rng = np.random.default_rng(int(seed))
+    xyz_out, seg_out = [], []
+    for k, (name, n) in enumerate((name, sizes[name]) for name in _SEGMENT_LABELS if name in sizes):
+        index = np.flatnonzero(segment == k)
+        if len(index) == 0:
+            xyz_out.append(np.zeros((n, 3), dtype=np.float32))
+            seg_out.append(np.full(n, LABEL_NONE, dtype=np.uint8))
+            continue
+        pick = index[_voxel_draw(points[index], voxel.get(name, COMPACT_VOXEL[name]), n, rng)]
+        xyz_out.append(points[pick])
+        seg_out.append(labels[pick])
+    return {"xyz": np.concatenate(xyz_out).astype(np.float16), "seg": np.concatenate(seg_out)}
+
+
+def compact_pointcloud_obs(obs: dict, seeds) -> dict:
+    """``obs`` with ``obs["pointcloud"]`` (a FetchBench point-cloud observation with
+    ``xyz_base`` and ``fetch_label``, batched [B, N, ...], torch or numpy) replaced by the
+    compact cloud of each sub-scene (``compact_cloud``; ``seeds``: one per sub-scene),
+    batched: ``xyz`` [B, M, 3] float16, ``seg`` [B, M] uint8. Everything else is kept."""
+    pcd = obs["pointcloud"]
+    if "xyz_base" not in pcd or "fetch_label" not in pcd:
+        raise ValueError("compact_pointcloud_obs needs a FetchBench point-cloud observation (obs_mode='pointcloud': "
+                         "pointcloud/xyz_base and pointcloud/fetch_label)")
+    clouds = [compact_cloud(pcd["xyz_base"][i], pcd["fetch_label"][i], int(s)) for i, s in enumerate(seeds)]
+    batched = {k: np.stack([c[k] for c in clouds]) for k in ("xyz", "seg")}
+    out = dict(obs)
+    if isinstance(pcd["xyz_base"], torch.Tensor):
+        device = pcd["xyz_base"].device
+        batched = {k: torch.from_numpy(v).to(device) for k, v in batched.items()}
+    out["pointcloud"] = batched
+    return out

@@ -18,6 +18,7 @@ different procedural scene and different objects):
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,6 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from ..scenes.sapien_build import add_scene_parts
-from ..tasks.objects import collision_vertices, load_object
 from ..tasks.spec import TaskSpec
 from .bodies import add_object_shapes, box_half_size
 
@@ -61,10 +61,12 @@ class BuiltTasks:
     base_pose: torch.Tensor  # [B, 7]
 
 
-def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> BuiltTasks:
+def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0, with_visual: bool = True) -> BuiltTasks:
     """Build ``tasks[i]`` into sub-scene i. ``min_slots`` pads the object slots to a fixed
-    count, so state observations keep their size from task to task."""
+    count, so state observations keep their size from task to task. ``with_visual=False``
+    leaves out the objects' and furniture's render meshes (nothing will render them)."""
     scene = env.scene
+    with_visual = with_visual and scene.can_render()
     num_envs = len(tasks)
     num_slots = max([min_slots] + [len(t.objects) for t in tasks])
     device = env.device
@@ -78,7 +80,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
             builder = scene.create_actor_builder()
             if k < len(task.objects):
                 placement = task.objects[k]
-                add_object_shapes(builder, load_object(placement.object_id), placement, with_visual=scene.can_render())
+                add_object_shapes(builder, placement.object_id, placement, with_visual=with_visual)
                 pose = sapien.Pose(p=list(placement.position), q=list(placement.quat_wxyz))
                 valid[i, k] = True
             else:
@@ -100,7 +102,8 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         slots.append(merged)
     target = Actor.merge([per_slot[t.target_index][i] for i, t in enumerate(tasks)], name="target")
     target_radius = [
-        float(np.linalg.norm(collision_vertices(load_object(t.target.object_id)) - com_local[i, t.target_index], axis=1).max())
+        float(np.linalg.norm(_collision_vertices(per_slot[t.target_index][i]) - com_local[i, t.target_index],
+                             axis=1).max())
         for i, t in enumerate(tasks)
     ]
 
@@ -122,17 +125,17 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         camera_pose[side] = torch.tensor(poses, dtype=torch.float32, device=device)
 
     furniture, robot_tables = [], []
-    table_material = sapien.render.RenderMaterial(base_color=list(ROBOT_TABLE_RGBA), roughness=0.8)
     for i, (task, spec) in enumerate(zip(tasks, scene_specs)):
         builder = scene.create_actor_builder()
-        add_scene_parts(builder, spec, with_visual=scene.can_render())
+        add_scene_parts(builder, spec, with_visual=with_visual)
         builder.initial_pose = sapien.Pose()
         builder.set_scene_idxs([i])
         furniture.append(builder.build_static(name=f"furniture-env{i}"))
         builder = scene.create_actor_builder()
         half = box_half_size(task.robot_table_size)
         builder.add_box_collision(half_size=half)
-        builder.add_box_visual(half_size=half, material=table_material)
+        if with_visual:
+            builder.add_box_visual(half_size=half, material=_robot_table_material())
         builder.initial_pose = sapien.Pose(p=list(task.robot_table_center), q=list(task.robot_base_quat_wxyz))
         builder.set_scene_idxs([i])
         robot_tables.append(builder.build_static(name=f"robot_table-env{i}"))
@@ -155,6 +158,22 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0) -> 
         camera_pose=camera_pose,
         base_pose=base_pose,
     )
+
+
+@functools.lru_cache(maxsize=None)
+def _robot_table_material():
+    # Made once: a RenderMaterial costs ~40 ms on a CPU (lavapipe) renderer.
+    return sapien.render.RenderMaterial(base_color=list(ROBOT_TABLE_RGBA), roughness=0.8)
+
+
+def _collision_vertices(actor: Actor) -> np.ndarray:
+    """(N, 3) vertices of an actor's convex collision shapes, in its body frame."""
+    body = actor._objs[0].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+    points = []
+    for shape in body.collision_shapes:
+        vertices = shape.get_vertices() * shape.scale
+        points.append(vertices @ shape.local_pose.to_transformation_matrix()[:3, :3].T + shape.local_pose.p)
+    return np.concatenate(points)
 
 
 def initialize_tasks(built: BuiltTasks, env_idx: torch.Tensor) -> None:

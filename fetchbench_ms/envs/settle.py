@@ -15,7 +15,6 @@ import numpy as np
 import sapien
 
 from ..scenes.sapien_build import add_scene_parts
-from ..tasks.objects import load_object
 from ..utils.canonical import canonical_lengths, canonical_quat
 from .bodies import SIM_FREQ, add_object_shapes, apply_physx_config, box_half_size, default_sim_config
 
@@ -38,7 +37,7 @@ def _build(scene_spec, placements, table_center, table_size):
     bodies = []
     for k, placement in enumerate(placements):
         builder = scene.create_actor_builder()
-        add_object_shapes(builder, load_object(placement.object_id), placement, with_visual=False)
+        add_object_shapes(builder, placement.object_id, placement, with_visual=False)
         builder.set_initial_pose(sapien.Pose(p=list(placement.position), q=list(placement.quat_wxyz)))
         entity = builder.build(name=f"object_{k}")
         bodies.append(entity.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent))

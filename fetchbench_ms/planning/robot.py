@@ -14,6 +14,7 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -222,7 +223,7 @@ class PandaModel:
         root = ET.parse(self.urdf_path).getroot()
         files = sorted({m.get("filename") for m in root.iter("mesh") if "collision" in m.get("filename")})
         base = os.path.dirname(self.urdf_path)
-        data = [open(self.urdf_path, "rb").read()] + [open(os.path.join(base, f), "rb").read() for f in files]
+        data = [Path(self.urdf_path).read_bytes()] + [Path(base, f).read_bytes() for f in files]
         return b"|".join(data)
 
     def _self_pairs(self, srdf_path: str) -> np.ndarray:

@@ -18,7 +18,7 @@ from fetchbench_ms.demos.generate import DemoJob, done_parts, merge, parts_dir, 
 from fetchbench_ms.solutions.expert import solve, stage_end_flags
 from fetchbench_ms.solutions.sense_plan_act import STAGES
 
-SUITE = "val"  # train-split tasks; the demos' suite in these tests
+SUITE = "train"  # the demonstrations' suite (train-split tasks)
 ENV_ID = "FetchBench-v0"
 
 
@@ -162,3 +162,16 @@ def test_demo_suites_hold_train_objects_only():
         suite = load_suite(name)
         used = {o.object_id for t in suite.tasks.values() for o in t.objects}
         assert used and not used & test_objects, name
+
+
+def test_converts_to_delta_pos_with_compact_point_clouds(demos):
+    """What imitation trains on: pd_joint_delta_pos actions with compact point clouds,
+    rendered by the replay tool from the recorded env states' episode (one trajectory:
+    rendering two cameras a step on a CPU takes a while)."""
+    assert "1/1" in _replay(demos, "-c", "pd_joint_delta_pos", "-o", "compact_pointcloud", "--count", "1")
+    converted = demos.with_name(f"{demos.stem}.compact_pointcloud.pd_joint_delta_pos.physx_cpu.h5")
+    with h5py.File(converted, "r") as f:
+        traj = f["traj_0"]
+        xyz = traj["obs"]["pointcloud"]["xyz"]
+        assert xyz.dtype == np.float16 and xyz.shape[0] == traj["actions"].shape[0] + 1
+        assert traj["success"][-1]

@@ -141,19 +141,30 @@ class UrdfTreeFK:
         """(J, 3) joint axes in their child-link frames (the frame the motion is applied in)."""
         return self._axes[[self._slot[n] for n in names]]
 
+    def to(self, device=None, dtype=torch.float64) -> "UrdfTreeFK":
+        """A copy whose constants (and so whose forward) live on ``device`` in ``dtype``."""
+        import copy
+
+        out = copy.copy(self)
+        out._T = [T.to(device, dtype) for T in self._T]
+        out._q_index = self._q_index.to(device)
+        out._axes, out._K = self._axes.to(device, dtype), self._K.to(device, dtype)
+        out._prismatic = self._prismatic.to(device)
+        return out
+
     def forward(self, q_full: torch.Tensor) -> dict[str, torch.Tensor]:
         B = q_full.shape[0]
+        dd = dict(dtype=self._K.dtype, device=self._K.device)
         v = q_full[:, self._q_index]  # (B, M)
         # All joint motions at once: Rodrigues for revolute, translation for prismatic.
         s, c = torch.sin(v)[..., None, None], torch.cos(v)[..., None, None]
-        R = torch.eye(3, dtype=torch.float64) + s * self._K + (1 - c) * (self._K @ self._K)
-        R = torch.where(self._prismatic[None, :, None, None], torch.eye(3, dtype=torch.float64), R)
-        t = torch.where(self._prismatic[None, :, None], v[..., None] * self._axes, torch.zeros(()))
-        motion = torch.zeros(B, len(self._axes), 4, 4, dtype=torch.float64)
-        motion[..., :3, :3] = R
-        motion[..., :3, 3] = t
-        motion[..., 3, 3] = 1.0
-        poses = {self.root_link: torch.eye(4, dtype=torch.float64).expand(B, 4, 4)}
+        eye3 = torch.eye(3, **dd)
+        R = eye3 + s * self._K + (1 - c) * (self._K @ self._K)
+        R = torch.where(self._prismatic[None, :, None, None], eye3, R)
+        t = torch.where(self._prismatic[None, :, None], v[..., None] * self._axes, torch.zeros((), **dd))
+        bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], **dd).expand(B, len(self._axes), 1, 4)
+        motion = torch.cat([torch.cat([R, t[..., None]], dim=3), bottom], dim=2)
+        poses = {self.root_link: torch.eye(4, **dd).expand(B, 4, 4)}
         for j, T_origin in zip(self.joints, self._T):
             T = poses[j.parent] @ T_origin
             if j.name in self._slot:

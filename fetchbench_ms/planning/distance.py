@@ -1,0 +1,317 @@
+"""Differentiable sphere-vs-world distances in torch, batched over problems, on any device.
+
+The torch planners' view of what ``checker.CollisionChecker`` decides one configuration at
+a time: the same obstacles, the same robot spheres, but as tensors on one device, batched
+over problems (``P``), and with gradients.
+
+- ``TorchWorld``: the obstacles of ``P`` collision worlds (each with its own excluded
+  groups), padded to common sizes. Boxes, cylinders, capsules and convex parts (half-space
+  form) keep the exact formulas of ``world.py`` (a broad phase on bounding spheres, then the
+  exact distance of the pairs within the horizon), so on the mesh world the two agree to
+  float precision. A ``PointCloudField`` (the 5 mm cloud) becomes a truncated distance
+  grid (``GRID_RESOLUTION``): an EDT of the occupied cells, refined to the exact
+  nearest-voxel distance (the k-d tree's answer) at the grid vertices near the cloud, read
+  by trilinear interpolation (``grid_sample``), so it is within about a cell of the
+  checker's value and smooth enough for gradients.
+- ``TorchRobot``: batched FK of the Panda's spheres on the device, per problem finger
+  opening, checked links and carried object (``checker.Attachment``); self-collision
+  sphere pairs and carried-object-vs-arm pairs.
+
+Distances are signed: < 0 is penetration. Values are exact (or as the checker's) below
+the query horizon; beyond it, any value >= the horizon.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .checker import CollisionChecker
+from .robot import PandaModel
+from .world import FAR, BoxSet, CollisionWorld, ConvexSet, CylinderSet, PointCloudField
+
+GRID_RESOLUTION = 0.01  # m between distance-grid vertices (point-cloud worlds)
+GRID_TRUNCATION = 0.10  # m: grid values are exact up to here, at least this beyond
+GRID_EXACT_BAND = 0.06  # m: vertices this near the cloud (by the EDT) get the exact distance
+_FAR_CENTER = 1e3  # padding obstacles sit here with a zero bounding radius: never near
+
+
+def _pad(arrays: list[np.ndarray], fill: float, tail: tuple[int, ...]) -> np.ndarray:
+    """Stack per-problem arrays (n_p, *tail) into (P, max n_p, *tail), padded with ``fill``."""
+    n = max([len(a) for a in arrays] + [1])
+    out = np.full((len(arrays), n) + tail, fill, dtype=float)
+    for i, a in enumerate(arrays):
+        out[i, : len(a)] = np.asarray(a, dtype=float).reshape((-1,) + tail)
+    return out
+
+
+def _smooth_norm(x: torch.Tensor) -> torch.Tensor:
+    """|x| over the last axis with a finite gradient at 0."""
+    return torch.sqrt((x * x).sum(-1) + 1e-12)
+
+
+class _Primitives:
+    """One kind of obstacle for all problems: (P, O, ...) tensors and bounding spheres."""
+
+    def __init__(self, kind: str, tensors: dict[str, np.ndarray], bound_c: np.ndarray, bound_r: np.ndarray,
+                 device, dtype):
+        self.kind = kind
+        self.t = {k: torch.as_tensor(v, device=device, dtype=dtype) for k, v in tensors.items()}
+        self.bound_c = torch.as_tensor(bound_c, device=device, dtype=dtype)
+        self.bound_r = torch.as_tensor(bound_r, device=device, dtype=dtype)
+
+    def exact(self, x: torch.Tensor, p: torch.Tensor, o: torch.Tensor) -> torch.Tensor:
+        """Signed distance of points ``x`` (M, 3) to obstacle ``o`` of problem ``p`` (the
+        formulas of world.py)."""
+        t = self.t
+        if self.kind == "convex":
+            planes = t["planes"][p, o]  # (M, K, 4)
+            return (torch.einsum("mkj,mj->mk", planes[..., :3], x) - planes[..., 3]).amax(dim=1)
+        local = torch.einsum("mij,mj->mi", t["R"][p, o], x) + t["t"][p, o]
+        if self.kind == "box":
+            q = local.abs() - t["half"][p, o]
+            return _smooth_norm(q.clamp(min=0)) + q.amax(dim=1).clamp(max=0)
+        r, h, capsule = t["radius"][p, o], t["half_length"][p, o], t["capsule"][p, o] > 0.5
+        z = torch.maximum(torch.minimum(local[:, 2], h), -h)
+        d_capsule = _smooth_norm(torch.stack([local[:, 0], local[:, 1], local[:, 2] - z], 1)) - r
+        d = torch.stack([_smooth_norm(local[:, :2]) - r, local[:, 2].abs() - h], 1)
+        d_cylinder = _smooth_norm(d.clamp(min=0)) + d.amax(dim=1).clamp(max=0)
+        return torch.where(capsule, d_capsule, d_cylinder)
+
+    def pairs(self, points: torch.Tensor, horizon: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat point index into P*N, signed distance) of every (point, obstacle) pair whose
+        bounding sphere is within ``horizon``."""
+        P, N, _ = points.shape
+        with torch.no_grad():
+            coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
+            p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
+        return p * N + n, self.exact(points[p, n], p, o)
+
+
+def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), values (nx, ny, nz)) of a truncated distance grid around the cloud."""
+    from scipy.ndimage import distance_transform_edt
+
+    centers = field.centers
+    lo = centers.min(axis=0) - GRID_TRUNCATION
+    shape = np.ceil((centers.max(axis=0) + GRID_TRUNCATION - lo) / resolution).astype(int) + 1
+    occupied = np.zeros(shape, dtype=bool)
+    idx = np.clip(np.round((centers - lo) / resolution).astype(int), 0, shape - 1)
+    occupied[tuple(idx.T)] = True
+    # EDT between vertices: within half a cell diagonal of the exact distance to the cloud.
+    values = distance_transform_edt(~occupied, sampling=resolution)
+    values = np.minimum(values - field.half_diagonal - 0.5 * np.sqrt(3) * resolution, GRID_TRUNCATION)
+    near = np.nonzero(values < GRID_EXACT_BAND)
+    if len(near[0]):
+        vertices = lo + np.stack(near, 1) * resolution
+        d, _ = field.tree.query(vertices, distance_upper_bound=GRID_TRUNCATION + field.half_diagonal)
+        values[near] = np.minimum(np.where(np.isfinite(d), d - field.half_diagonal, GRID_TRUNCATION),
+                                  GRID_TRUNCATION)
+    return lo, values
+
+
+class TorchWorld:
+    """The obstacles of ``P`` worlds as device tensors; see the module docstring."""
+
+    def __init__(self, worlds: Sequence[CollisionWorld], excludes: Sequence[tuple[str, ...]] | None = None,
+                 device=None, dtype=torch.float32, grid_resolution: float = GRID_RESOLUTION):
+        excludes = list(excludes) if excludes is not None else [()] * len(worlds)
+        if len(excludes) != len(worlds):
+            raise ValueError(f"{len(worlds)} worlds but {len(excludes)} exclude tuples")
+        self.P, self.device, self.dtype = len(worlds), torch.device(device or "cpu"), dtype
+        boxes, cyls, convex, clouds = [], [], [], []
+        for world, exclude in zip(worlds, excludes):
+            sets = [s for g, ss in world.groups.items() if g not in exclude for s in ss]
+            boxes.append([s for s in sets if isinstance(s, BoxSet)])
+            cyls.append([s for s in sets if isinstance(s, CylinderSet)])
+            convex.append([s for s in sets if isinstance(s, ConvexSet)])
+            clouds.append([s for s in sets if isinstance(s, PointCloudField) and len(s)])
+        self.kinds = [k for k in (self._boxes(boxes), self._cylinders(cyls), self._convex(convex)) if k is not None]
+        self._grids(clouds, grid_resolution)
+
+    # -- building -------------------------------------------------------------------------
+    def _make(self, kind, per_problem: list[dict[str, np.ndarray]], tails: dict, fills: dict) -> _Primitives | None:
+        if not any(len(d["bound_r"]) for d in per_problem):
+            return None
+        tensors = {k: _pad([d[k] for d in per_problem], fills.get(k, 0.0), tail) for k, tail in tails.items()}
+        bound_c = _pad([d["bound_c"] for d in per_problem], _FAR_CENTER, (3,))
+        bound_r = _pad([d["bound_r"] for d in per_problem], 0.0, ())
+        return _Primitives(kind, tensors, bound_c, bound_r, self.device, self.dtype)
+
+    @staticmethod
+    def _cat(sets, fn) -> np.ndarray:
+        parts = [np.asarray(fn(s)) for s in sets]
+        return np.concatenate(parts) if parts else np.zeros((0,))
+
+    def _boxes(self, per_problem):
+        data = [dict(R=self._cat(s, lambda b: b.T_box_base[:, :3, :3].numpy()).reshape(-1, 3, 3),
+                     t=self._cat(s, lambda b: b.T_box_base[:, :3, 3].numpy()).reshape(-1, 3),
+                     half=self._cat(s, lambda b: b.half_size.numpy()).reshape(-1, 3),
+                     bound_c=self._cat(s, lambda b: b.bound_center.numpy()).reshape(-1, 3),
+                     bound_r=self._cat(s, lambda b: b.bound_radius.numpy())) for s in per_problem]
+        return self._make("box", data, {"R": (3, 3), "t": (3,), "half": (3,)}, {})
+
+    def _cylinders(self, per_problem):
+        data = [dict(R=self._cat(s, lambda c: c.T_cyl_base[:, :3, :3].numpy()).reshape(-1, 3, 3),
+                     t=self._cat(s, lambda c: c.T_cyl_base[:, :3, 3].numpy()).reshape(-1, 3),
+                     radius=self._cat(s, lambda c: c.radius.numpy()),
+                     half_length=self._cat(s, lambda c: c.half_length.numpy()),
+                     capsule=self._cat(s, lambda c: np.full(len(c), float(c.capsule))),
+                     bound_c=self._cat(s, lambda c: c.bound_center.numpy()).reshape(-1, 3),
+                     bound_r=self._cat(s, lambda c: c.bound_radius.numpy())) for s in per_problem]
+        return self._make("cylinder", data, {"R": (3, 3), "t": (3,), "radius": (), "half_length": (),
+                                             "capsule": ()}, {})
+
+    def _convex(self, per_problem):
+        k = max([s.planes.shape[1] for sets in per_problem for s in sets] + [1])
+        data = []
+        for sets in per_problem:
+            planes = [F.pad(s.planes, (0, 0, 0, k - s.planes.shape[1]), value=0.0).numpy() for s in sets]
+            for p, s in zip(planes, sets):
+                p[:, s.planes.shape[1]:, 3] = 1e9  # padding planes never bind
+            data.append(dict(planes=np.concatenate(planes) if planes else np.zeros((0, k, 4)),
+                             bound_c=self._cat(sets, lambda c: c.bound_center.numpy()).reshape(-1, 3),
+                             bound_r=self._cat(sets, lambda c: c.bound_radius.numpy())))
+        return self._make("convex", data, {"planes": (k, 4)}, {"planes": 0.0})
+
+    def _grids(self, clouds: list[list[PointCloudField]], resolution: float) -> None:
+        self.grid = None
+        if not any(clouds):
+            return
+        grids = []
+        for fields in clouds:
+            if not fields:
+                grids.append((np.zeros(3), np.full((2, 2, 2), FAR)))  # no cloud: nothing near
+                continue
+            if len(fields) > 1:  # several clouds of one problem: one field over all of them
+                merged = PointCloudField(np.concatenate([f.centers for f in fields]), fields[0].voxel)
+                fields = [merged]
+            grids.append(_grid_from_cloud(fields[0], resolution))
+        shape = np.max([g[1].shape for g in grids], axis=0)
+        values = np.full((len(grids),) + tuple(shape), GRID_TRUNCATION)
+        for i, (_, v) in enumerate(grids):
+            values[i] = v.max()  # beyond a smaller grid: as far as its truncation (or FAR: no cloud)
+            values[i, : v.shape[0], : v.shape[1], : v.shape[2]] = v
+        # grid_sample reads (N, C, D, H, W) with sample coordinates ordered (W, H, D) = (x, y, z).
+        self.grid = torch.as_tensor(values.transpose(0, 3, 2, 1)[:, None].copy(), device=self.device,
+                                    dtype=self.dtype)
+        self.grid_origin = torch.as_tensor(np.stack([g[0] for g in grids]), device=self.device, dtype=self.dtype)
+        self.grid_span = torch.as_tensor((shape - 1) * resolution, device=self.device, dtype=self.dtype)
+
+    # -- queries --------------------------------------------------------------------------
+    def grid_distance(self, points: torch.Tensor) -> torch.Tensor:
+        """(P, N) interpolated point-cloud distance, exact to about a cell up to
+        GRID_TRUNCATION, at least that beyond (FAR for problems without a cloud)."""
+        u = 2 * (points - self.grid_origin[:, None]) / self.grid_span - 1  # (P, N, 3) in [-1, 1]
+        out = F.grid_sample(self.grid, u[:, None, None], mode="bilinear", padding_mode="border", align_corners=True)
+        return out[:, 0, 0, 0]  # outside the grid: the border's value, >= the truncation
+
+    def pairs(self, points: torch.Tensor, horizon: float) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
+        """Per obstacle kind: (flat point index or None for one value per point, distance)."""
+        out = [kind.pairs(points, horizon) for kind in self.kinds]
+        if self.grid is not None:
+            out.append((None, self.grid_distance(points).reshape(-1)))
+        return out
+
+    def distance(self, points: torch.Tensor, horizon: float = 0.2) -> torch.Tensor:
+        """Signed distance (P, N) of points (P, N, 3) to the nearest obstacle of their problem."""
+        P, N, _ = points.shape
+        out = torch.full((P * N,), FAR, device=points.device, dtype=points.dtype)
+        for idx, d in self.pairs(points, horizon):
+            out = torch.minimum(out, d) if idx is None else out.scatter_reduce(0, idx, d, reduce="amin")
+        return out.reshape(P, N)
+
+    def penalty(self, points: torch.Tensor, radii: torch.Tensor, eta: float) -> torch.Tensor:
+        """(P, N): sum over obstacles of ``collision_cost(distance - radius, eta)`` per sphere."""
+        P, N, _ = points.shape
+        r = radii.reshape(-1)
+        out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
+        for idx, d in self.pairs(points, eta + float(r.max()) if len(r) else eta):
+            if idx is None:
+                out = out + collision_cost(d - r, eta)
+            else:
+                out = out.index_add(0, idx, collision_cost(d - r[idx], eta))
+        return out.reshape(P, N)
+
+
+def collision_cost(d: torch.Tensor, eta: float) -> torch.Tensor:
+    """CHOMP's / cuRobo's smooth obstacle cost of a signed distance: 0 beyond ``eta``,
+    quadratic in (0, eta], linear (slope 1) in penetration."""
+    return torch.where(d <= 0, -d + 0.5 * eta,
+                       torch.where(d <= eta, (d - eta) ** 2 / (2 * eta), torch.zeros_like(d)))
+
+
+class TorchRobot:
+    """The Panda's spheres on a device, for ``P`` problems at once.
+
+    Per problem (from its ``CollisionChecker``): finger opening, the links checked against
+    the world (``ignore_links``), the carried object's spheres. Spheres a problem does not
+    check get radius -1 m (they never come near anything).
+    """
+
+    def __init__(self, robot: PandaModel, checkers: Sequence[CollisionChecker], device=None,
+                 dtype=torch.float32):
+        self.robot, self.device, self.dtype = robot, torch.device(device or "cpu"), dtype
+        dd = dict(device=self.device, dtype=dtype)
+        self.fk = robot.fk.to(self.device, dtype)
+        sp = robot.spheres
+        self.links = sp.links
+        self.link_index = torch.as_tensor(sp.link_index, device=self.device)
+        self.centers_link = torch.as_tensor(sp.centers_link, **dd)
+        self.radii = torch.as_tensor(sp.radii, **dd)
+        self.P = len(checkers)
+        self.finger = torch.as_tensor([c.finger for c in checkers], **dd)
+        self.margin = torch.as_tensor([c.margin for c in checkers], **dd)
+        world_mask = torch.stack([c.world_mask for c in checkers]).to(self.device)
+        self.world_radii = torch.where(world_mask, self.radii, torch.full_like(self.radii, -1.0))  # (P, S)
+        pairs = torch.as_tensor(robot.self_collision_pairs, device=self.device)
+        self.self_a, self.self_b = pairs[:, 0], pairs[:, 1]
+        # Carried objects, padded: centres at the hand origin, radius -1.
+        atts = [c.attachment for c in checkers]
+        self.att_c = torch.as_tensor(_pad([a.centers_hand if a else np.zeros((0, 3)) for a in atts], 0.0, (3,)), **dd)
+        self.att_r = torch.as_tensor(_pad([a.radii if a else np.zeros(0) for a in atts], -1.0, ()), **dd)
+        self.has_attachment = any(a is not None for a in atts)
+        arm = robot.sphere_mask(("panda_link0", "panda_link1", "panda_link2", "panda_link3", "panda_link4"))
+        self.att_arm = torch.as_tensor(np.flatnonzero(arm), device=self.device)
+
+    def spheres(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Robot sphere centres (P, B, S, 3) and carried-object centres (P, B, M, 3) or None,
+        for configurations ``q`` (P, B, 7)."""
+        P, B, _ = q.shape
+        finger = self.finger[:, None, None].expand(P, B, 2)
+        poses = self.fk.forward(torch.cat([q, finger], dim=2).reshape(P * B, 9))
+        T = torch.stack([poses[l] for l in self.links], dim=1)[:, self.link_index]  # (PB, S, 4, 4)
+        centers = torch.einsum("nsij,sj->nsi", T[..., :3, :3], self.centers_link) + T[..., :3, 3]
+        att = None
+        if self.has_attachment:
+            H = poses["panda_hand"].reshape(P, B, 4, 4)
+            att = torch.einsum("pbij,pmj->pbmi", H[..., :3, :3], self.att_c) + H[..., None, :3, 3]
+        return centers.reshape(P, B, -1, 3), att
+
+    def self_distance(self, centers: torch.Tensor) -> torch.Tensor:
+        """(P, B, pairs) signed distances of the self-collision sphere pairs."""
+        diff = centers[:, :, self.self_a] - centers[:, :, self.self_b]
+        return _smooth_norm(diff) - self.radii[self.self_a] - self.radii[self.self_b]
+
+    def attachment_arm_distance(self, centers: torch.Tensor, att: torch.Tensor) -> torch.Tensor:
+        """(P, B, M, A) carried-object sphere vs arm sphere signed distances."""
+        arm = centers[:, :, self.att_arm]  # (P, B, A, 3)
+        d = _smooth_norm(att[:, :, :, None] - arm[:, :, None])
+        return d - self.att_r[:, None, :, None] - self.radii[self.att_arm]
+
+    def clearance(self, q: torch.Tensor, world: TorchWorld, horizon: float = 0.2) -> torch.Tensor:
+        """(P, B) smallest signed clearance (world, sphere self-collision, carried object),
+        as ``CollisionChecker.clearance`` with ``exact_self_collision=False``."""
+        P, B, _ = q.shape
+        centers, att = self.spheres(q)
+        S = centers.shape[2]
+        d = world.distance(centers.reshape(P, B * S, 3), horizon).reshape(P, B, S) - self.world_radii[:, None]
+        clear = torch.minimum(d.amin(dim=2), self.self_distance(centers).amin(dim=2))
+        if att is not None:
+            M = att.shape[2]
+            d_att = world.distance(att.reshape(P, B * M, 3), horizon).reshape(P, B, M) - self.att_r[:, None]
+            clear = torch.minimum(clear, d_att.amin(dim=2))
+            clear = torch.minimum(clear, self.attachment_arm_distance(centers, att).flatten(2).amin(dim=2))
+        return clear

@@ -266,8 +266,7 @@ class TorchRobot:
         self.margin = torch.as_tensor([c.margin for c in checkers], **dd)
         world_mask = torch.stack([c.world_mask for c in checkers]).to(self.device)
         self.world_radii = torch.where(world_mask, self.radii, torch.full_like(self.radii, -1.0))  # (P, S)
-        pairs = torch.as_tensor(robot.self_collision_pairs, device=self.device)
-        self.self_a, self.self_b = pairs[:, 0], pairs[:, 1]
+        self._init_self_pairs(robot)
         # Carried objects, padded: centres at the hand origin, radius -1.
         atts = [c.attachment for c in checkers]
         self.att_c = torch.as_tensor(_pad([a.centers_hand if a else np.zeros((0, 3)) for a in atts], 0.0, (3,)), **dd)
@@ -290,10 +289,52 @@ class TorchRobot:
             att = torch.einsum("pbij,pmj->pbmi", H[..., :3, :3], self.att_c) + H[..., None, :3, 3]
         return centers.reshape(P, B, -1, 3), att
 
-    def self_distance(self, centers: torch.Tensor) -> torch.Tensor:
-        """(P, B, pairs) signed distances of the self-collision sphere pairs."""
-        diff = centers[:, :, self.self_a] - centers[:, :, self.self_b]
-        return _smooth_norm(diff) - self.radii[self.self_a] - self.radii[self.self_b]
+    def _init_self_pairs(self, robot: PandaModel) -> None:
+        """Self-collision sphere pairs grouped by link pair (a padded table), and each link's
+        bounding sphere (about the mean of its sphere centres), for a broad phase."""
+        sp = robot.spheres
+        la = sp.link_index[robot.self_collision_pairs[:, 0]]
+        lb = sp.link_index[robot.self_collision_pairs[:, 1]]
+        link_pairs = sorted(set(zip(la.tolist(), lb.tolist())))
+        blocks = [robot.self_collision_pairs[(la == a) & (lb == b)] for a, b in link_pairs]
+        table = _pad(blocks, 0, (2,)).astype(np.int64)
+        valid = _pad([np.ones(len(b)) for b in blocks], 0, ()) > 0
+        self.link_pairs = torch.as_tensor(np.asarray(link_pairs, dtype=np.int64).reshape(-1, 2), device=self.device)
+        self.pair_table = torch.as_tensor(table, device=self.device)
+        self.pair_valid = torch.as_tensor(valid, device=self.device)
+        L = len(sp.links)
+        mean = np.zeros((L, len(sp.radii)))
+        bound_r = np.zeros(L)
+        for l in range(L):
+            members = np.flatnonzero(sp.link_index == l)
+            mean[l, members] = 1.0 / len(members)
+            c = sp.centers_link[members].mean(axis=0)
+            bound_r[l] = (np.linalg.norm(sp.centers_link[members] - c, axis=1) + sp.radii[members]).max()
+        self.link_mean = torch.as_tensor(mean, device=self.device, dtype=self.dtype)
+        self.link_bound_r = torch.as_tensor(bound_r, device=self.device, dtype=self.dtype)
+
+    def self_pairs(self, centers: torch.Tensor, horizon: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat configuration index into P*B, signed distance) of the self-collision sphere
+        pairs whose links' bounding spheres are within ``horizon``."""
+        c = centers.reshape(-1, centers.shape[-2], 3)
+        with torch.no_grad():
+            bound = torch.einsum("ls,nsi->nli", self.link_mean, c.detach())
+            a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
+            clear = (bound[:, a] - bound[:, b]).norm(dim=2) - self.link_bound_r[a] - self.link_bound_r[b]
+            n, lp = torch.nonzero(clear < horizon, as_tuple=True)
+            valid = self.pair_valid[lp]  # (F, W)
+            n = n[:, None].expand_as(valid)[valid]
+            sa, sb = self.pair_table[lp, :, 0][valid], self.pair_table[lp, :, 1][valid]
+        d = _smooth_norm(c[n, sa] - c[n, sb]) - self.radii[sa] - self.radii[sb]
+        return n, d
+
+    def self_distance(self, centers: torch.Tensor, horizon: float = 0.05) -> torch.Tensor:
+        """(P, B) smallest self-collision sphere-pair distance (>= ``horizon`` where no
+        link pair is that near)."""
+        P, B = centers.shape[:2]
+        n, d = self.self_pairs(centers, horizon)
+        out = torch.full((P * B,), FAR, device=centers.device, dtype=centers.dtype)
+        return out.scatter_reduce(0, n, d, reduce="amin").reshape(P, B)
 
     def attachment_arm_distance(self, centers: torch.Tensor, att: torch.Tensor) -> torch.Tensor:
         """(P, B, M, A) carried-object sphere vs arm sphere signed distances."""
@@ -301,14 +342,16 @@ class TorchRobot:
         d = _smooth_norm(att[:, :, :, None] - arm[:, :, None])
         return d - self.att_r[:, None, :, None] - self.radii[self.att_arm]
 
-    def clearance(self, q: torch.Tensor, world: TorchWorld, horizon: float = 0.2) -> torch.Tensor:
+    def clearance(self, q: torch.Tensor, world: TorchWorld, horizon: float = 0.2,
+                  self_tolerance: float = 0.0) -> torch.Tensor:
         """(P, B) smallest signed clearance (world, sphere self-collision, carried object),
-        as ``CollisionChecker.clearance`` with ``exact_self_collision=False``."""
+        as ``CollisionChecker.clearance`` with ``exact_self_collision=False``; self-collision
+        sphere overlap up to ``self_tolerance`` is allowed."""
         P, B, _ = q.shape
         centers, att = self.spheres(q)
         S = centers.shape[2]
         d = world.distance(centers.reshape(P, B * S, 3), horizon).reshape(P, B, S) - self.world_radii[:, None]
-        clear = torch.minimum(d.amin(dim=2), self.self_distance(centers).amin(dim=2))
+        clear = torch.minimum(d.amin(dim=2), self.self_distance(centers, horizon) + self_tolerance)
         if att is not None:
             M = att.shape[2]
             d_att = world.distance(att.reshape(P, B * M, 3), horizon).reshape(P, B, M) - self.att_r[:, None]

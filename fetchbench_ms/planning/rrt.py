@@ -41,6 +41,7 @@ class PlanResult:
     n_checked: int  # configurations checked
     goal_index: int = -1  # which of the asked goals was reached
     start_escaped: bool = False  # the path begins with a move out of an invalid start
+    planner: str = "rrtconnect"  # what found the path: rrtconnect | trajopt | trajopt+rrtconnect (fallback)
 
     @property
     def success(self) -> bool:

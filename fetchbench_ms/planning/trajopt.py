@@ -1,0 +1,341 @@
+"""A cuRobo-style trajectory optimiser: many seeds per problem, a particle (MPPI) warm
+start, then Adam on a fixed-length joint trajectory, batched over problems, in torch on
+any device (CUDA when there is one).
+
+The optimised variable is the interior of a ``n_waypoints`` joint trajectory whose ends
+are the start and one goal of the problem's goal set (each seed is tied to one goal).
+Costs, summed per trajectory:
+- world collision of every robot sphere (and of the carried object's spheres) at every
+  waypoint and ``collision_substeps - 1`` points between neighbours: CHOMP's / cuRobo's
+  smooth cost of the signed distance with activation distance ``eta`` (``distance.py``);
+- self-collision of the sphere pairs that can touch, and carried object vs arm; sphere
+  overlap up to ``self_tolerance`` is free (the spheres are conservative: about a third of
+  valid IK solutions overlap; the exact check below decides);
+- joint limits (and a projection into them after every step);
+- smoothness: squared finite-difference velocity, acceleration and jerk.
+
+Seeds per problem: the straight line to each goal, then random via points around the
+midpoint. The best seeds (collision-free under the spheres first, then shortest) are
+checked by the exact checker (``CollisionChecker.valid`` densely along every segment, as
+RRTConnect's paths are), shortcut to few waypoints, and returned as the same
+``PlanResult`` RRTConnect returns; execution time-parametrises it with
+``timing.time_parametrize`` like any plan. If no seed passes, an optional RRTConnect
+fallback gets the time left (cuRobo falls back to a graph planner). Starts the spheres
+call invalid are escaped first, as ``plan_rrtconnect`` does; a straight segment that is
+free is returned at once ("direct").
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from .checker import CollisionChecker
+from .distance import TorchRobot, TorchWorld, collision_cost
+from .rrt import PlanResult, densify, escape_start, path_valid, plan_rrtconnect
+
+
+def default_device() -> str:
+    """``$FETCHBENCH_TRAJOPT_DEVICE`` if set, else CUDA when available, else CPU."""
+    return os.environ.get("FETCHBENCH_TRAJOPT_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
+
+
+@dataclass
+class TrajoptConfig:
+    """Defaults fit 2 CPU cores (about 0.5-1 s a problem); ``for_device("cuda")`` gives a
+    GPU's larger batch of seeds and particles."""
+
+    n_waypoints: int = 20  # including start and goal
+    seeds: int = 6  # per problem: the straight line to each goal, then random via points
+    via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
+    collision_substeps: int = 2  # collision cost at waypoints and between them
+    mppi_iters: int = 3
+    mppi_particles: int = 6  # per seed
+    mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
+    mppi_temperature: float = 0.1
+    opt_iters: int = 60
+    converged: float = 0.005  # stop early when 10 iterations improve the summed cost less than this
+    lr: float = 0.04
+    eta: float = 0.03  # m: activation distance of the collision cost
+    self_tolerance: float = 0.015  # m of sphere overlap left to the exact self check
+    w_collision: float = 3000.0
+    w_self: float = 3000.0
+    w_limits: float = 300.0
+    w_velocity: float = 1.0
+    w_acceleration: float = 0.01
+    w_jerk: float = 0.0001
+    max_verify: int = 4  # seeds checked by the exact checker per problem, best first
+    resolution: float = 0.02  # rad: dense check step, as RRTConnect's
+    rrt_fallback: bool = True
+    device: str | None = None  # None: default_device()
+    dtype: torch.dtype = torch.float32
+    seed: int = 0
+
+    @classmethod
+    def for_device(cls, device: str | None = None, **overrides) -> "TrajoptConfig":
+        device = device or default_device()
+        if torch.device(device).type == "cuda":
+            overrides = dict(dict(n_waypoints=32, seeds=32, mppi_particles=16, opt_iters=100), **overrides)
+        return cls(device=device, **overrides)
+
+
+@dataclass
+class _Problem:
+    checker: CollisionChecker
+    q_start: np.ndarray  # where the optimised part begins (after any escape)
+    goals: np.ndarray  # valid goals (K, 7)
+    goal_ids: np.ndarray  # their indices among the asked goals
+    prefix: np.ndarray  # (0 or 1, 7): the original start when it was escaped
+    t0: float
+    n0: int
+    result: PlanResult | None = None
+    extras: dict = field(default_factory=dict)
+
+
+def _smooth_basis(n_interior: int, n_knots: int) -> torch.Tensor:
+    """(n_interior, n_knots) hat-function interpolation from knots to the interior
+    waypoints, zero at both ends: smooth perturbations that keep start and goal."""
+    s = np.linspace(0, 1, n_interior + 2)[1:-1]
+    knots = np.linspace(0, 1, n_knots + 2)
+    width = knots[1] - knots[0]
+    return torch.as_tensor(np.clip(1 - np.abs(s[:, None] - knots[None, 1:-1]) / width, 0, None))
+
+
+class _Costs:
+    """Trajectory costs for a batch of problems (P, B trajectories each)."""
+
+    def __init__(self, robot: TorchRobot, world: TorchWorld, cfg: TrajoptConfig, q_min, q_max):
+        self.robot, self.world, self.cfg = robot, world, cfg
+        dd = dict(device=robot.device, dtype=robot.dtype)
+        self.q_min, self.q_max = torch.as_tensor(q_min, **dd), torch.as_tensor(q_max, **dd)
+        k = cfg.collision_substeps
+        self.sub = torch.arange(k, **dd) / k  # fractions between neighbouring waypoints
+
+    def dense(self, traj: torch.Tensor) -> torch.Tensor:
+        """(P, B, (T-1)*k + 1, 7): waypoints and the points between them."""
+        a, b = traj[:, :, :-1], traj[:, :, 1:]
+        mid = a[:, :, :, None] + self.sub[:, None] * (b - a)[:, :, :, None]
+        return torch.cat([mid.flatten(2, 3), traj[:, :, -1:]], dim=2)
+
+    def __call__(self, traj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(total cost (P, B), collision part (P, B)) of trajectories (P, B, T, 7)."""
+        cfg, robot = self.cfg, self.robot
+        P, B, T, _ = traj.shape
+        q = self.dense(traj)
+        n = q.shape[2]
+        centers, att = robot.spheres(q.reshape(P, B * n, 7))
+        S = centers.shape[2]
+        radii = (robot.world_radii + robot.margin[:, None])[:, None].expand(P, B * n, S)
+        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta).reshape(P, B, -1).sum(2)
+        idx, d_self = robot.self_pairs(centers, 0.01 - cfg.self_tolerance)
+        per_config = torch.zeros(P * B * n, device=q.device, dtype=q.dtype)
+        per_config = per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
+        self_cost = per_config.reshape(P, B, n).sum(2)
+        if att is not None:
+            M = att.shape[2]
+            r_att = (robot.att_r + robot.margin[:, None])[:, None].expand(P, B * n, M)
+            coll = coll + self.world.penalty(att.reshape(P, -1, 3), r_att, cfg.eta).reshape(P, B, -1).sum(2)
+            d_arm = robot.attachment_arm_distance(centers, att)
+            self_cost = self_cost + collision_cost(d_arm, 0.01).reshape(P, B, -1).sum(2)
+        # Normalise by the samples per trajectory so weights do not depend on its length.
+        coll, self_cost = coll / n, self_cost / n
+        limits = ((traj - self.q_max).clamp(min=0) ** 2 + (self.q_min - traj).clamp(min=0) ** 2).sum((2, 3))
+        vel = torch.diff(traj, dim=2)
+        acc = torch.diff(vel, dim=2)
+        jerk = torch.diff(acc, dim=2)
+        # Integrals of squared derivatives over a trajectory of unit duration (dt = 1 / (T - 1)).
+        h = T - 1
+        smooth = (cfg.w_velocity * (vel ** 2).sum((2, 3)) * h + cfg.w_acceleration * (acc ** 2).sum((2, 3)) * h ** 3
+                  + cfg.w_jerk * (jerk ** 2).sum((2, 3)) * h ** 5)
+        collision = cfg.w_collision * coll + cfg.w_self * self_cost
+        return collision + cfg.w_limits * limits + smooth, collision
+
+
+def _seeds(problems: list[_Problem], cfg: TrajoptConfig, rng: np.random.Generator, q_min, q_max
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(P, S, T, 7) seed trajectories and (P, S) goal index (into each problem's valid goals)."""
+    T, S = cfg.n_waypoints, cfg.seeds
+    s = np.linspace(0, 1, T)[:, None]
+    out = np.empty((len(problems), S, T, 7))
+    goal_of = np.empty((len(problems), S), dtype=int)
+    for p, pr in enumerate(problems):
+        K = len(pr.goals)
+        for i in range(S):
+            g = i % K
+            goal_of[p, i] = g
+            a, b = pr.q_start, pr.goals[g]
+            line = a + s * (b - a)
+            if i >= K:  # a via point: the straight line bent through it (a parabola in s)
+                via = np.clip(0.5 * (a + b) + rng.normal(0, cfg.via_noise, 7), q_min, q_max)
+                line = line + 4 * s * (1 - s) * (via - 0.5 * (a + b))
+            out[p, i] = line
+    return out, goal_of
+
+
+def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadline: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Seeds -> MPPI -> Adam for all problems at once. Returns trajectories (P, S, T, 7),
+    their goal indices (P, S), total costs and smallest sphere clearance (P, S): self-
+    collision spheres count only beyond ``self_tolerance``."""
+    device = torch.device(cfg.device or default_device())
+    dd = dict(device=device, dtype=cfg.dtype)
+    checkers = [pr.checker for pr in problems]
+    world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype)
+    robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
+    costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
+    rng = np.random.default_rng(cfg.seed)
+    seeds, goal_of = _seeds(problems, cfg, rng, robot_model.q_min, robot_model.q_max)
+    P, S, T, _ = seeds.shape
+    traj = torch.as_tensor(seeds, **dd)
+    start, goal = traj[:, :, :1], traj[:, :, -1:]
+    interior = traj[:, :, 1:-1].clone()
+    q_lo, q_hi = costs.q_min, costs.q_max
+    gen = torch.Generator(device=device).manual_seed(cfg.seed)
+
+    def full(x):
+        return torch.cat([start, x, goal], dim=2)
+
+    # Particle warm start: smooth perturbations of each seed, exponentially weighted.
+    basis = _smooth_basis(T - 2, 4).to(**dd)
+    N = cfg.mppi_particles
+    with torch.no_grad():
+        for _ in range(cfg.mppi_iters):
+            if time.perf_counter() > deadline:
+                break
+            knots = torch.randn((P, S, N, 4, 7), generator=gen, **dd) * cfg.mppi_noise
+            knots[:, :, 0] = 0  # the current mean is a particle
+            noise = torch.einsum("tk,psnkj->psntj", basis, knots)
+            particles = torch.minimum(torch.maximum(interior[:, :, None] + noise, q_lo), q_hi)
+            x = particles.reshape(P, S * N, T - 2, 7)
+            c, _ = costs(torch.cat([start.repeat_interleave(N, 1), x, goal.repeat_interleave(N, 1)], dim=2))
+            c = c.reshape(P, S, N)
+            spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
+            w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)
+            interior = (w[..., None, None] * particles).sum(dim=2)
+    interior = interior.requires_grad_(True)
+    opt = torch.optim.Adam([interior], lr=cfg.lr)
+    previous = float("inf")
+    for it in range(cfg.opt_iters):
+        if time.perf_counter() > deadline:
+            break
+        opt.zero_grad()
+        total, _ = costs(full(interior))
+        loss = total.sum()
+        loss.backward()
+        if it % 10 == 9:  # converged: under 0.5% better than 10 iterations ago
+            if float(loss) > (1 - cfg.converged) * previous:
+                break
+            previous = float(loss)
+        opt.step()
+        with torch.no_grad():
+            interior.copy_(torch.minimum(torch.maximum(interior, q_lo), q_hi))
+    with torch.no_grad():
+        traj = full(interior.detach())
+        total, _ = costs(traj)
+        dense = costs.dense(traj)
+        clearance = robot.clearance(dense.reshape(P, -1, 7), world, cfg.eta, cfg.self_tolerance).reshape(P, S, -1).amin(dim=2)
+    clearance = clearance - robot.margin[:, None]
+    return (traj.double().cpu().numpy(), goal_of, total.double().cpu().numpy(),
+            clearance.double().cpu().numpy())
+
+
+def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float) -> np.ndarray:
+    """Fewer waypoints: from each kept waypoint, jump to the farthest of a few later ones
+    whose straight segment is valid (the next one always is: the path was checked)."""
+    keep, i, last = [0], 0, len(path) - 1
+    while i < last:
+        span = last - i
+        for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4, i + 1}, reverse=True):
+            if j == i + 1 or (j > i and checker.motion_valid(path[i], path[j], resolution)):
+                break
+        keep.append(j)
+        i = j
+    return path[keep]
+
+
+def _prepare(checker, q_start, q_goals, start_tolerance, resolution) -> _Problem:
+    """Start escape, valid goals and the direct segment, as plan_rrtconnect does them."""
+    t0, n0 = time.perf_counter(), checker.n_checked
+    q_start = np.asarray(q_start, float).reshape(7)
+    q_goals = np.asarray(q_goals, float).reshape(-1, 7)
+    pr = _Problem(checker, q_start, q_goals[:0], np.zeros(0, int), np.zeros((0, 7)), t0, n0)
+
+    def done(status, path=None, goal_index=-1):
+        pr.result = PlanResult(status, path, time.perf_counter() - t0, checker.n_checked - n0, goal_index,
+                               start_escaped=len(pr.prefix) > 0, planner="trajopt")
+        return pr
+
+    if not checker.valid(q_start)[0]:
+        q_free = escape_start(checker, q_start, start_tolerance, resolution) if start_tolerance > 0 else None
+        if q_free is None:
+            return done("start_invalid")
+        pr.prefix, pr.q_start = q_start[None], q_free
+    ok = checker.valid(q_goals) if len(q_goals) else np.zeros(0, bool)
+    pr.goal_ids = np.flatnonzero(ok)
+    pr.goals = q_goals[pr.goal_ids]
+    if len(pr.goal_ids) == 0:
+        return done("no_valid_goal")
+    for g, q_goal in zip(pr.goal_ids, pr.goals):
+        if checker.motion_valid(pr.q_start, q_goal, resolution):
+            return done("direct", np.concatenate([pr.prefix, [pr.q_start, q_goal]]), int(g))
+    return pr
+
+
+def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -> None:
+    """Exact-check the best seeds of one problem (free under the spheres first, shortest
+    first); the first valid one, shortcut, is the plan."""
+    length = np.abs(np.diff(traj, axis=1)).sum(axis=(1, 2))
+    free = clearance > 0
+    order = np.lexsort((np.where(free, length, total), ~free))
+    checker = pr.checker
+    for i in order[: cfg.max_verify]:
+        if path_valid(checker, traj[i], cfg.resolution):
+            path = shortcut(checker, traj[i], cfg.resolution)
+            pr.result = PlanResult("solved", np.concatenate([pr.prefix, path]), time.perf_counter() - pr.t0,
+                                   checker.n_checked - pr.n0, int(pr.goal_ids[goal_of[i]]),
+                                   start_escaped=len(pr.prefix) > 0, planner="trajopt")
+            pr.extras["rank"] = int(np.flatnonzero(order == i)[0])
+            return
+
+
+def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 10.0, config: TrajoptConfig | None = None,
+                       start_tolerance: float = 0.0) -> list[PlanResult]:
+    """Plan every problem ``(checker, q_start, q_goals)`` (goals (K, 7) or (7,), best first)
+    with one batched optimisation; a ``PlanResult`` each, in order. ``time_limit`` bounds
+    the whole batch (the RRT fallback, one problem at a time, gets what is left)."""
+    cfg = config or TrajoptConfig.for_device()
+    t0 = time.perf_counter()
+    deadline = t0 + time_limit
+    prepared = [_prepare(c, q, g, start_tolerance, cfg.resolution) for c, q, g in problems]
+    todo = [pr for pr in prepared if pr.result is None]
+    if todo:
+        out = _optimise(todo, todo[0].checker.robot, cfg, deadline)
+        for p, pr in enumerate(todo):
+            _select(pr, *(a[p] for a in out), cfg)
+    for pr in todo:
+        if pr.result is not None:
+            continue
+        left = deadline - time.perf_counter()
+        if cfg.rrt_fallback and left > 0:
+            rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution)
+            path = None if rest.path is None else np.concatenate([pr.prefix, rest.path])
+            goal_index = int(pr.goal_ids[rest.goal_index]) if rest.path is not None else -1
+            pr.result = PlanResult(rest.status, path, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
+                                   goal_index, start_escaped=len(pr.prefix) > 0, planner="trajopt+rrtconnect")
+        else:
+            pr.result = PlanResult("timeout", None, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
+                                   start_escaped=len(pr.prefix) > 0, planner="trajopt")
+    return [pr.result for pr in prepared]
+
+
+def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
+                 start_tolerance: float = 0.0, config: TrajoptConfig | None = None) -> PlanResult:
+    """One problem; the signature of ``plan_rrtconnect``'s first arguments."""
+    return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance)[0]
+
+
+__all__ = ["TrajoptConfig", "default_device", "densify", "plan_trajopt", "plan_trajopt_batch", "shortcut"]

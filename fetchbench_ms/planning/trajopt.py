@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import os
 import time
+import zlib
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -155,14 +156,19 @@ class _Costs:
         return collision + cfg.w_limits * limits + smooth, collision
 
 
-def _seeds(problems: list[_Problem], cfg: TrajoptConfig, rng: np.random.Generator, q_min, q_max
-           ) -> tuple[np.ndarray, np.ndarray]:
+def _problem_seed(pr: _Problem, seed: int) -> int:
+    """A seed from the problem's own numbers: its plan does not depend on its batch."""
+    return zlib.crc32(np.ascontiguousarray(np.concatenate([pr.q_start, pr.goals.ravel()])).tobytes()) ^ seed
+
+
+def _seeds(problems: list[_Problem], cfg: TrajoptConfig, q_min, q_max) -> tuple[np.ndarray, np.ndarray]:
     """(P, S, T, 7) seed trajectories and (P, S) goal index (into each problem's valid goals)."""
     T, S = cfg.n_waypoints, cfg.seeds
     s = np.linspace(0, 1, T)[:, None]
     out = np.empty((len(problems), S, T, 7))
     goal_of = np.empty((len(problems), S), dtype=int)
     for p, pr in enumerate(problems):
+        rng = np.random.default_rng(_problem_seed(pr, cfg.seed))
         K = len(pr.goals)
         for i in range(S):
             g = i % K
@@ -187,14 +193,13 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
     costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
-    rng = np.random.default_rng(cfg.seed)
-    seeds, goal_of = _seeds(problems, cfg, rng, robot_model.q_min, robot_model.q_max)
+    seeds, goal_of = _seeds(problems, cfg, robot_model.q_min, robot_model.q_max)
     P, S, T, _ = seeds.shape
     traj = torch.as_tensor(seeds, **dd)
     start, goal = traj[:, :, :1], traj[:, :, -1:]
     interior = traj[:, :, 1:-1].clone()
     q_lo, q_hi = costs.q_min, costs.q_max
-    gen = torch.Generator(device=device).manual_seed(cfg.seed)
+    gens = [torch.Generator(device=device).manual_seed(_problem_seed(pr, cfg.seed)) for pr in problems]
 
     def full(x):
         return torch.cat([start, x, goal], dim=2)
@@ -206,7 +211,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
         for _ in range(cfg.mppi_iters):
             if time.perf_counter() > deadline:
                 break
-            knots = torch.randn((P, S, N, 4, 7), generator=gen, **dd) * cfg.mppi_noise
+            knots = torch.stack([torch.randn((S, N, 4, 7), generator=g, **dd) for g in gens]) * cfg.mppi_noise
             knots[:, :, 0] = 0  # the current mean is a particle
             noise = torch.einsum("tk,psnkj->psntj", basis, knots)
             particles = torch.minimum(torch.maximum(interior[:, :, None] + noise, q_lo), q_hi)
@@ -227,9 +232,9 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
         loss = total.sum()
         loss.backward()
         if it % 10 == 9:  # converged: under 0.5% better than 10 iterations ago
-            if float(loss) > (1 - cfg.converged) * previous:
+            if float(loss.detach()) > (1 - cfg.converged) * previous:
                 break
-            previous = float(loss)
+            previous = float(loss.detach())
         opt.step()
         with torch.no_grad():
             interior.copy_(torch.minimum(torch.maximum(interior, q_lo), q_hi))

@@ -9,7 +9,9 @@ settle-and-hold judges the episode.
 
 Variants (``METHODS``): ``ga-mesh-rrt`` plans in the oracle mesh world, ``ga-ptd-rrt``
 in the segmented point clouds; both take the annotated grasps and, like the original
-release, filter grasps by IK (collision-aware) in their own world.
+release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-trajopt`` and
+``ga-ptd-trajopt`` plan the same motions with the batched torch trajectory optimiser
+(``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect.
 
 Execution drives the env's ``pd_joint_pos`` controller open loop with the time-
 parametrised plan. Rendering cameras at every control step would only slow an open-loop
@@ -38,8 +40,10 @@ from .grasp_source import choose_grasps, object_grasps, retreat, tcp_from_hand
 from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
 METHODS = {
-    "ga-mesh-rrt": dict(world="mesh"),
-    "ga-ptd-rrt": dict(world="pointcloud"),
+    "ga-mesh-rrt": dict(world="mesh", planner="rrt"),
+    "ga-ptd-rrt": dict(world="pointcloud", planner="rrt"),
+    "ga-mesh-trajopt": dict(world="mesh", planner="trajopt"),
+    "ga-ptd-trajopt": dict(world="pointcloud", planner="trajopt"),
 }
 FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision")
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
@@ -288,7 +292,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["ik_found"] = True
 
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    plan = _plan(state, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget)
+    plan = _plan(state, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
@@ -364,7 +368,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if len(goals) == 0 or budget <= 0:
         return "motion_planning_failure"
-    plan = _plan(state, rng, carry, ex.q, goals[: cfg.goal_set_size], budget)
+    plan = _plan(state, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s"
                        + (" (start escaped)" if plan.start_escaped else ""))
@@ -375,9 +379,16 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     return None
 
 
-def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float):
+def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float, method: str = "ga-mesh-rrt"):
+    """The method's planner (``METHODS[method]["planner"]``): OMPL RRTConnect, or the batched
+    torch trajectory optimiser (``planning.trajopt``: CUDA when available, else CPU, or
+    ``$FETCHBENCH_TRAJOPT_DEVICE``; deterministic given its inputs). Both return a ``PlanResult``."""
     cfg = state.config
-    seed = int(rng.integers(2**31)) if cfg.repeatable_planning else None
+    if METHODS[method].get("planner", "rrt") == "trajopt":
+        from ..planning.trajopt import plan_trajopt
+
+        return state.timed(plan_trajopt, checker, q_start, q_goals, budget, start_tolerance=cfg.start_tolerance)
+    seed = int(rng.integers(2**31)) if cfg.repeatable_planning and rng is not None else None
     return state.timed(plan_rrtconnect, checker, q_start, q_goals, budget, start_tolerance=cfg.start_tolerance,
                        seed=seed)
 
@@ -393,7 +404,7 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if budget <= 0:
         return False
-    plan = state.timed(plan_rrtconnect, checker, ex.q, q_home, budget, start_tolerance=cfg.start_tolerance)
+    plan = _plan(state, None, checker, ex.q, q_home, budget, method)
     state.planning_time_left -= plan.planning_time
     if not plan.success:
         return False

@@ -1,0 +1,124 @@
+"""The torch distances agree with the collision checker; the trajectory optimiser plans
+around the shelf (where the straight line collides) a path the exact meshes accept;
+batched and single plans agree."""
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from fetchbench_ms.planning.checker import Attachment, CollisionChecker
+from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_boxes, shelf_worlds
+from fetchbench_ms.planning.distance import GRID_TRUNCATION, TorchRobot, TorchWorld
+from fetchbench_ms.planning.exact import ExactRobot
+from fetchbench_ms.planning.ik import solve_ik
+from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
+from fetchbench_ms.planning.rrt import densify
+from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
+from fetchbench_ms.planning.world import CollisionWorld, ConvexSet, PointCloudField
+
+
+@pytest.fixture(scope="module")
+def robot():
+    torch.set_num_threads(1)
+    return panda()
+
+
+@pytest.fixture(scope="module")
+def worlds():
+    """The shelf with two convex objects on its lower board, and the same shelf as a 5 mm cloud."""
+    world, exact = shelf_worlds()
+    world.add("target", ConvexSet([trimesh.creation.box([0.06, 0.06, 0.12]).apply_translation([0.65, 0.1, 0.07])]))
+    world.add("object:1", ConvexSet([trimesh.creation.icosphere(radius=0.04).apply_translation([0.66, -0.1, 0.05])]))
+    points = [trimesh.sample.sample_surface_even(trimesh.creation.box(size).apply_transform(T), 3000, seed=1)[0]
+              for _, T, size in shelf_boxes()]
+    cloud = CollisionWorld().add("scene", PointCloudField(np.concatenate(points)))
+    return world, exact, cloud
+
+
+def _checkers(robot, worlds):
+    world, _, cloud = worlds
+    carried = Attachment.from_convex_parts([trimesh.creation.box([0.05, 0.05, 0.1]).apply_translation([0, 0, 0.15])])
+    return [CollisionChecker(robot, world, exact_self_collision=False),
+            CollisionChecker(robot, world, exclude=("target",), exact_self_collision=False),
+            CollisionChecker(robot, cloud, exact_self_collision=False),
+            CollisionChecker(robot, world, finger=0.02, exclude=("target",), attachment=carried,
+                             ignore_links=("panda_leftfinger", "panda_rightfinger"), exact_self_collision=False)]
+
+
+def test_distance_agrees_with_the_checker(robot, worlds):
+    """Mesh worlds: the same numbers; the cloud's grid: within a cell; the verdict of
+    every configuration (world, self spheres, carried object) the same outside a band."""
+    checkers = _checkers(robot, worlds)
+    rng = np.random.default_rng(0)
+    # Half uniform in the limits, half near the default pose reaching into the shelf.
+    q = np.concatenate([rng.uniform(robot.q_min, robot.q_max, (100, 7)), Q_DEFAULT + rng.normal(0, 0.5, (100, 7))])
+    q = np.clip(q, robot.q_min, robot.q_max)
+    tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers])
+    tr = TorchRobot(robot, checkers)
+    q_t = torch.as_tensor(np.broadcast_to(q, (len(checkers),) + q.shape).copy(), dtype=torch.float32)
+    centers, _ = tr.spheres(q_t)
+    d = tw.distance(centers.reshape(len(checkers), -1, 3), GRID_TRUNCATION).numpy()
+    clearance = tr.clearance(q_t, tw, GRID_TRUNCATION).numpy()
+    for i, checker in enumerate(checkers):
+        ref = checker.world.distance(centers[i].reshape(-1, 3).double(), GRID_TRUNCATION, checker.exclude).numpy()
+        near = ref < GRID_TRUNCATION - 0.02
+        assert near.sum() > 1000
+        err = np.abs(ref - d[i])[near]
+        tolerance = 0.015 if i == 2 else 1e-5  # the cloud's grid is 1 cm
+        assert err.max() < tolerance and np.median(err) < tolerance / 5, (i, err.max())
+        ref_clear = checker.clearance(q).numpy()
+        decided = np.abs(ref_clear) > (0.015 if i == 2 else 1e-4)
+        assert ((ref_clear > 0) == (clearance[i] > 0))[decided].all(), i
+        assert (ref_clear < 0).sum() > 20 and (ref_clear > 0).sum() > 20  # both verdicts are tested
+
+
+def test_distance_is_batched_and_differentiable(robot, worlds):
+    checkers = _checkers(robot, worlds)
+    q = torch.as_tensor(np.random.default_rng(1).uniform(robot.q_min, robot.q_max, (1, 50, 7)), dtype=torch.float32)
+    both = TorchRobot(robot, checkers[:2]).clearance(q.expand(2, 50, 7), TorchWorld([c.world for c in checkers[:2]],
+                                                                                   [c.exclude for c in checkers[:2]]))
+    for i in range(2):
+        one = TorchRobot(robot, checkers[i:i + 1]).clearance(q, TorchWorld([checkers[i].world], [checkers[i].exclude]))
+        assert torch.allclose(both[i], one[0], atol=1e-6)
+    tw = TorchWorld([worlds[0], worlds[2]])
+    points = torch.tensor([[[0.7, 0.0, 0.31]], [[0.7, 0.0, 0.33]]], requires_grad=True)  # above the middle board
+    d = tw.distance(points)
+    d.sum().backward()
+    assert torch.isfinite(points.grad).all()
+    assert points.grad[0, 0, 2] > 0.5 and points.grad[1, 0, 2] > 0.5  # moving up moves away from the board
+
+
+@pytest.fixture(scope="module")
+def shelf_problem(robot):
+    world, exact = shelf_worlds()
+    checker = CollisionChecker(robot, world)
+    goals = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=32,
+                     rng=np.random.default_rng(1))
+    assert goals.found
+    return checker, exact, goals.q[:4]
+
+
+def test_trajopt_plans_into_the_shelf_collision_free_on_exact_meshes(robot, shelf_problem):
+    checker, exact, goals = shelf_problem
+    assert not any(checker.motion_valid(Q_DEFAULT, g) for g in goals)  # the straight line collides
+    result = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(rrt_fallback=False, device="cpu"))
+    assert result.success and result.status == "solved" and result.planner == "trajopt", result.status
+    assert np.allclose(result.path[0], Q_DEFAULT) and np.allclose(result.path[-1], goals[result.goal_index])
+    dense = densify(result.path, 0.01)
+    exact_robot = ExactRobot(robot)
+    collisions = [exact_robot.world_collisions(q, exact, FINGER_OPEN) for q in dense]
+    assert not any(collisions), next(c for c in collisions if c)
+    assert robot.within_limits(dense).all()
+
+
+def test_trajopt_batched_and_single_agree(robot, shelf_problem):
+    checker, _, goals = shelf_problem
+    cfg = TrajoptConfig(rrt_fallback=False, device="cpu")
+    free = hand_pose([0.3, 0.3, 0.5], approach=(0, 0, -1))
+    other = solve_ik(robot, free, checker=checker, q_seed=Q_DEFAULT, n_seeds=16, rng=np.random.default_rng(2)).q[:2]
+    problems = [(checker, Q_DEFAULT, goals), (checker, Q_DEFAULT, other)]
+    batch = plan_trajopt_batch(problems, config=cfg)
+    single = plan_trajopt(checker, Q_DEFAULT, goals, config=cfg)
+    assert batch[0].status == single.status == "solved" and batch[1].success
+    assert batch[0].goal_index == single.goal_index
+    assert len(batch[0].path) == len(single.path) and np.allclose(batch[0].path, single.path, atol=1e-3)

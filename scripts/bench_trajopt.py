@@ -136,6 +136,7 @@ def main() -> None:
     parser.add_argument("--device", default=None, help="trajopt device (default: cuda when available)")
     parser.add_argument("--batch", type=int, default=16, help="problems per batched trajopt call")
     parser.add_argument("--time-limit", type=float, default=10.0, help="s per problem, as the pipelines")
+    parser.add_argument("--verbose", action="store_true", help="a line per problem")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     args = parser.parse_args()
     if args.suite == "test":
@@ -150,6 +151,11 @@ def main() -> None:
     if not problems:
         return
     rows, recheck = run_planners(problems, device, args.batch, args.time_limit)
+    if args.verbose:
+        for i, p in enumerate(problems):
+            print(f"{p['task']} {p['kind']:<15} goals {len(p['q_goals'])}: " + "; ".join(
+                f"{name} {rs[i].status}/{rs[i].planner} {rs[i].planning_time:.2f}s len {cspace_length(rs[i].path):.2f}"
+                for name, rs in rows.items()))
     print_table(problems, rows, recheck, device)
 
 

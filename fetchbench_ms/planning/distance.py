@@ -8,7 +8,8 @@ over problems (``P``), and with gradients.
   groups), padded to common sizes. Boxes, cylinders, capsules and convex parts (half-space
   form) keep the exact formulas of ``world.py`` (a broad phase on bounding spheres, then the
   exact distance of the pairs within the horizon), so on the mesh world the two agree to
-  float precision. A ``PointCloudField`` (the 5 mm cloud) becomes a truncated distance
+  float precision (with ``max_planes``, parts with more planes keep the most spread-out
+  ones, capped by their bounding sphere: a conservative, cheaper polytope). A ``PointCloudField`` (the 5 mm cloud) becomes a truncated distance
   grid (``GRID_RESOLUTION``): an EDT of the occupied cells, refined to the exact
   nearest-voxel distance (the k-d tree's answer) at the grid vertices near the cloud, read
   by trilinear interpolation (``grid_sample``), so it is within about a cell of the
@@ -58,6 +59,7 @@ class _Primitives:
     def __init__(self, kind: str, tensors: dict[str, np.ndarray], bound_c: np.ndarray, bound_r: np.ndarray,
                  device, dtype):
         self.kind = kind
+        self.reduced = False
         self.t = {k: torch.as_tensor(v, device=device, dtype=dtype) for k, v in tensors.items()}
         self.bound_c = torch.as_tensor(bound_c, device=device, dtype=dtype)
         self.bound_r = torch.as_tensor(bound_r, device=device, dtype=dtype)
@@ -68,7 +70,10 @@ class _Primitives:
         t = self.t
         if self.kind == "convex":
             planes = t["planes"][p, o]  # (M, K, 4)
-            return (torch.einsum("mkj,mj->mk", planes[..., :3], x) - planes[..., 3]).amax(dim=1)
+            d = (torch.einsum("mkj,mj->mk", planes[..., :3], x) - planes[..., 3]).amax(dim=1)
+            if self.reduced:  # fewer planes bound a larger polytope: the bounding sphere caps it
+                d = torch.maximum(d, _smooth_norm(x - self.bound_c[p, o]) - self.bound_r[p, o])
+            return d
         local = torch.einsum("mij,mj->mi", t["R"][p, o], x) + t["t"][p, o]
         if self.kind == "box":
             q = local.abs() - t["half"][p, o]
@@ -88,6 +93,23 @@ class _Primitives:
             coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
             p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
         return p * N + n, self.exact(points[p, n], p, o)
+
+
+def _fewer_planes(planes: np.ndarray, max_planes: int | None) -> np.ndarray:
+    """At most ``max_planes`` of a convex part's planes (K, 4), padding dropped: the ones
+    whose normals are spread farthest apart (greedy farthest-point on the unit sphere).
+    Dropping planes only enlarges the polytope, so distances only shrink: conservative."""
+    planes = planes[np.abs(planes[:, 3]) < 1e8]
+    if max_planes is None or len(planes) <= max_planes:
+        return planes
+    normals = planes[:, :3]
+    chosen = [int(np.argmax(normals[:, 2]))]
+    nearest = normals @ normals[chosen[0]]  # cosine to the nearest chosen normal
+    for _ in range(max_planes - 1):
+        i = int(np.argmin(nearest))
+        chosen.append(i)
+        nearest = np.maximum(nearest, normals @ normals[i])
+    return planes[sorted(chosen)]
 
 
 def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndarray, np.ndarray]:
@@ -116,7 +138,8 @@ class TorchWorld:
     """The obstacles of ``P`` worlds as device tensors; see the module docstring."""
 
     def __init__(self, worlds: Sequence[CollisionWorld], excludes: Sequence[tuple[str, ...]] | None = None,
-                 device=None, dtype=torch.float32, grid_resolution: float = GRID_RESOLUTION):
+                 device=None, dtype=torch.float32, grid_resolution: float = GRID_RESOLUTION,
+                 max_planes: int | None = None):
         excludes = list(excludes) if excludes is not None else [()] * len(worlds)
         if len(excludes) != len(worlds):
             raise ValueError(f"{len(worlds)} worlds but {len(excludes)} exclude tuples")
@@ -128,7 +151,8 @@ class TorchWorld:
             cyls.append([s for s in sets if isinstance(s, CylinderSet)])
             convex.append([s for s in sets if isinstance(s, ConvexSet)])
             clouds.append([s for s in sets if isinstance(s, PointCloudField) and len(s)])
-        self.kinds = [k for k in (self._boxes(boxes), self._cylinders(cyls), self._convex(convex)) if k is not None]
+        kinds = (self._boxes(boxes), self._cylinders(cyls), self._convex(convex, max_planes))
+        self.kinds = [k for k in kinds if k is not None]
         self._grids(clouds, grid_resolution)
 
     # -- building -------------------------------------------------------------------------
@@ -164,17 +188,23 @@ class TorchWorld:
         return self._make("cylinder", data, {"R": (3, 3), "t": (3,), "radius": (), "half_length": (),
                                              "capsule": ()}, {})
 
-    def _convex(self, per_problem):
-        k = max([s.planes.shape[1] for sets in per_problem for s in sets] + [1])
+    def _convex(self, per_problem, max_planes: int | None):
         data = []
         for sets in per_problem:
-            planes = [F.pad(s.planes, (0, 0, 0, k - s.planes.shape[1]), value=0.0).numpy() for s in sets]
-            for p, s in zip(planes, sets):
-                p[:, s.planes.shape[1]:, 3] = 1e9  # padding planes never bind
-            data.append(dict(planes=np.concatenate(planes) if planes else np.zeros((0, k, 4)),
-                             bound_c=self._cat(sets, lambda c: c.bound_center.numpy()).reshape(-1, 3),
+            planes = [_fewer_planes(part, max_planes) for s in sets for part in s.planes.numpy()]
+            data.append(dict(planes=planes, bound_c=self._cat(sets, lambda c: c.bound_center.numpy()).reshape(-1, 3),
                              bound_r=self._cat(sets, lambda c: c.bound_radius.numpy())))
-        return self._make("convex", data, {"planes": (k, 4)}, {"planes": 0.0})
+        k = max([len(p) for d in data for p in d["planes"]] + [1])
+        for d in data:
+            padded = np.zeros((len(d["planes"]), k, 4))
+            padded[:, :, 3] = 1e9  # padding planes never bind: n = 0, d huge
+            for i, p in enumerate(d["planes"]):
+                padded[i, : len(p)] = p
+            d["planes"] = padded
+        kind = self._make("convex", data, {"planes": (k, 4)}, {"planes": 0.0})
+        if kind is not None:
+            kind.reduced = max_planes is not None
+        return kind
 
     def _grids(self, clouds: list[list[PointCloudField]], resolution: float) -> None:
         self.grid = None

@@ -50,15 +50,15 @@ class TrajoptConfig:
     """Defaults fit 2 CPU cores (about 0.5-1 s a problem); ``for_device("cuda")`` gives a
     GPU's larger batch of seeds and particles."""
 
-    n_waypoints: int = 20  # including start and goal
-    seeds: int = 6  # per problem: the straight line to each goal, then random via points
+    n_waypoints: int = 16  # including start and goal
+    seeds: int = 4  # per problem: the straight line to each goal, then random via points
     via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
     collision_substeps: int = 2  # collision cost at waypoints and between them
     mppi_iters: int = 3
-    mppi_particles: int = 6  # per seed
+    mppi_particles: int = 4  # per seed
     mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
     mppi_temperature: float = 0.1
-    opt_iters: int = 60
+    opt_iters: int = 40
     converged: float = 0.005  # stop early when 10 iterations improve the summed cost less than this
     lr: float = 0.04
     eta: float = 0.03  # m: activation distance of the collision cost
@@ -69,6 +69,7 @@ class TrajoptConfig:
     w_velocity: float = 1.0
     w_acceleration: float = 0.01
     w_jerk: float = 0.0001
+    max_planes: int | None = 24  # per convex part (more are thinned: a larger, conservative polytope)
     max_verify: int = 4  # seeds checked by the exact checker per problem, best first
     resolution: float = 0.02  # rad: dense check step, as RRTConnect's
     rrt_fallback: bool = True
@@ -80,7 +81,7 @@ class TrajoptConfig:
     def for_device(cls, device: str | None = None, **overrides) -> "TrajoptConfig":
         device = device or default_device()
         if torch.device(device).type == "cuda":
-            overrides = dict(dict(n_waypoints=32, seeds=32, mppi_particles=16, opt_iters=100), **overrides)
+            overrides = dict(dict(n_waypoints=24, seeds=16, mppi_particles=8, opt_iters=80), **overrides)
         return cls(device=device, **overrides)
 
 
@@ -190,7 +191,8 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     device = torch.device(cfg.device or default_device())
     dd = dict(device=device, dtype=cfg.dtype)
     checkers = [pr.checker for pr in problems]
-    world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype)
+    world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype,
+                       max_planes=cfg.max_planes)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
     costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
     seeds, goal_of = _seeds(problems, cfg, robot_model.q_min, robot_model.q_max)

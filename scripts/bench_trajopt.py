@@ -105,7 +105,7 @@ def print_table(problems, rows, recheck, device) -> None:
           f"{len({p['task'] for p in problems})} tasks; trajopt on {device} "
           f"(torch {torch.__version__}, {torch.get_num_threads()} threads)")
     head = (f"{'planner':<20} {'success':>8} {'direct':>7} {'time med s':>10} {'time p95 s':>10} "
-            f"{'C-len med':>9} {'C-len/RRT':>9} {'valid':>6} {'fallback':>8}")
+            f"{'searched med s':>14} {'C-len med':>9} {'C-len/RRT':>9} {'valid':>6} {'fallback':>8}")
     print(head)
     print("-" * len(head))
     for name, results in rows.items():
@@ -117,14 +117,16 @@ def print_table(problems, rows, recheck, device) -> None:
         print(f"{name:<20} {sum(r.success for r in results) / len(results):>8.3f} "
               f"{sum(r.status == 'direct' for r in results):>7d} {statistics.median(times):>10.3f} "
               f"{np.percentile(times, 95):>10.3f} "
+              f"{statistics.median([t for t, r in zip(times, results) if r.status != 'direct'] or [np.nan]):>14.3f} "
               f"{statistics.median([cspace_length(r.path) for r, _ in both] or [float('nan')]):>9.2f} "
               f"{ratio:>9.2f} {sum(ok) / max(len(ok), 1):>6.3f} "
               f"{sum(r.planner == 'trajopt+rrtconnect' for r in results):>8d}")
     statuses = {name: dict(sorted({r.status: sum(x.status == r.status for x in rs) for r in rs}.items()))
                 for name, rs in rows.items()}
     print(f"statuses: {statuses}")
-    print("C-len/RRT: median ratio of C-space lengths on problems both solved, leaving out those both solved "
-          "by the straight segment")
+    print("searched: problems the straight segment did not solve; C-len/RRT: median ratio of C-space lengths "
+          "on problems both solved, leaving out those both solved by the straight segment; batch times are the "
+          "batch's time over its problems")
 
 
 def main() -> None:

@@ -122,3 +122,18 @@ def test_trajopt_batched_and_single_agree(robot, shelf_problem):
     assert batch[0].status == single.status == "solved" and batch[1].success
     assert batch[0].goal_index == single.goal_index
     assert len(batch[0].path) == len(single.path) and np.allclose(batch[0].path, single.path, atol=1e-3)
+
+
+def test_ga_mesh_trajopt_runs_a_smoke_task_end_to_end(tmp_path, monkeypatch):
+    """``fetchbench eval --method ga-mesh-trajopt --suite smoke --tasks 0:1`` on the CPU (~40 s)."""
+    import json
+
+    from fetchbench_ms.cli import main
+
+    monkeypatch.setenv("FETCHBENCH_TRAJOPT_DEVICE", "cpu")
+    assert main(["eval", "--method", "ga-mesh-trajopt", "--suite", "smoke", "--tasks", "0:1",
+                 "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "results.jsonl").read_text().splitlines()[0])
+    assert not record.get("error"), record["error"]
+    assert record["phases"]["pregrasp_plan"] and record["phases"]["retrieval_plan"], record["notes"]
+    assert record["success"], record["notes"]

@@ -215,10 +215,14 @@ class TorchWorld:
             if not fields:
                 grids.append((np.zeros(3), np.full((2, 2, 2), FAR)))  # no cloud: nothing near
                 continue
-            if len(fields) > 1:  # several clouds of one problem: one field over all of them
-                merged = PointCloudField(np.concatenate([f.centers for f in fields]), fields[0].voxel)
-                fields = [merged]
-            grids.append(_grid_from_cloud(fields[0], resolution))
+            # Built once per set of fields (a plan's world is asked again by later plans).
+            cache = fields[0].__dict__.setdefault("_torch_grids", {})
+            key = (resolution, tuple(id(f) for f in fields))
+            if key not in cache:
+                field = fields[0] if len(fields) == 1 else PointCloudField(  # several clouds: one field
+                    np.concatenate([f.centers for f in fields]), fields[0].voxel)
+                cache[key] = _grid_from_cloud(field, resolution)
+            grids.append(cache[key])
         shape = np.max([g[1].shape for g in grids], axis=0)
         values = np.full((len(grids),) + tuple(shape), GRID_TRUNCATION)
         for i, (_, v) in enumerate(grids):

@@ -33,9 +33,12 @@ from .checker import CollisionChecker
 from .robot import PandaModel
 from .world import FAR, BoxSet, CollisionWorld, ConvexSet, CylinderSet, PointCloudField
 
-GRID_RESOLUTION = 0.01  # m between distance-grid vertices (point-cloud worlds)
+GRID_RESOLUTION = 0.015  # m between distance-grid vertices (point-cloud worlds)
 GRID_TRUNCATION = 0.10  # m: grid values are exact up to here, at least this beyond
-GRID_EXACT_BAND = 0.06  # m: vertices this near the cloud (by the EDT) get the exact distance
+GRID_EXACT_BAND = 0.04  # m: vertices this near the cloud (by the EDT) get the exact distance
+# The grid covers the cloud only within the arm's reach (base frame, m): a scene cloud spans
+# the floor metres around, and a 1.5 cm grid over all of it took seconds to build.
+GRID_BOUNDS = ((-1.2, -1.2, -0.7), (1.2, 1.2, 1.5))
 _FAR_CENTER = 1e3  # padding obstacles sit here with a zero bounding radius: never near
 
 
@@ -117,11 +120,15 @@ def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndar
     from scipy.ndimage import distance_transform_edt
 
     centers = field.centers
-    lo = centers.min(axis=0) - GRID_TRUNCATION
-    shape = np.ceil((centers.max(axis=0) + GRID_TRUNCATION - lo) / resolution).astype(int) + 1
+    lo = np.maximum(centers.min(axis=0) - GRID_TRUNCATION, GRID_BOUNDS[0])
+    hi = np.minimum(centers.max(axis=0) + GRID_TRUNCATION, GRID_BOUNDS[1])
+    shape = np.maximum(np.ceil((hi - lo) / resolution).astype(int) + 1, 2)
     occupied = np.zeros(shape, dtype=bool)
-    idx = np.clip(np.round((centers - lo) / resolution).astype(int), 0, shape - 1)
-    occupied[tuple(idx.T)] = True
+    idx = np.round((centers - lo) / resolution).astype(int)
+    inside = ((idx >= 0) & (idx < shape)).all(axis=1)
+    occupied[tuple(idx[inside].T)] = True
+    if not inside.any():  # nothing within reach
+        return lo, np.full(shape, GRID_TRUNCATION)
     # EDT between vertices: within half a cell diagonal of the exact distance to the cloud.
     values = distance_transform_edt(~occupied, sampling=resolution)
     values = np.minimum(values - field.half_diagonal - 0.5 * np.sqrt(3) * resolution, GRID_TRUNCATION)

@@ -85,7 +85,7 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
     for i in range(0, len(args), batch):
         chunk = problems[i: i + batch]
         t = time.perf_counter()
-        results = plan_trajopt_batch(args[i: i + batch], time_limit * len(chunk), cfg,
+        results = plan_trajopt_batch(args[i: i + batch], time_limit, cfg,
                                      start_tolerance=chunk[0]["start_tolerance"])
         per = (time.perf_counter() - t) / len(chunk)
         for r in results:

@@ -53,7 +53,8 @@ class TrajoptConfig:
     n_waypoints: int = 16  # including start and goal
     seeds: int = 4  # per problem: the straight line to each goal, then random via points
     via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
-    collision_substeps: int = 2  # collision cost at waypoints and between them
+    collision_substeps: int = 3  # collision cost at waypoints and between them
+    check_substeps: int = 8  # the spheres' verdict on the result, before the exact check
     mppi_iters: int = 3
     mppi_particles: int = 4  # per seed
     mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
@@ -114,13 +115,14 @@ class _Costs:
         self.robot, self.world, self.cfg = robot, world, cfg
         dd = dict(device=robot.device, dtype=robot.dtype)
         self.q_min, self.q_max = torch.as_tensor(q_min, **dd), torch.as_tensor(q_max, **dd)
-        k = cfg.collision_substeps
-        self.sub = torch.arange(k, **dd) / k  # fractions between neighbouring waypoints
+        self.dd = dd
 
-    def dense(self, traj: torch.Tensor) -> torch.Tensor:
-        """(P, B, (T-1)*k + 1, 7): waypoints and the points between them."""
+    def dense(self, traj: torch.Tensor, k: int | None = None) -> torch.Tensor:
+        """(P, B, (T-1)*k + 1, 7): waypoints and ``k - 1`` points between neighbours."""
+        k = k or self.cfg.collision_substeps
+        sub = torch.arange(k, **self.dd) / k  # fractions between neighbouring waypoints
         a, b = traj[:, :, :-1], traj[:, :, 1:]
-        mid = a[:, :, :, None] + self.sub[:, None] * (b - a)[:, :, :, None]
+        mid = a[:, :, :, None] + sub[:, None] * (b - a)[:, :, :, None]
         return torch.cat([mid.flatten(2, 3), traj[:, :, -1:]], dim=2)
 
     def __call__(self, traj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -180,6 +182,7 @@ def _seeds(problems: list[_Problem], cfg: TrajoptConfig, q_min, q_max) -> tuple[
                 via = np.clip(0.5 * (a + b) + rng.normal(0, cfg.via_noise, 7), q_min, q_max)
                 line = line + 4 * s * (1 - s) * (via - 0.5 * (a + b))
             out[p, i] = line
+            out[p, i, 0], out[p, i, -1] = a, b  # exactly (a + 1 * (b - a) need not be b)
     return out, goal_of
 
 
@@ -245,11 +248,13 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     with torch.no_grad():
         traj = full(interior)
         total, _ = costs(traj)
-        dense = costs.dense(traj)
+        dense = costs.dense(traj, cfg.check_substeps)
         clearance = robot.clearance(dense.reshape(P, -1, 7), world, cfg.eta, cfg.self_tolerance).reshape(P, S, -1).amin(dim=2)
     clearance = clearance - robot.margin[:, None]
-    return (traj.double().cpu().numpy(), goal_of, total.double().cpu().numpy(),
-            clearance.double().cpu().numpy())
+    # Back to float64: the ends exactly as asked, the interior exactly within the limits.
+    traj = np.clip(traj.double().cpu().numpy(), robot_model.q_min, robot_model.q_max)
+    traj[:, :, 0], traj[:, :, -1] = seeds[:, :, 0], seeds[:, :, -1]
+    return traj, goal_of, total.double().cpu().numpy(), clearance.double().cpu().numpy()
 
 
 def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float) -> np.ndarray:
@@ -314,8 +319,9 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
 def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 10.0, config: TrajoptConfig | None = None,
                        start_tolerance: float = 0.0) -> list[PlanResult]:
     """Plan every problem ``(checker, q_start, q_goals)`` (goals (K, 7) or (7,), best first)
-    with one batched optimisation; a ``PlanResult`` each, in order. ``time_limit`` bounds
-    the whole batch (the RRT fallback, one problem at a time, gets what is left)."""
+    with one batched optimisation; a ``PlanResult`` each, in order. ``time_limit`` is per
+    problem: it bounds the batch's optimisation, and each problem's RRT fallback gets what
+    the optimisation left of it."""
     cfg = config or TrajoptConfig.for_device()
     t0 = time.perf_counter()
     deadline = t0 + time_limit
@@ -325,10 +331,11 @@ def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 10.0, conf
         out = _optimise(todo, todo[0].checker.robot, cfg, deadline)
         for p, pr in enumerate(todo):
             _select(pr, *(a[p] for a in out), cfg)
+    fallback_time = deadline - time.perf_counter()
     for pr in todo:
         if pr.result is not None:
             continue
-        left = deadline - time.perf_counter()
+        left = fallback_time
         if cfg.rrt_fallback and left > 0:
             rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution)
             path = None if rest.path is None else np.concatenate([pr.prefix, rest.path])

@@ -382,7 +382,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
 def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float, method: str = "ga-mesh-rrt"):
     """The method's planner (``METHODS[method]["planner"]``): OMPL RRTConnect, or the batched
     torch trajectory optimiser (``planning.trajopt``: CUDA when available, else CPU, or
-    ``$FETCHBENCH_TRAJOPT_DEVICE``; deterministic given its inputs). Both return a ``PlanResult``."""
+    ``$FETCHBENCH_TRAJOPT_DEVICE``; repeatable unless its time limit cuts it short). Both return
+    a ``PlanResult``."""
     cfg = state.config
     if METHODS[method].get("planner", "rrt") == "trajopt":
         from ..planning.trajopt import plan_trajopt

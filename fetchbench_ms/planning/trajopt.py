@@ -70,6 +70,7 @@ class TrajoptConfig:
     w_velocity: float = 1.0
     w_acceleration: float = 0.01
     w_jerk: float = 0.0001
+    max_configs: int = 50_000  # configurations per cost evaluation of the particles, at most
     max_planes: int | None = 24  # per convex part (more are thinned: a larger, conservative polytope)
     max_verify: int = 4  # seeds checked by the exact checker per problem, best first
     resolution: float = 0.02  # rad: dense check step, as RRTConnect's
@@ -221,7 +222,11 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             noise = torch.einsum("tk,psnkj->psntj", basis, knots)
             particles = torch.minimum(torch.maximum(interior[:, :, None] + noise, q_lo), q_hi)
             x = particles.reshape(P, S * N, T - 2, 7)
-            c, _ = costs(torch.cat([start.repeat_interleave(N, 1), x, goal.repeat_interleave(N, 1)], dim=2))
+            x = torch.cat([start.repeat_interleave(N, 1), x, goal.repeat_interleave(N, 1)], dim=2)
+            # In pieces of at most ``max_configs`` configurations: the pair tensors of a
+            # large batch would not fit a GPU at once.
+            per_traj = P * ((T - 1) * cfg.collision_substeps + 1)
+            c = torch.cat([costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)], dim=1)
             c = c.reshape(P, S, N)
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)

@@ -88,12 +88,15 @@ class _Primitives:
         d_cylinder = _smooth_norm(d.clamp(min=0)) + d.amax(dim=1).clamp(max=0)
         return torch.where(capsule, d_capsule, d_cylinder)
 
-    def pairs(self, points: torch.Tensor, horizon: float) -> tuple[torch.Tensor, torch.Tensor]:
+    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor]:
         """(flat point index into P*N, signed distance) of every (point, obstacle) pair whose
-        bounding sphere is within ``horizon``."""
+        bounding sphere is within ``horizon`` (+ the point's radius in ``radii`` (P, N))."""
         P, N, _ = points.shape
         with torch.no_grad():
             coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
+            if radii is not None:
+                coarse = coarse - radii[..., None]
             p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
         return p * N + n, self.exact(points[p, n], p, o)
 
@@ -249,9 +252,10 @@ class TorchWorld:
         out = F.grid_sample(self.grid, u[:, None, None], mode="bilinear", padding_mode="border", align_corners=True)
         return out[:, 0, 0, 0]  # outside the grid: the border's value, >= the truncation
 
-    def pairs(self, points: torch.Tensor, horizon: float) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
+    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None
+              ) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
         """Per obstacle kind: (flat point index or None for one value per point, distance)."""
-        out = [kind.pairs(points, horizon) for kind in self.kinds]
+        out = [kind.pairs(points, horizon, radii) for kind in self.kinds]
         if self.grid is not None:
             out.append((None, self.grid_distance(points).reshape(-1)))
         return out
@@ -265,11 +269,12 @@ class TorchWorld:
         return out.reshape(P, N)
 
     def penalty(self, points: torch.Tensor, radii: torch.Tensor, eta: float) -> torch.Tensor:
-        """(P, N): sum over obstacles of ``collision_cost(distance - radius, eta)`` per sphere."""
+        """(P, N): sum over obstacles of ``collision_cost(distance - radius, eta)`` per sphere
+        of centre ``points`` (P, N, 3) and radius ``radii`` (P, N)."""
         P, N, _ = points.shape
         r = radii.reshape(-1)
         out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
-        for idx, d in self.pairs(points, eta + float(r.max()) if len(r) else eta):
+        for idx, d in self.pairs(points, eta, radii.reshape(P, N)):
             if idx is None:
                 out = out + collision_cost(d - r, eta)
             else:

@@ -7,14 +7,20 @@
 - ``ik``: batched multi-seed collision-aware damped-least-squares IK;
 - ``rrt``: OMPL RRTConnect with batched edge checks, simplification, dense re-check;
 - ``timing``: trapezoidal time parametrisation to joint-position targets;
-- ``exact``: python-fcl checks on the real link meshes, to validate plans.
+- ``exact``: python-fcl checks on the real link meshes, to validate plans;
+- ``distance``: the worlds and the robot's spheres as differentiable torch distances,
+  batched over problems, on any device;
+- ``trajopt``: the cuRobo-style trajectory optimiser (seeds, MPPI, Adam), returning the
+  same ``PlanResult`` as ``rrt`` (docs/planning.md).
 """
 from .checker import Attachment, CollisionChecker
 from .ik import IKResult, solve_ik
 from .robot import Q_DEFAULT, PandaModel, panda
 from .rrt import PlanResult, plan_rrtconnect
 from .timing import time_parametrize
+from .trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
 from .world import CollisionWorld, PointCloudField
 
 __all__ = ["Attachment", "CollisionChecker", "CollisionWorld", "IKResult", "PandaModel", "PlanResult",
-           "PointCloudField", "Q_DEFAULT", "panda", "plan_rrtconnect", "solve_ik", "time_parametrize"]
+           "PointCloudField", "Q_DEFAULT", "TrajoptConfig", "panda", "plan_rrtconnect", "plan_trajopt",
+           "plan_trajopt_batch", "solve_ik", "time_parametrize"]

@@ -130,6 +130,11 @@ def print_table(problems, rows, recheck, device) -> None:
               f"{statistics.median([cspace_length(r.path) for r, _ in both] or [float('nan')]):>9.2f} "
               f"{ratio:>9.2f} {sum(ok) / max(len(ok), 1):>6.3f} "
               f"{sum(r.planner == 'trajopt+rrtconnect' for r in results):>8d}")
+    for name, results in rows.items():
+        if name.startswith("trajopt batch"):
+            searched = [r for r in results if r.status != "direct"]
+            print(f"{name}: {len(results) / sum(r.planning_time for r in results):.1f} problems/s over all problems "
+                  f"(batch wall time; {len(searched)} of them needed the optimiser)")
     statuses = {name: dict(sorted({r.status: sum(x.status == r.status for x in rs) for r in rs}.items()))
                 for name, rs in rows.items()}
     print(f"statuses: {statuses}")

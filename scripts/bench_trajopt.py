@@ -72,8 +72,7 @@ def cspace_length(path) -> float:
 
 
 def run_planners(problems: list[dict], device: str, batch: int, time_limit: float) -> dict:
-    from fetchbench_ms.planning.rrt import densify
-    from fetchbench_ms.planning.rrt import plan_rrtconnect
+    from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
     from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
 
     cfg = TrajoptConfig.for_device(device)
@@ -138,9 +137,9 @@ def print_table(problems, rows, recheck, device) -> None:
     statuses = {name: dict(sorted({r.status: sum(x.status == r.status for x in rs) for r in rs}.items()))
                 for name, rs in rows.items()}
     print(f"statuses: {statuses}")
-    print("searched: problems the straight segment did not solve (wall s, and this process's CPU s); C-len/RRT: median ratio of C-space lengths "
-          "on problems both solved, leaving out those both solved by the straight segment; batch times are the "
-          "batch's time over its problems")
+    print("searched: problems the straight segment did not solve (wall s, and this process's CPU s); "
+          "C-len/RRT: median ratio of C-space lengths on problems both solved, leaving out those both solved "
+          "by the straight segment; batch times are the batch's time over its problems")
 
 
 def main() -> None:

@@ -9,11 +9,12 @@ over problems (``P``), and with gradients.
   form) keep the exact formulas of ``world.py`` (a broad phase on bounding spheres, then the
   exact distance of the pairs within the horizon), so on the mesh world the two agree to
   float precision (with ``max_planes``, parts with more planes keep the most spread-out
-  ones, capped by their bounding sphere: a conservative, cheaper polytope). A ``PointCloudField`` (the 5 mm cloud) becomes a truncated distance
-  grid (``GRID_RESOLUTION``): an EDT of the occupied cells, refined to the exact
-  nearest-voxel distance (the k-d tree's answer) at the grid vertices near the cloud, read
-  by trilinear interpolation (``grid_sample``), so it is within about a cell of the
-  checker's value and smooth enough for gradients.
+  ones, capped by their bounding sphere: a conservative, cheaper polytope). A
+  ``PointCloudField`` (the 5 mm cloud) becomes a truncated distance grid
+  (``GRID_RESOLUTION``, within the arm's reach): an EDT of the occupied cells, refined to
+  the exact nearest-voxel distance (the k-d tree's answer) at the grid vertices near the
+  cloud, read by trilinear interpolation (``grid_sample``), so it is within about a cell
+  of the checker's value and smooth enough for gradients.
 - ``TorchRobot``: batched FK of the Panda's spheres on the device, per problem finger
   opening, checked links and carried object (``checker.Attachment``); self-collision
   sphere pairs and carried-object-vs-arm pairs.

@@ -37,7 +37,7 @@ import torch
 
 from .checker import CollisionChecker
 from .distance import TorchRobot, TorchWorld, collision_cost
-from .rrt import PlanResult, densify, escape_start, path_valid, plan_rrtconnect
+from .rrt import PlanResult, escape_start, path_valid, plan_rrtconnect
 
 
 def default_device() -> str:
@@ -254,7 +254,8 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
         traj = full(interior)
         total, _ = costs(traj)
         dense = costs.dense(traj, cfg.check_substeps)
-        clearance = robot.clearance(dense.reshape(P, -1, 7), world, cfg.eta, cfg.self_tolerance).reshape(P, S, -1).amin(dim=2)
+        clearance = robot.clearance(dense.reshape(P, -1, 7), world, cfg.eta, cfg.self_tolerance)
+        clearance = clearance.reshape(P, S, -1).amin(dim=2)
     clearance = clearance - robot.margin[:, None]
     # Back to float64: the ends exactly as asked, the interior exactly within the limits.
     traj = np.clip(traj.double().cpu().numpy(), robot_model.q_min, robot_model.q_max)
@@ -359,4 +360,4 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
     return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance)[0]
 
 
-__all__ = ["TrajoptConfig", "default_device", "densify", "plan_trajopt", "plan_trajopt_batch", "shortcut"]
+__all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "shortcut"]

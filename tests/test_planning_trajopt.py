@@ -13,7 +13,7 @@ from fetchbench_ms.planning.exact import ExactRobot
 from fetchbench_ms.planning.ik import solve_ik
 from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
 from fetchbench_ms.planning.rrt import densify
-from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
+from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch, plan_trajopt_to_pose
 from fetchbench_ms.planning.world import CollisionWorld, ConvexSet, PointCloudField
 
 
@@ -111,6 +111,16 @@ def test_trajopt_plans_into_the_shelf_collision_free_on_exact_meshes(robot, shel
     collisions = [exact_robot.world_collisions(q, exact, FINGER_OPEN) for q in dense]
     assert not any(collisions), next(c for c in collisions if c)
     assert robot.within_limits(dense).all()
+
+
+def test_trajopt_to_a_pose_goal_reaches_it(robot, shelf_problem):
+    checker = shelf_problem[0]
+    target = hand_pose([0.68, -0.1, 0.12])
+    result = plan_trajopt_to_pose(checker, Q_DEFAULT, target, config=TrajoptConfig(rrt_fallback=False, device="cpu"))
+    assert result.success and result.goal_index == 0, result.status
+    T_end = robot.tcp_pose(result.path[-1][None])[0].numpy()
+    assert np.linalg.norm(T_end[:3, 3] - target[:3, 3]) < 0.003
+    assert checker.valid(densify(result.path, 0.02)).all()
 
 
 def test_trajopt_batched_and_single_agree(robot, shelf_problem):

@@ -18,9 +18,9 @@ from .ik import IKResult, solve_ik
 from .robot import Q_DEFAULT, PandaModel, panda
 from .rrt import PlanResult, plan_rrtconnect
 from .timing import time_parametrize
-from .trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
+from .trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch, plan_trajopt_to_pose
 from .world import CollisionWorld, PointCloudField
 
 __all__ = ["Attachment", "CollisionChecker", "CollisionWorld", "IKResult", "PandaModel", "PlanResult",
            "PointCloudField", "Q_DEFAULT", "TrajoptConfig", "panda", "plan_rrtconnect", "plan_trajopt",
-           "plan_trajopt_batch", "solve_ik", "time_parametrize"]
+           "plan_trajopt_batch", "plan_trajopt_to_pose", "solve_ik", "time_parametrize"]

@@ -360,4 +360,26 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
     return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance)[0]
 
 
-__all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "shortcut"]
+def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 10.0,
+                         start_tolerance: float = 0.0, config: TrajoptConfig | None = None, n_ik_seeds: int = 32,
+                         goal_set_size: int = 8) -> PlanResult:
+    """A pose goal (the TCP at ``T_base_tcp`` (4, 4), or any of (G, 4, 4), best first): its
+    collision-free IK solutions (``ik.solve_ik``, seeded from the start) become the goal
+    set, nearest the start first; ``goal_index`` then indexes the target poses."""
+    from .ik import solve_ik
+
+    t0 = time.perf_counter()
+    ik = solve_ik(checker.robot, T_base_tcp, checker=checker, q_seed=np.asarray(q_start, float), n_seeds=n_ik_seeds,
+                  rng=np.random.default_rng((config or TrajoptConfig()).seed))
+    if not ik.found:
+        return PlanResult("no_valid_goal", None, time.perf_counter() - t0, 0, planner="trajopt")
+    result = plan_trajopt(checker, q_start, ik.q[:goal_set_size], max(0.0, time_limit - (time.perf_counter() - t0)),
+                          start_tolerance, config)
+    result.planning_time = time.perf_counter() - t0
+    if result.goal_index >= 0:
+        result.goal_index = int(ik.target_index[result.goal_index])
+    return result
+
+
+__all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose",
+           "shortcut"]

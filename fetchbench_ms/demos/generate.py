@@ -292,7 +292,14 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
         seed += 1
     out = parts.parent / f"{name}.h5"
     tmp = parts.parent / f".{name}.merging.h5"
-    merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp, parts)
+    from mani_skill.utils.logging_utils import logger
+
+    level = logger.level
+    logger.setLevel("ERROR")  # each part's own summary differs: merge_trajectories would warn for every part
+    try:
+        merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp, parts)
+    finally:
+        logger.setLevel(level)
     data = load_json(str(tmp).replace(".h5", ".json"))
     keep = min(len(data["episodes"]), num_traj) if only_count_success else len(data["episodes"])
     if keep < len(data["episodes"]):

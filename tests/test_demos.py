@@ -55,6 +55,7 @@ def test_files_are_maniskill_trajectories_with_stage_labels(demos):
     with h5py.File(demos, "r") as f:
         for e in eps:
             assert e["reset_kwargs"]["options"]["task_id"] == ids[e["episode_seed"]] == e["task_id"]
+            assert len(e["reset_kwargs"]["options"]["task_hash"]) == 16
             traj = f[f"traj_{e['episode_id']}"]
             n = e["elapsed_steps"]
             assert traj["actions"].shape == (n, 8) and traj["success"][-1] and not traj["truncated"][()].any()
@@ -175,3 +176,32 @@ def test_converts_to_delta_pos_with_compact_point_clouds(demos):
         xyz = traj["obs"]["pointcloud"]["xyz"]
         assert xyz.dtype == np.float16 and xyz.shape[0] == traj["actions"].shape[0] + 1
         assert traj["success"][-1]
+
+
+def test_a_changed_suite_task_is_refused_at_reset():
+    env = gym.make(ENV_ID, obs_mode="none", task_suite=SUITE, render_backend="none")
+    try:
+        task_id = suite_task_ids(ENV_ID, SUITE)[0]
+        good = env.unwrapped.task_suite.get(task_id).content_hash()[:16]
+        env.reset(seed=0, options={"task_id": task_id, "task_hash": good})
+        with pytest.raises(ValueError, match="suite changed"):
+            env.reset(seed=0, options={"task_id": task_id, "task_hash": "0" * 16})
+    finally:
+        env.close()
+
+
+SAMPLE = Path(__file__).resolve().parent.parent / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
+
+
+def test_shipped_sample_replays(tmp_path):
+    """The shipped sample (20 trajectories of train tasks) is current: its tasks are the
+    suite's (hash-checked at reset) and its first trajectories replay to success."""
+    import shutil
+
+    from fetchbench_ms.demos.stats import demo_stats
+
+    stats = demo_stats(SAMPLE)
+    assert stats["trajectories"] >= 20 and SAMPLE.stat().st_size <= 5 * 2**20
+    for suffix in (".h5", ".json"):
+        shutil.copy(SAMPLE.with_suffix(suffix), tmp_path / f"sample{suffix}")
+    assert "3/3" in _replay(tmp_path / "sample.h5", "--use-env-states", "-o", "state", "--count", "3")

@@ -3,8 +3,9 @@
 The tasks are those of a task suite (``train`` by default: filtered tasks of train-split
 objects) that the env id admits (its category or scene type), in the suite's order, which is
 stratified, so any prefix is a fair sample. Task ``i`` of that list is episode seed ``i``:
-the env is reset with ``reset(seed=i, options={"task_id": ...})``, which the trajectory's
-JSON records, so ManiSkill's replay tool resets to the same task.
+the env is reset with ``reset(seed=i, options={"task_id": ..., "task_hash": ...})``, which
+the trajectory's JSON records, so ManiSkill's replay tool resets to the same task, and
+fails loudly if the suite was rebuilt since (the hash is the task's content hash).
 
 Per task the expert (``solutions.expert``) makes up to ``per_task`` successful trajectories,
 each from another annotated grasp (the paper has about 4.8 a task); failed tries are not
@@ -144,7 +145,8 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
     t0 = time.perf_counter()
     for _ in range(job.max_tries):
         n_tried = len(tried)
-        demo = solve_demo(rec, seed, reset_options={"task_id": task_id}, tried=tried, method=job.method,
+        demo = solve_demo(rec, seed, reset_options={"task_id": task_id, "task_hash": task.content_hash()[:16]},
+                          tried=tried, method=job.method,
                           config=expert_config())
         summary["tries"] += 1
         if demo.success:

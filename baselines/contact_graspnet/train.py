@@ -200,7 +200,11 @@ def build_views(split: str, count: int, args: Args, seed: int) -> dict:
             views = pool.map(_view_job, jobs, chunksize=max(1, count // (4 * workers)))
     else:
         views = [_view_job(j) for j in jobs]
-    return {k: np.stack([v[k] for v in views]) for k in views[0]}
+    data = {k: np.stack([v[k] for v in views]) for k in views[0]}
+    # compact storage (20k points x thousands of views): the label frames' top 3 rows and the widths in float16
+    data["grasp"] = data["grasp"][:, :, :3, :].astype(np.float16)
+    data["width"] = data["width"].astype(np.float16)
+    return data
 
 
 def load_or_build_data(args: Args, run: Path, log) -> tuple[dict, dict, str]:
@@ -292,7 +296,11 @@ def main(args: Args) -> dict:
         log(f"resumed at step {step}")
 
     def to_device(data: dict, rows) -> dict:
-        return {k: torch.as_tensor(v[rows], device=args.device) for k, v in data.items()}
+        out = {k: torch.as_tensor(v[rows], device=args.device) for k, v in data.items()}
+        grasp = out["grasp"].float()  # [B, N, 3, 4] -> [B, N, 4, 4]
+        bottom = torch.tensor([0.0, 0, 0, 1], device=args.device).expand(*grasp.shape[:2], 1, 4)
+        out["grasp"], out["width"] = torch.cat([grasp, bottom], -2), out["width"].float()
+        return out
 
     def save() -> None:
         torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
@@ -334,7 +342,7 @@ def main(args: Args) -> dict:
         step += 1
         history.append(float(parts["loss"].detach()))
         if step % args.log_every == 0 or step == args.steps:
-            log(f"step {step} " + " ".join(f"{k} {float(v):.4f}" for k, v in parts.items())
+            log(f"step {step} " + " ".join(f"{k} {float(v.detach()):.4f}" for k, v in parts.items())
                 + f" lr {schedule.get_last_lr()[0]:.2e}")
         if step % args.ckpt_every == 0:
             save()

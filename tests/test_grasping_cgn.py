@@ -214,3 +214,19 @@ def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
         optimizer.step()
         history.append(float(loss))
     assert history[-1] < history[0], history
+
+
+def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
+    from fetchbench_ms.grasping.predict import PredictedGrasps
+    from fetchbench_ms.grasping.show import render_predictions_png
+
+    rng = np.random.default_rng(4)
+    target = random_cloud(rng, 300, 0.02) + np.array([0.5, 0.0, 0.4], dtype=np.float32)
+    scene = np.c_[rng.uniform(0.3, 0.7, (2000, 2)) - [0, 0.2], np.full(2000, 0.38)]
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, :3, 3] = [0.5, 0.0, 0.55]
+    T[:, :3, :3] = np.diag([1.0, -1.0, -1.0])  # approaching downwards
+    grasps = PredictedGrasps(T, np.array([0.9, 0.8, 0.7]), np.full(3, 0.04), np.tile([0.5, 0.0, 0.42], (3, 1)))
+    out = tmp_path / "pred.png"
+    assert render_predictions_png(scene, target, grasps, out, top=2, title="synthetic") == 2
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,13 +1,12 @@
 """``fetchbench grasps predict``: a suite task's observed cloud with the predicted grasps drawn on it."""
 from __future__ import annotations
 
-import io
 import os
 
 import numpy as np
 
 from ..grasps.hand import gripper_outline_hand
-from ..utils.io import atomic_write_bytes
+from ..grasps.show import save_3d_png
 from .predict import REGION_SIZE, PredictedGrasps
 
 
@@ -39,16 +38,8 @@ def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: Predic
         ax.add_collection3d(Line3DCollection(lines, colors=[cmap(1.0 - grasps.scores[i])], linewidths=1.2))
     for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
         setter(c - half, c + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
     best = f", best score {grasps.scores[0]:.2f}" if shown else ""
-    ax.set_title(f"{title}: {shown} of {len(grasps.scores)} grasps on the target{best}", fontsize=9)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png")
-    plt.close(fig)
-    atomic_write_bytes(out, buffer.getvalue())
+    save_3d_png(fig, ax, f"{title}: {shown} of {len(grasps.scores)} grasps on the target{best}", out)
     return shown
 
 

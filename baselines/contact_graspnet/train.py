@@ -18,9 +18,11 @@ Losses (the original's): confidence BCE over the 512 hardest of the 2048 contact
 ADD-S on gripper control points (min over the two finger-symmetric labels) for positive
 points, weighted by the predicted confidence; width L1 for positive points.
 
-    # the H100 run (fits a 10-minute call: it stops at --time-limit and resumes from its checkpoint)
-    python baselines/contact_graspnet/train.py --run runs/cgn/ours --device cuda --views 6000 \
-        --steps 6000 --batch-size 16 --time-limit 540 --init pretrained --export
+    # the H100 run: fine-tunes the pretrained weights; each call stops at --time-limit with a
+    # checkpoint and the same command resumes it (the run folder must survive: /tmp while the
+    # machine stays warm); the last call validates and exports
+    python baselines/contact_graspnet/train.py --run /tmp/cgn-ours --device cuda --workers 16 \
+        --views 2000 --steps 1500 --batch-size 16 --init pretrained --time-limit 480 --export
     # a CPU smoke run: tiny network, few points
     python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --steps 5
 

@@ -3,7 +3,8 @@
 
 The GPU machine has Python 3.12 on x86-64, no package index, and torch (CUDA build), numpy,
 scipy and h5py preinstalled at other versions. This script downloads, for that Python and
-platform, the wheel of every package pinned in requirements.lock except torch, its CUDA
+platform, the wheel of every package pinned in requirements.lock (and requirements-nodeps.txt:
+cgn-pytorch, for its pretrained checkpoint) except torch, its CUDA
 runtime (nvidia-*, triton) and the installer's own tools (pip, setuptools, wheel: the
 machine's Python has them), into the git-ignored folder .whl/:
 
@@ -61,7 +62,7 @@ def read_lock(path: Path) -> list[tuple[str, str]]:
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        name, sep, version = line.partition("==")
+        name, sep, version = line.split(" --hash", 1)[0].strip().partition("==")
         if not sep:
             sys.exit(f"[bundle] {path}: not an exact pin: {line!r} (regenerate it with `make lock`)")
         pins.append((name, version))
@@ -300,6 +301,9 @@ def main(argv=None) -> int:
     if not lock.is_file():
         ap.error(f"no lock file {lock} (make one with `make lock`)")
     pins = read_lock(lock)
+    nodeps = ROOT / "requirements-nodeps.txt"  # installed --no-deps on the machine like everything else
+    if nodeps.is_file():
+        pins += read_lock(nodeps)
     names = {normalise(n) for n, _ in pins}
     extra = {normalise(s) for s in args.skip}
     unknown = sorted(extra - names)

@@ -14,11 +14,12 @@ def cmd_eval(args) -> int:
         raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
     if args.tasks is not None and args.suite is None:
         raise ValueError("--tasks selects tasks of a --suite")
-    out = args.out or os.path.join("out", "eval", args.method.replace(":", "_"))
+    default_out = args.method.replace(":", "_") + (f"-{args.grasp_model}" if args.method.startswith("cgn-") else "")
+    out = args.out or os.path.join("out", "eval", default_out)
     records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
-                       retry_errors=args.retry_errors, videos=args.videos)
+                       retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -39,7 +40,10 @@ def cmd_report(args) -> int:
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="evaluate a method on a task suite (one JSON line per task, resumable)")
     p.add_argument("--method", default="ga-mesh-rrt",
-                   help="ga-mesh-rrt, ga-ptd-rrt, idle, or an importable module:function")
+                   help="ga-mesh-rrt, ga-ptd-rrt, cgn-ptd-rrt, cgn-mesh-rrt, idle, or an importable module:function")
+    p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
+                   help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
+                        "ours: assets/checkpoints/cgn_ours.pt)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

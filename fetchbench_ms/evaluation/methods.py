@@ -65,14 +65,19 @@ class Method:
     run: Callable  # run(env, seed) -> record dict
 
 
-def resolve_method(name: str, retries: int = 1) -> Method:
-    from ..solutions.sense_plan_act import METHODS, solve
+def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained") -> Method:
+    """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods."""
+    from ..solutions.sense_plan_act import METHODS, needs_pointcloud, solve
 
     if name in METHODS:
-        obs_mode = "pointcloud" if METHODS[name]["world"] == "pointcloud" else "none"
+        obs_mode = "pointcloud" if needs_pointcloud(name) else "none"
+        if METHODS[name]["grasps"] == "cgn":
+            from ..grasping import load_model
+
+            load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
 
         def run(env, seed):
-            return solve(env, seed=seed, method=name, retries=retries, reset=False)
+            return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model)
 
         return Method(name, obs_mode, run)
     if name == IDLE:
@@ -112,9 +117,10 @@ class RunnerSpec:
     method: str
     retries: int = 1
     video_dir: Optional[str] = None  # record a GIF of every failed task here
+    grasp_model: str = "pretrained"  # cgn-* methods: Contact-GraspNet weight set
 
     def make(self) -> "TaskRunner":
-        return TaskRunner(self.method, self.retries, self.video_dir)
+        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -124,8 +130,9 @@ VIDEO_SIZE = 256  # px, square
 class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
-    def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None):
-        self.method = resolve_method(method_name, retries)
+    def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
+                 grasp_model: str = "pretrained"):
+        self.method = resolve_method(method_name, retries, grasp_model)
         self.video_dir = video_dir
         self.envs: dict = {}
 

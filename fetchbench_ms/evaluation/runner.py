@@ -57,12 +57,12 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
              env_id: Optional[str] = None, episodes: int = 10, seed: int = 0, workers: int = 1,
              backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
              retries: int = 1, retry_errors: bool = False, videos: bool = False,
-             progress: bool = True) -> list[dict]:
+             progress: bool = True, grasp_model: str = "pretrained") -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
-    selection (old and new), in task order."""
+    selection (old and new), in task order. ``grasp_model``: the weight set of ``cgn-*`` methods."""
     from .metrics import summarize
 
-    resolve_method(method, retries)  # unknown method: fail before anything is written
+    resolve_method(method, retries, grasp_model)  # unknown method: fail before anything is written
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:
@@ -76,8 +76,11 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         source, source_sha = f"env:{env_id}", None
         selection = {"env_id": env_id, "episodes": episodes, "seed": seed, "object_split": SAMPLED_TASK_SPLIT}
     store = ResultsStore(Path(out_dir))
+    options = {"retries": retries}
+    if method.startswith("cgn-"):  # (other methods' stores keep their options as they were)
+        options["grasp_model"] = grasp_model
     store.open_run({"method": method, "source": source, "source_sha256": source_sha,
-                    "method_options": {"retries": retries}, "selection": selection})
+                    "method_options": options, "selection": selection})
     done = {r["task_id"]: r for r in store.records()}
     todo = [it for it in items if it.task_id not in done or (retry_errors and done[it.task_id].get("error"))]
     bar = _progress(len(items), len(items) - len(todo), method, progress)
@@ -94,7 +97,7 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         bar.update(1)
         bar.set_postfix(success=f"{successes}/{finished}")
 
-    spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None)
+    spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model)
     if todo:
         if backend == "local":
             from .local import run_local

@@ -133,6 +133,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--failures", action="store_true", help="also draw failed trials (red)")
     p.set_defaults(func=cmd_show)
 
+    from ..grasping.show import add_predict_command
+
+    add_predict_command(sub)
+
     p = sub.add_parser("stats", help="grasp counts and success rates")
     p.add_argument("--dir", **common)
     p.add_argument("--json", action="store_true")

@@ -50,14 +50,21 @@ def render_grasps_png(asset, grasps: Grasps, out: str | os.PathLike, max_grasps:
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_zlim(centre[2] - half, centre[2] + half)
+    rate = grasps.success.mean() if len(grasps) else 0.0
+    save_3d_png(fig, ax, f"{grasps.object_id}: {int(grasps.success.sum())}/{len(grasps)} trials held ({rate:.0%})", out)
+    return drawn
+
+
+def save_3d_png(fig, ax, title: str, out: str | os.PathLike) -> None:
+    """Equal axes in metres, the title, and the figure written as a PNG (atomically), then closed."""
+    import matplotlib.pyplot as plt
+
     ax.set_box_aspect((1, 1, 1))
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
-    rate = grasps.success.mean() if len(grasps) else 0.0
-    ax.set_title(f"{grasps.object_id}: {int(grasps.success.sum())}/{len(grasps)} trials held ({rate:.0%})", fontsize=9)
+    ax.set_title(title, fontsize=9)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
     plt.close(fig)
     atomic_write_bytes(out, buffer.getvalue())
-    return drawn

@@ -33,7 +33,8 @@ import torch
 from .sense_plan_act import METHODS, STAGES, EpisodeState, SolveConfig, _attempt
 
 #: The expert's planner set-up: the oracle mesh world and the best planner the project has
-#: (RRTConnect with path shortcutting); any METHODS entry whose world is the mesh drops in.
+#: (RRTConnect with path shortcutting); any METHODS entry with the mesh world and the
+#: annotated grasps drops in (``ga-mesh-trajopt``: the trajectory optimiser).
 EXPERT_METHOD = "ga-mesh-rrt"
 CONFIRM_STEPS = 5  # control steps (0.25 s at 20 Hz) the env's success must hold at the end
 MAX_CONFIRM_STEPS = 40  # steps to wait for success after the retrieval path (the object swings)
@@ -85,10 +86,10 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     """One expert try; ``tried`` (grasp ids) is updated with the grasp it executed."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    if METHODS[method]["world"] != "mesh":
-        raise ValueError(f"the expert plans in the oracle mesh world; {method!r} plans in "
-                         f"{METHODS[method]['world']!r}. Valid: "
-                         + ", ".join(m for m, v in METHODS.items() if v["world"] == "mesh"))
+    oracle = [m for m, v in METHODS.items() if v["world"] == "mesh" and v["grasps"] == "oracle"]
+    if method not in oracle:
+        raise ValueError(f"the expert plans with the annotated grasps in the oracle mesh world; {method!r} "
+                         f"does not. Valid: {', '.join(oracle)}")
     torch.set_num_threads(1)
     if reset:
         env.reset(seed=seed, options=reset_options)

@@ -1,7 +1,8 @@
 """Grasp candidates for the target: the annotated (physics-verified) grasps of the
 object from the grasp store, or, for an object without labels there, antipodal
 candidates computed from its convex parts as a stand-in (unverified; the episode
-records which source it used).
+records which source it used); or, for the CGN methods, Contact-GraspNet's predictions
+on the observed clouds (``predicted_grasps``).
 
 Both are per-object assets computed ahead of time (the stand-in once per object and
 process, from a seed derived from the object id), so an episode's grasp "inference"
@@ -47,6 +48,19 @@ def choose_grasps(grasps: GraspCandidates, rng: np.random.Generator, max_grasps:
     """A seeded random order (no grasp is better than another among verified ones), at most ``max_grasps``."""
     order = rng.permutation(len(grasps.T_object_hand))[:max_grasps]
     return GraspCandidates(grasps.T_object_hand[order], grasps.source, order)
+
+
+def predicted_grasps(clouds, T_base_object: np.ndarray, model: str, max_grasps: int, rng: np.random.Generator,
+                     first_index: int = 0) -> GraspCandidates:
+    """The ``max_grasps`` best Contact-GraspNet grasps on the observed target (``clouds``:
+    ``fetchbench_ms.envs.FetchClouds``), expressed in the object frame like the annotated
+    ones (``T_base_object`` only changes the frame: the prediction sees the clouds alone).
+    Ids count from ``first_index``."""
+    from ..grasping import predict_from_clouds
+
+    predicted = predict_from_clouds(clouds, model, rng)
+    T_object_hand = np.linalg.inv(T_base_object)[None] @ predicted.T_base_hand[:max_grasps]
+    return GraspCandidates(T_object_hand, f"cgn-{model}", first_index + np.arange(len(T_object_hand)))
 
 
 def tcp_from_hand(T_hand: np.ndarray) -> np.ndarray:

@@ -11,7 +11,10 @@ Variants (``METHODS``): ``ga-mesh-rrt`` plans in the oracle mesh world, ``ga-ptd
 in the segmented point clouds; both take the annotated grasps and, like the original
 release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-trajopt`` and
 ``ga-ptd-trajopt`` plan the same motions with the batched torch trajectory optimiser
-(``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect.
+(``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect. ``cgn-ptd-rrt`` (the
+paper's CGN-RRTConnect) and ``cgn-mesh-rrt`` (CGN-Mesh-RRTConnect) take the top
+Contact-GraspNet predictions on the observed target instead (``SolveConfig.grasp_model``:
+``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``).
 
 Execution drives the env's ``pd_joint_pos`` controller open loop with the time-
 parametrised plan. Rendering cameras at every control step would only slow an open-loop
@@ -36,14 +39,16 @@ from ..planning.robot import panda
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
 from ..planning.world import pose_matrix
-from .grasp_source import choose_grasps, object_grasps, retreat, tcp_from_hand
+from .grasp_source import choose_grasps, object_grasps, predicted_grasps, retreat, tcp_from_hand
 from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
 METHODS = {
-    "ga-mesh-rrt": dict(world="mesh", planner="rrt"),
-    "ga-ptd-rrt": dict(world="pointcloud", planner="rrt"),
-    "ga-mesh-trajopt": dict(world="mesh", planner="trajopt"),
-    "ga-ptd-trajopt": dict(world="pointcloud", planner="trajopt"),
+    "ga-mesh-rrt": dict(world="mesh", grasps="oracle", planner="rrt"),
+    "ga-ptd-rrt": dict(world="pointcloud", grasps="oracle", planner="rrt"),
+    "ga-mesh-trajopt": dict(world="mesh", grasps="oracle", planner="trajopt"),
+    "ga-ptd-trajopt": dict(world="pointcloud", grasps="oracle", planner="trajopt"),
+    "cgn-ptd-rrt": dict(world="pointcloud", grasps="cgn", planner="rrt"),
+    "cgn-mesh-rrt": dict(world="mesh", grasps="cgn", planner="rrt"),
 }
 FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision")
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
@@ -70,6 +75,11 @@ class SolveConfig:
     extra_lifts: tuple = (0.02, 0.04, 0.06)
     close_seconds: float = 1.5
     max_grasps: int = 128  # candidates drawn (annotated grasps, or antipodal stand-ins)
+    grasp_model: str = "pretrained"  # CGN methods: weight set (fetchbench_ms.grasping.GRASP_MODELS)
+    # CGN methods: the best predictions by score whose open hand is free go to IK (the
+    # original's top 10; its predictions come without a collision check, and the best
+    # ones often sit a few mm into the support in the conservative sphere model).
+    cgn_grasps: int = 10
     ik_grasps: int = 24  # candidates whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)
     goal_set_size: int = 8  # IK solutions handed to RRTConnect at once
@@ -227,15 +237,34 @@ def _moved(env) -> tuple[float, float]:
     return float(info["target_moved"][0]), float(info["max_others_moved"][0])
 
 
+def needs_pointcloud(method: str) -> bool:
+    """Whether the method reads the cameras (the env must be made with obs_mode='pointcloud')."""
+    return METHODS[method]["world"] == "pointcloud" or METHODS[method]["grasps"] == "cgn"
+
+
+def _observe(env):
+    from ..envs import fetch_clouds
+
+    return fetch_clouds(env.unwrapped.get_obs(unflattened=True))  # one render per try
+
+
 def _world_model(env, method: str, state: EpisodeState):
     if METHODS[method]["world"] == "mesh":
         return state.timed(mesh_world, env), None
-    from ..envs import fetch_clouds
-
-    obs = env.unwrapped.get_obs(unflattened=True)  # one render per try
-    clouds = fetch_clouds(obs)
+    clouds = _observe(env)
     q_full = env.unwrapped.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
     return state.timed(pointcloud_world, clouds, q_full), clouds
+
+
+def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_base_object, clouds):
+    """The annotated grasps (a seeded random order), or the CGN predictions (best first)."""
+    cfg = state.config
+    if METHODS[method]["grasps"] == "oracle":
+        return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id), rng, cfg.max_grasps)
+    clouds = clouds if clouds is not None else _observe(env)
+    # Fresh ids for this try's predictions: never among the grasps tried before.
+    return state.timed(predicted_grasps, clouds, T_base_object, cfg.grasp_model, cfg.max_grasps, rng,
+                       first_index=max(tried, default=-1) + 1)
 
 
 def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | None:
@@ -248,7 +277,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     world, clouds = _world_model(env, method, state)
     T_base_object = object_poses_base(env)[task.target_index]
     asset = load_object(task.target.object_id)
-    grasps = state.timed(choose_grasps, object_grasps(task.target.object_id), rng, cfg.max_grasps)
+    grasps = _grasp_candidates(env, method, state, rng, tried, T_base_object, clouds)
     state.grasp_source = grasps.source
     T_grasp_tcp = tcp_from_hand(_hand_poses_base(T_base_object, grasps.T_object_hand))  # (N, 4, 4)
     # ``keep``: ids (in the object's grasp list) of the candidates still in play; a grasp
@@ -270,7 +299,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     order = np.flatnonzero(clearance > cfg.margin)
     if cfg.grasp_order == "clearance":
         order = order[np.argsort(-clearance[order], kind="stable")]
-    order = order[: cfg.ik_grasps]
+    order = order[: cfg.ik_grasps if METHODS[method]["grasps"] == "oracle" else cfg.cgn_grasps]
     keep = [keep[i] for i in order]
     T_grasp_tcp, T_pre_tcp = T_grasp_tcp[order], T_pre_tcp[order]
     if not keep:
@@ -414,7 +443,7 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
 
 
 def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: int = 1,
-          config: SolveConfig | None = None, reset: bool = True) -> dict:
+          config: SolveConfig | None = None, reset: bool = True, grasp_model: str | None = None) -> dict:
     """Run one FetchBench episode with a sense-plan-act baseline; returns its metrics.
 
     ``retries`` is the number of tries in all (FetchBench's ``--retries 5``); a further try
@@ -428,10 +457,12 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         raise ValueError(f"retries must be >= 1, got {retries}")
     if config is not None and config.grasp_order not in GRASP_ORDERS:
         raise ValueError(f"unknown grasp_order {config.grasp_order!r}; valid: {', '.join(GRASP_ORDERS)}")
-    if METHODS[method]["world"] == "pointcloud" and env.unwrapped.obs_mode != "pointcloud":
-        raise ValueError(f"{method} plans in the observed point clouds: make the env with obs_mode='pointcloud' "
+    if needs_pointcloud(method) and env.unwrapped.obs_mode != "pointcloud":
+        raise ValueError(f"{method} reads the observed point clouds: make the env with obs_mode='pointcloud' "
                          f"(it has {env.unwrapped.obs_mode!r})")
     config = dataclasses.replace(config or SolveConfig(), retries=retries)
+    if grasp_model is not None:
+        config = dataclasses.replace(config, grasp_model=grasp_model)
     torch.set_num_threads(1)  # small batches: threads only add overhead here
     t_wall = time.perf_counter()
     if reset:

@@ -1,0 +1,96 @@
+"""PointNet++'s point operations in plain torch (no compiled extension), batched, CPU or CUDA.
+
+Every function takes batched tensors (``[B, N, 3]`` points) and returns indices or
+features per batch element; all elements of a batch have the same number of points.
+"""
+from __future__ import annotations
+
+import torch
+
+# Rows of centres handled at once in ``ball_query`` / ``knn``: bounds the [B, rows, N]
+# distance block (2048 rows x 20k points x 4 B = 160 MB at the first level otherwise).
+CHUNK = 512
+
+
+def farthest_point_sample(points: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
+    """Indices [B, n] of ``n`` farthest points of ``points`` [B, N, 3], greedily, from index ``start``.
+
+    ``n`` may exceed N only by repetition (then the last picks repeat points already taken).
+    """
+    B, N, _ = points.shape
+    out = torch.empty((B, n), dtype=torch.long, device=points.device)
+    nearest = torch.full((B, N), float("inf"), device=points.device, dtype=points.dtype)
+    rows = torch.arange(B, device=points.device)
+    current = torch.full((B,), start, dtype=torch.long, device=points.device)
+    for i in range(n):
+        out[:, i] = current
+        d = ((points - points[rows, current][:, None, :]) ** 2).sum(-1)
+        nearest = torch.minimum(nearest, d)
+        current = nearest.argmax(-1)
+    return out
+
+
+def gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """``values`` [B, N, C] at ``index`` [B, ...] -> [B, ..., C]."""
+    B = values.shape[0]
+    flat = index.reshape(B, -1)
+    picked = torch.gather(values, 1, flat[..., None].expand(-1, -1, values.shape[-1]))
+    return picked.reshape(*index.shape, values.shape[-1])
+
+
+def _squared_distances(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """[B, M, N] squared distances between a [B, M, 3] and b [B, N, 3]: from differences,
+    not the |a|^2 + |b|^2 - 2ab expansion (its cancellation moves points across a 2 cm
+    radius), and without a [B, M, N, 3] temporary (3.5x faster than broadcasting)."""
+    return torch.cdist(a, b, compute_mode="donot_use_mm_for_euclid_dist").square_()
+
+
+def ball_query(points: torch.Tensor, centers: torch.Tensor, radius, k: int):
+    """Indices [B, M, k] of up to ``k`` points within ``radius`` of each centre, the first ones
+    in index order (PointNet++'s and torch_cluster's ``radius`` rule; a shuffled cloud makes
+    them a random subset). Centres with fewer neighbours repeat their first one; a centre
+    with none (not itself a point of the cloud) gets its nearest point.
+
+    ``radius`` may be a sequence of radii: then a list of index tensors, one per radius,
+    sharing one distance computation (multi-scale grouping).
+    """
+    radii = [radius] if isinstance(radius, (int, float)) else list(radius)
+    B, N, _ = points.shape
+    arange = torch.arange(N, device=points.device)
+    kk = min(k, N)
+    out = [[] for _ in radii]
+    for s in range(0, centers.shape[1], CHUNK):
+        d2 = _squared_distances(centers[:, s:s + CHUNK], points)
+        nearest = d2.argmin(-1, keepdim=True)
+        for r, parts in zip(radii, out):
+            order = torch.where(d2 <= r * r, arange, N)
+            first = torch.topk(order, kk, dim=-1, largest=False, sorted=True).values
+            fallback = torch.where(first[..., :1] < N, first[..., :1], nearest)
+            first = torch.where(first < N, first, fallback)
+            if kk < k:
+                first = torch.cat([first, fallback.expand(-1, -1, k - kk)], -1)
+            parts.append(first)
+    result = [torch.cat(parts, 1) for parts in out]
+    return result[0] if isinstance(radius, (int, float)) else result
+
+
+def knn(points: torch.Tensor, queries: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The ``k`` nearest ``points`` [B, N, 3] of each query [B, M, 3]: (indices [B, M, k],
+    squared distances [B, M, k]), nearest first."""
+    idx, dist = [], []
+    for s in range(0, queries.shape[1], CHUNK):
+        d2 = _squared_distances(queries[:, s:s + CHUNK], points)
+        values, index = torch.topk(d2, min(k, points.shape[1]), dim=-1, largest=False, sorted=True)
+        idx.append(index)
+        dist.append(values)
+    return torch.cat(idx, 1), torch.cat(dist, 1)
+
+
+def knn_interpolate(features: torch.Tensor, points: torch.Tensor, queries: torch.Tensor, k: int = 3) -> torch.Tensor:
+    """Features [B, N, C] known at ``points`` [B, N, 3], interpolated at ``queries`` [B, M, 3]
+    by inverse squared distance over the ``k`` nearest points -> [B, M, C]. A query on a
+    point takes that point's features."""
+    index, d2 = knn(points, queries, k)
+    weights = 1.0 / d2.clamp(min=1e-16)
+    weights = weights / weights.sum(-1, keepdim=True)
+    return (gather(features, index) * weights[..., None]).sum(-2)

@@ -1,0 +1,72 @@
+"""``fetchbench grasps predict``: a suite task's observed cloud with the predicted grasps drawn on it."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..grasps.hand import gripper_outline_hand
+from ..grasps.show import save_3d_png
+from .predict import REGION_SIZE, PredictedGrasps
+
+
+def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: PredictedGrasps, out: str | os.PathLike,
+                           top: int = 10, title: str = "", rng: np.random.Generator | None = None) -> int:
+    """The points near the target (scene grey, target orange) and the ``top`` best grasps
+    (hand outlines, darker = higher score). Returns how many grasps were drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    rng = rng if rng is not None else np.random.default_rng(0)
+    centre = (np.percentile(target, 2, axis=0) + np.percentile(target, 98, axis=0)) / 2
+    half = REGION_SIZE[0] / 2
+    fig = plt.figure(figsize=(6, 6), dpi=110)
+    ax = fig.add_subplot(projection="3d")
+    for points, color, n in ((scene, "0.6", 4000), (target, "tab:orange", 1500)):
+        near = points[np.all(np.abs(points - centre) <= half, axis=1)]
+        if len(near) > n:
+            near = near[rng.choice(len(near), size=n, replace=False)]
+        ax.scatter(*near.T, s=0.5, c=color, depthshade=False)
+    shown = min(top, len(grasps.scores))
+    cmap = plt.get_cmap("viridis")
+    for i in range(shown):
+        T = grasps.T_base_hand[i]
+        lines = gripper_outline_hand(max(float(grasps.widths[i]), 0.02)) @ T[:3, :3].T + T[:3, 3]
+        ax.add_collection3d(Line3DCollection(lines, colors=[cmap(1.0 - grasps.scores[i])], linewidths=1.2))
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        setter(c - half, c + half)
+    best = f", best score {grasps.scores[0]:.2f}" if shown else ""
+    save_3d_png(fig, ax, f"{title}: {shown} of {len(grasps.scores)} grasps on the target{best}", out)
+    return shown
+
+
+def cmd_predict(args) -> int:
+    from ..envs import fetch_clouds, make
+    from .predict import predict_from_clouds
+
+    suite = args.task.split("/")[0] if args.suite is None else args.suite
+    env = make("FetchBench-v0", obs_mode="pointcloud", task_suite=suite)
+    try:
+        obs, _ = env.reset(options={"task_id": args.task})
+        clouds = fetch_clouds(obs)
+    finally:
+        env.close()
+    grasps = predict_from_clouds(clouds, args.grasp_model, np.random.default_rng(args.seed))
+    drawn = render_predictions_png(clouds.scene, clouds.target, grasps, args.out, top=args.top,
+                                   title=f"{args.task} ({args.grasp_model})")
+    print(f"wrote {args.out}: {drawn} of {len(grasps.scores)} predicted grasps on the target of {args.task}")
+    return 0
+
+
+def add_predict_command(sub) -> None:
+    p = sub.add_parser("predict", help="draw Contact-GraspNet's grasps on a suite task's observed target to a PNG")
+    p.add_argument("task", help="a suite task id, e.g. smoke/0003")
+    p.add_argument("--suite", default=None, help="the suite (default: the task id's prefix)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))
+    p.add_argument("--top", type=int, default=10, help="draw the best this many")
+    p.add_argument("--seed", type=int, default=0, help="seed of the point sampling")
+    p.set_defaults(func=cmd_predict)

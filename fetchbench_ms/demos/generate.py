@@ -229,7 +229,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     bar.update(min(num_traj, count(finished)))
     seeds = (s for s in range(start_seed, start_seed + len(ids)) if s not in finished)
     if enough(finished) is None:
-        pool = _pool(backend, num_procs, job)
+        pool = _pool(backend, num_procs)
         try:
             pending = []
             while True:
@@ -266,7 +266,7 @@ def _yield(done: dict) -> float:
     return float(np.mean([d["successes"] > 0 for d in done.values()])) if done else 0.0
 
 
-def _pool(backend: str, num_procs: int, job: DemoJob):
+def _pool(backend: str, num_procs: int):
     if backend == "ray":
         from ray.util.multiprocessing import Pool
 
@@ -299,7 +299,7 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
     level = logger.level
     logger.setLevel("ERROR")  # each part's own summary differs: merge_trajectories would warn for every part
     try:
-        merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp, parts)
+        merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp)
     finally:
         logger.setLevel(level)
     data = load_json(str(tmp).replace(".h5", ".json"))
@@ -340,7 +340,7 @@ def compress_h5(src: Path, dst: Path, level: int = 4) -> None:
         copy(a, b)
 
 
-def _empty(tmp: Path, parts: Path) -> None:
+def _empty(tmp: Path) -> None:
     import h5py
 
     h5py.File(tmp, "w").close()

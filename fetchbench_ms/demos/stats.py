@@ -100,6 +100,7 @@ def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str 
     import gymnasium as gym
     import h5py
     import imageio.v2 as imageio
+    from mani_skill.trajectory.dataset import load_h5_data
     from mani_skill.trajectory.utils import dict_to_list_of_dicts
 
     import fetchbench_ms  # noqa: F401
@@ -120,7 +121,7 @@ def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str 
         if camera not in u._human_render_cameras:
             raise ValueError(f"unknown camera {camera!r}; valid: {', '.join(u._human_render_cameras)}")
         with h5py.File(path, "r") as f:
-            states = dict_to_list_of_dicts(_read_group(f[f"traj_{traj}"]["env_states"]))
+            states = dict_to_list_of_dicts(load_h5_data(f[f"traj_{traj}"]["env_states"]))
         frames = []
         for state in states:
             u.set_state_dict({k: _to_torch(v) for k, v in state.items()})
@@ -138,12 +139,6 @@ def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str 
     imageio.mimsave(tmp, frames, **timing)
     tmp.replace(out)
     return out
-
-
-def _read_group(group) -> dict:
-    import h5py
-
-    return {k: (_read_group(v) if isinstance(v, h5py.Group) else v[()]) for k, v in group.items()}
 
 
 def _to_torch(value):

@@ -186,12 +186,16 @@ def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
         assert "PARTIAL" in format_stats(suite_stats(test_suite))
 
 
-def test_val_suite_uses_train_objects():
+@pytest.mark.parametrize("name", ["train", "val"])
+def test_learning_suites_hold_no_test_split_object(name):
+    """Every object of every arrangement (targets and clutter) of the suites that methods
+    train and tune on is a train-split object; none is of the test split."""
     from fetchbench_ms.tasks.objects import object_ids
 
-    val = load_suite("val")
-    train = set(object_ids("train"))
-    assert len(val) > 0 and all(o.object_id in train for t in val.tasks.values() for o in t.objects)
+    suite = load_suite(name)
+    used = {o.object_id for t in suite.tasks.values() for o in t.objects}
+    assert len(suite) > 0 and used <= set(object_ids("train"))
+    assert not used & set(object_ids("test"))
 
 
 def test_smoke_covers_every_category_and_most_types(smoke, test_suite):

@@ -323,3 +323,34 @@ def test_a_larger_fill_budget_continues_only_short_scenes_to_a_fresh_builds_resu
     assert continued["rejected"].get("unchecked", 0) == first["rejected"].get("unchecked", 0)
     # A result made with a larger budget is stale for a smaller one (it would differ).
     assert "more arrangements" in suite_build._stale_reason(short, scene, continued)
+
+
+def test_merging_two_copies_of_a_work_dir_keeps_each_scene_furthest_along(tmp_path):
+    """Two machines building one suite (one with ``--reverse``) each leave finished scenes
+    and progress files; merging keeps a finished scene over any progress, and the progress
+    with more arrangements tried, and never goes back."""
+    def progress(next_arrangement):
+        return json.dumps({"key": {}, "state": {"next": next_arrangement}})
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    (here / "scene_000.json").write_text('{"done": "here"}')
+    (there / "scene_000.json").write_text('{"done": "there"}')
+    (here / "scene_001.progress.json").write_text(progress(5))
+    (there / "scene_001.json").write_text('{"done": "there"}')
+    (here / "scene_002.progress.json").write_text(progress(9))
+    (there / "scene_002.progress.json").write_text(progress(4))
+    (here / "scene_003.progress.json").write_text(progress(2))
+    (there / "scene_003.progress.json").write_text(progress(7))
+    (there / "scene_004.progress.json").write_text(progress(1))
+    (here / "scene_005.json").write_text('{"done": "here"}')
+    (there / "scene_005.progress.json").write_text(progress(50))
+    taken = suite_build.merge_work_dirs(there, here)
+    assert taken == ["scene_001.json", "scene_003.progress.json", "scene_004.progress.json"]
+    assert json.loads((here / "scene_000.json").read_text()) == {"done": "here"}
+    assert (here / "scene_001.json").exists() and not (here / "scene_001.progress.json").exists()
+    assert json.loads((here / "scene_002.progress.json").read_text())["state"]["next"] == 9
+    assert json.loads((here / "scene_003.progress.json").read_text())["state"]["next"] == 7
+    assert not (here / "scene_005.progress.json").exists()
+    assert suite_build.merge_work_dirs(there, here) == []

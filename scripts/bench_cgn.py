@@ -1,13 +1,19 @@
 """Contact-GraspNet figures: inference time, and grasp quality judged by the physics labeller.
 
-    # time per prediction (20k points; batch 1 and 16), on a rendered task's target region
-    python scripts/bench_cgn.py speed --device cpu --batch 1 16
+    # time per prediction (20k points; batch 1 and 16) on the shipped cloud, no rendering
+    python scripts/bench_cgn.py speed --device cuda cpu --batch 1 16 --threads 4
+    # (re)make that cloud: smoke/0003's target region
+    python scripts/bench_cgn.py save-cloud --task smoke/0003
     # precision of the top-1 / top-10 predictions on suite targets, judged by the labeller
     python scripts/bench_cgn.py quality --suite val --tasks 0:20 --grasp-model pretrained
 
-``speed`` times ``predict_batch`` (farthest-point sampling + network + sigmoid, i.e. what an
-episode pays per try besides rendering) after one warm-up call; ``--threads`` sets torch's
-CPU threads. ``quality`` renders each task's clouds, predicts grasps on the target, turns the
+``speed`` times ``predict_batch`` (points to the device, farthest-point sampling, network,
+sigmoid, results back to numpy: what an episode pays per try besides rendering) on a saved
+target region (``assets/clouds/cgn_smoke_0003_region.npz``) repeated to the batch size:
+the median of ``--repeats`` calls after ``--warmup`` calls, per device; ``--threads`` sets
+torch's CPU threads. Test-split objects appear only in ``quality`` runs on the test suite,
+which report figures and choose nothing (training validates on held-out train-split
+objects: baselines/contact_graspnet/train.py). ``quality`` renders each task's clouds, predicts grasps on the target, turns the
 best ``--top`` into the object's frame and runs them through the grasp labeller
 (``fetchbench_ms.grasps.physics``, the same trial as the annotations: close, gravity, shake).
 """
@@ -16,8 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 import numpy as np
+
+# The target region (20k points, robot-base frame) of smoke/0003, a mug on a desk: what
+# `speed` times, so that timing needs no rendering (`save-cloud` writes it).
+DEFAULT_CLOUD = Path(__file__).resolve().parents[1] / "assets" / "clouds" / "cgn_smoke_0003_region.npz"
 
 
 def _env_and_clouds(task_id: str, suite: str):
@@ -28,32 +39,74 @@ def _env_and_clouds(task_id: str, suite: str):
     return env, fetch_clouds(obs)
 
 
-def cmd_speed(args) -> dict:
-    import torch
+def cmd_save_cloud(args) -> dict:
+    """Render a task once and save its target region (what the network reads) for ``speed``."""
+    from pathlib import Path
 
-    from fetchbench_ms.grasping import load_model
-    from fetchbench_ms.grasping.predict import predict_batch, target_region
+    from fetchbench_ms.grasping.predict import target_region
 
-    torch.set_num_threads(args.threads)
     env, clouds = _env_and_clouds(args.task, args.task.split("/")[0])
     env.close()
-    model = load_model(args.grasp_model, args.device)
     cloud = target_region(clouds.scene, clouds.target, args.points, np.random.default_rng(0))
-    out = {"device": args.device, "threads": args.threads, "points": args.points, "grasp_model": args.grasp_model}
-    for batch in args.batch:
-        points = np.repeat(cloud.points[None], batch, axis=0)
-        predict_batch(model, points, args.device)  # warm-up
-        times = []
-        for _ in range(args.repeats):
-            if args.device.startswith("cuda"):
-                torch.cuda.synchronize()
-            t = time.perf_counter()
-            predict_batch(model, points, args.device)
-            if args.device.startswith("cuda"):
-                torch.cuda.synchronize()
-            times.append(time.perf_counter() - t)
-        out[f"batch_{batch}_s"] = round(float(np.median(times)), 4)
-        out[f"batch_{batch}_per_cloud_s"] = round(float(np.median(times)) / batch, 4)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.stem + ".tmp.npz")
+    np.savez_compressed(tmp, points_base=cloud.points.astype(np.float32), is_target=cloud.is_target, task=args.task)
+    tmp.replace(out)
+    return {"saved": str(out), "task": args.task, "points": len(cloud.points), "target_points": int(cloud.is_target.sum())}
+
+
+def _timing_model(name: str, device: str):
+    """The weight set's network, or (when its weights are not installed) the same network
+    with random weights: the cost does not depend on the weights."""
+    from fetchbench_ms.grasping import load_model
+    from fetchbench_ms.grasping.network import ContactGraspNet
+
+    try:
+        return load_model(name, device), name
+    except FileNotFoundError as error:
+        print(f"# {error}; timing randomly initialised weights instead", flush=True)
+        return ContactGraspNet().eval().to(device), "random-init"
+
+
+def cmd_speed(args) -> dict:
+    """Median time of ``predict_batch`` (points to scores and frames back in numpy) on the saved
+    cloud repeated ``batch`` times, after warm-up calls, per device and batch size."""
+    import platform
+
+    import torch
+
+    from fetchbench_ms.grasping.predict import predict_batch
+
+    torch.set_num_threads(args.threads)
+    saved = np.load(args.cloud)
+    cloud = saved["points_base"][: args.points]
+    out = {"cloud": args.cloud, "task": str(saved["task"]), "points": len(cloud), "threads": args.threads,
+           "torch": torch.__version__, "cpu": platform.processor() or platform.machine(), "results": []}
+    for device in args.device:
+        if device.startswith("cuda") and not torch.cuda.is_available():
+            raise SystemExit(f"--device {device}: CUDA is not available here (valid: cpu)")
+        model, weights = _timing_model(args.grasp_model, device)
+        repeats = args.repeats if device.startswith("cuda") else args.cpu_repeats
+        for batch in args.batch:
+            points = np.repeat(cloud[None], batch, axis=0)
+            for _ in range(args.warmup):
+                predict_batch(model, points, device)
+            times = []
+            for _ in range(repeats):
+                if device.startswith("cuda"):
+                    torch.cuda.synchronize()
+                t = time.perf_counter()
+                predict_batch(model, points, device)
+                if device.startswith("cuda"):
+                    torch.cuda.synchronize()
+                times.append(time.perf_counter() - t)
+            row = {"device": torch.cuda.get_device_name(device) if device.startswith("cuda") else f"cpu x{args.threads}",
+                   "weights": weights, "batch": batch, "repeats": repeats,
+                   "median_s": round(float(np.median(times)), 4), "per_cloud_s": round(float(np.median(times)) / batch, 4),
+                   "min_s": round(float(np.min(times)), 4)}
+            print(json.dumps(row), flush=True)
+            out["results"].append(row)
     return out
 
 
@@ -107,19 +160,26 @@ def cmd_quality(args) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("speed", help="time per prediction")
-    s.add_argument("--task", default="smoke/0003", help="the suite task whose target region is timed")
+    s = sub.add_parser("speed", help="time per prediction on a saved cloud (no rendering)")
+    s.add_argument("--cloud", default=str(DEFAULT_CLOUD), help="an .npz written by save-cloud")
     s.add_argument("--points", type=int, default=20000)
-    s.add_argument("--batch", type=int, nargs="+", default=[1])
-    s.add_argument("--repeats", type=int, default=3)
-    s.add_argument("--device", default="cpu")
+    s.add_argument("--batch", type=int, nargs="+", default=[1, 16])
+    s.add_argument("--device", nargs="+", default=["cpu"], help="cpu and/or cuda")
+    s.add_argument("--warmup", type=int, default=2)
+    s.add_argument("--repeats", type=int, default=20, help="timed calls per batch size on CUDA")
+    s.add_argument("--cpu-repeats", type=int, default=3, help="timed calls per batch size on the CPU")
     s.set_defaults(func=cmd_speed)
+    c = sub.add_parser("save-cloud", help="render a task once and save its target region for speed")
+    c.add_argument("--task", default="smoke/0003")
+    c.add_argument("--points", type=int, default=20000)
+    c.add_argument("--out", default=str(DEFAULT_CLOUD))
+    c.set_defaults(func=cmd_save_cloud, grasp_model="pretrained", threads=1)
     q = sub.add_parser("quality", help="top-k precision judged by the physics grasp labeller")
     q.add_argument("--suite", default="val")
     q.add_argument("--tasks", default="0:20", help="START:END of the suite's tasks")
     q.add_argument("--top", type=int, default=10)
     q.set_defaults(func=cmd_quality)
-    for p in (s, q):
+    for p in (s, q):  # (save-cloud needs neither)
         p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))
         p.add_argument("--threads", type=int, default=1,
                        help="torch CPU threads (episodes use 1: solve() sets it; on a loaded machine more threads are slower)")

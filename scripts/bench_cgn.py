@@ -10,12 +10,15 @@
 ``speed`` times ``predict_batch`` (points to the device, farthest-point sampling, network,
 sigmoid, results back to numpy: what an episode pays per try besides rendering) on a saved
 target region (``assets/clouds/cgn_smoke_0003_region.npz``) repeated to the batch size:
-the median of ``--repeats`` calls after ``--warmup`` calls, per device; ``--threads`` sets
-torch's CPU threads. Test-split objects appear only in ``quality`` runs on the test suite,
-which report figures and choose nothing (training validates on held-out train-split
-objects: baselines/contact_graspnet/train.py). ``quality`` renders each task's clouds, predicts grasps on the target, turns the
-best ``--top`` into the object's frame and runs them through the grasp labeller
-(``fetchbench_ms.grasps.physics``, the same trial as the annotations: close, gravity, shake).
+the median of ``--repeats`` calls after ``--warmup`` calls on CUDA (``--cpu-repeats``,
+``--cpu-warmup`` on the CPU), per device; ``--threads`` sets torch's CPU threads.
+
+``quality`` renders each task's clouds, predicts grasps on the target, turns the best
+``--top`` into the object's frame and runs them through the grasp labeller
+(``fetchbench_ms.grasps.physics``, the same trial as the annotations: close, gravity,
+shake). Run on the test suite it reports the grasp quality on test-split objects; such
+figures are reporting only, never used to choose anything (training validates on held-out
+train-split objects: baselines/contact_graspnet/train.py).
 """
 from __future__ import annotations
 
@@ -90,7 +93,7 @@ def cmd_speed(args) -> dict:
         repeats = args.repeats if device.startswith("cuda") else args.cpu_repeats
         for batch in args.batch:
             points = np.repeat(cloud[None], batch, axis=0)
-            for _ in range(args.warmup):
+            for _ in range(args.warmup if device.startswith("cuda") else args.cpu_warmup):
                 predict_batch(model, points, device)
             times = []
             for _ in range(repeats):
@@ -165,7 +168,8 @@ def main(argv=None) -> int:
     s.add_argument("--points", type=int, default=20000)
     s.add_argument("--batch", type=int, nargs="+", default=[1, 16])
     s.add_argument("--device", nargs="+", default=["cpu"], help="cpu and/or cuda")
-    s.add_argument("--warmup", type=int, default=2)
+    s.add_argument("--warmup", type=int, default=2, help="untimed calls per batch size on CUDA")
+    s.add_argument("--cpu-warmup", type=int, default=1, help="untimed calls per batch size on the CPU")
     s.add_argument("--repeats", type=int, default=20, help="timed calls per batch size on CUDA")
     s.add_argument("--cpu-repeats", type=int, default=3, help="timed calls per batch size on the CPU")
     s.set_defaults(func=cmd_speed)
@@ -183,8 +187,16 @@ def main(argv=None) -> int:
         p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))
         p.add_argument("--threads", type=int, default=1,
                        help="torch CPU threads (episodes use 1: solve() sets it; on a loaded machine more threads are slower)")
+        p.add_argument("--json", dest="json_out", help="also write the summary JSON to this file")
     args = ap.parse_args(argv)
-    print(json.dumps(args.func(args)))
+    summary = args.func(args)
+    print(json.dumps(summary))
+    if getattr(args, "json_out", None):
+        out = Path(args.json_out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+        tmp.replace(out)
     return 0
 
 

@@ -290,7 +290,7 @@ def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys):
+def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_path):
     """scripts/bench_cgn.py speed: the saved target region (20k points of smoke/0003), medians
     per device and batch size, printed as JSON (run on the GPU machine with --device cuda cpu)."""
     import importlib.util
@@ -303,8 +303,10 @@ def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys):
     spec.loader.exec_module(bench)
     saved = np.load(bench.DEFAULT_CLOUD)
     assert saved["points_base"].shape == (20000, 3) and saved["is_target"].sum() > 1000
-    assert bench.main(["speed", "--points", "600", "--batch", "1", "2", "--warmup", "0", "--cpu-repeats", "1"]) == 0
+    assert bench.main(["speed", "--points", "600", "--batch", "1", "2", "--cpu-warmup", "0", "--cpu-repeats", "1",
+                       "--json", str(tmp_path / "speed.json")]) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert json.loads((tmp_path / "speed.json").read_text()) == report
     assert report["points"] == 600 and report["task"] == "smoke/0003"
     assert [(r["device"], r["batch"]) for r in report["results"]] == [("cpu x1", 1), ("cpu x1", 2)]
     assert all(r["median_s"] > 0 and abs(r["per_cloud_s"] - r["median_s"] / r["batch"]) < 1e-4 for r in report["results"])

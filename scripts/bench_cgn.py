@@ -11,7 +11,9 @@
 sigmoid, results back to numpy: what an episode pays per try besides rendering) on a saved
 target region (``assets/clouds/cgn_smoke_0003_region.npz``) repeated to the batch size:
 the median of ``--repeats`` calls after ``--warmup`` calls on CUDA (``--cpu-repeats``,
-``--cpu-warmup`` on the CPU), per device; ``--threads`` sets torch's CPU threads.
+``--cpu-warmup`` on the CPU), per device; ``--threads`` sets torch's CPU threads. On
+CUDA each ``--fps`` choice is timed: the Triton farthest-point kernel (``auto``; the row
+says ``"fps": "torch"`` if it failed its check and the loop ran) and the torch loop.
 
 ``quality`` renders each task's clouds, predicts grasps on the target, turns the best
 ``--top`` into the object's frame and runs them through the grasp labeller
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -79,6 +82,7 @@ def cmd_speed(args) -> dict:
 
     import torch
 
+    from fetchbench_ms.grasping.pointops import fps_backend
     from fetchbench_ms.grasping.predict import predict_batch
 
     torch.set_num_threads(args.threads)
@@ -86,9 +90,12 @@ def cmd_speed(args) -> dict:
     cloud = saved["points_base"][: args.points]
     out = {"cloud": args.cloud, "task": str(saved["task"]), "points": len(cloud), "threads": args.threads,
            "torch": torch.__version__, "cpu": platform.processor() or platform.machine(), "results": []}
-    for device in args.device:
+    runs = [(d, f) for d in args.device for f in (args.fps if d.startswith("cuda") else ["torch"])]
+    for device, fps in runs:
         if device.startswith("cuda") and not torch.cuda.is_available():
             raise SystemExit(f"--device {device}: CUDA is not available here (valid: cpu)")
+        os.environ["FETCHBENCH_FPS"] = fps
+        backend = fps_backend(torch.device(device))
         model, weights = _timing_model(args.grasp_model, device)
         repeats = args.repeats if device.startswith("cuda") else args.cpu_repeats
         for batch in args.batch:
@@ -105,7 +112,7 @@ def cmd_speed(args) -> dict:
                     torch.cuda.synchronize()
                 times.append(time.perf_counter() - t)
             row = {"device": torch.cuda.get_device_name(device) if device.startswith("cuda") else f"cpu x{args.threads}",
-                   "weights": weights, "batch": batch, "repeats": repeats,
+                   "weights": weights, "fps": backend, "batch": batch, "repeats": repeats,
                    "median_s": round(float(np.median(times)), 4), "per_cloud_s": round(float(np.median(times)) / batch, 4),
                    "min_s": round(float(np.min(times)), 4)}
             print(json.dumps(row), flush=True)
@@ -168,6 +175,9 @@ def main(argv=None) -> int:
     s.add_argument("--points", type=int, default=20000)
     s.add_argument("--batch", type=int, nargs="+", default=[1, 16])
     s.add_argument("--device", nargs="+", default=["cpu"], help="cpu and/or cuda")
+    s.add_argument("--fps", nargs="+", default=["auto", "torch"], choices=("auto", "torch"),
+                   help="farthest-point sampling on CUDA: auto (the Triton kernel where it passes its check) and/or "
+                        "torch (the loop); the CPU always runs the loop")
     s.add_argument("--warmup", type=int, default=2, help="untimed calls per batch size on CUDA")
     s.add_argument("--cpu-warmup", type=int, default=1, help="untimed calls per batch size on the CPU")
     s.add_argument("--repeats", type=int, default=20, help="timed calls per batch size on CUDA")

@@ -40,6 +40,22 @@ def test_farthest_point_sample_matches_greedy_numpy():
         assert len(set(picked)) == 40
 
 
+def test_the_farthest_point_order_check_accepts_greedy_orders_only():
+    """is_farthest_point_sequence: the check a GPU kernel must pass before it replaces the loop."""
+    rng = np.random.default_rng(5)
+    clouds = torch.tensor(np.stack([random_cloud(rng, 400), random_cloud(rng, 400)]))
+    greedy = pointops.farthest_point_sample_loop(clouds, 50)
+    assert pointops.is_farthest_point_sequence(clouds, greedy)
+    swapped = greedy.clone()
+    swapped[1, [10, 40]] = swapped[1, [40, 10]]  # a later, nearer pick too early
+    assert not pointops.is_farthest_point_sequence(clouds, swapped)
+    assert not pointops.is_farthest_point_sequence(clouds, greedy + 1)  # not from index 0
+    assert not pointops.is_farthest_point_sequence(clouds, torch.full_like(greedy, 400))  # out of range
+    # on the CPU the torch loop runs (the Triton kernel is for CUDA devices)
+    assert pointops.fps_backend(torch.device("cpu")) == "torch"
+    assert torch.equal(pointops.farthest_point_sample(clouds, 50), greedy)
+
+
 def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
     rng = np.random.default_rng(1)
     pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])

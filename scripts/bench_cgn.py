@@ -117,6 +117,8 @@ def cmd_speed(args) -> dict:
                    "min_s": round(float(np.min(times)), 4)}
             print(json.dumps(row), flush=True)
             out["results"].append(row)
+            if args.json_out:  # after every row: a run cut short still leaves what it measured
+                write_json(out, args.json_out)
     return out
 
 
@@ -202,12 +204,16 @@ def main(argv=None) -> int:
     summary = args.func(args)
     print(json.dumps(summary))
     if getattr(args, "json_out", None):
-        out = Path(args.json_out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
-        tmp.replace(out)
+        write_json(summary, args.json_out)
     return 0
+
+
+def write_json(summary: dict, path: str) -> None:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    tmp.replace(out)
 
 
 if __name__ == "__main__":

@@ -271,6 +271,8 @@ def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp
     first = train.main(args)
     assert not first["done"] and first["step"] == 1
     assert "time limit" in (out / "cgn_ours.log").read_text() and not (out / "cgn_ours.pt").exists()
+    with pytest.raises(ValueError, match="--lr"):  # resuming with other training flags would misreport the run
+        train.main(dataclasses.replace(args, lr=1.0))
     second = train.main(dataclasses.replace(args, time_limit=0.0))
     assert second["done"] and second["step"] == 3 and len(second["losses"]) == 2
     log = (out / "cgn_ours.log").read_text()

@@ -440,7 +440,7 @@ def main(args: Args) -> dict:
     train, val, data_hash = load_or_build_data(args, run, log)
     data_seconds = time.perf_counter() - t_start
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr)
-    # steps_total is None while --train-seconds is still timing the first steps (all warm-up)
+    # plan["steps"] is None while --train-seconds is still timing the first steps (all warm-up)
     plan = {"steps": None if args.train_seconds > 0 else args.steps, "train_seconds": 0.0, "val_init": None}
 
     def lr_factor(s: int) -> float:
@@ -458,6 +458,10 @@ def main(args: Args) -> dict:
         if saved["data_sha256"] != data_hash:
             raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]}, now {data_hash[:12]}): "
                              "use a new --run folder for other data flags")
+        changed = [k for k in TRAINING_FLAGS if k != "steps" and saved["args"][k] != getattr(args, k)]
+        if changed:
+            raise ValueError(f"{ckpt} was trained with other {', '.join('--' + k.replace('_', '-') for k in changed)}: "
+                             "resume with the same flags, or use a new --run folder")
         model.load_state_dict(saved["model"])
         optimizer.load_state_dict(saved["optimizer"])
         schedule.load_state_dict(saved["schedule"])

@@ -528,7 +528,7 @@ def main(args: Args) -> dict:
         optimizer.step()
         schedule.step()
         step += 1
-        history.append(parts["loss"].detach())  # a tensor: no host sync per step
+        history.append(parts["loss"].detach())  # read back at the end, not every step
         if plan["steps"] is None and step == timing[1]:
             sync()
             per_step = (time.perf_counter() - t_timing) / (timing[1] - timing[0])

@@ -283,7 +283,7 @@ def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp
     cached = dict(np.load(tmp_path / "run" / "data.npz"))
     cached.pop("key")
     assert meta["data_sha256"] == train.data_digest(cached)
-    assert set(meta["val"]) >= {"loss", "conf", "adds", "width", "top10_positive"} and meta["val_init"]
+    assert set(meta["val"]) >= {"loss", "conf", "adds", "width", "top1_positive", "top10_positive"} and meta["val_init"]
     saved = torch.load(out / "cgn_ours.pt", weights_only=True)
     assert all(v.dtype == torch.float16 for v in saved["state_dict"].values() if v.is_floating_point())
     assert (out / "cgn_ours.pt").stat().st_size < 16e6

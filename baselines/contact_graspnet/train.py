@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
-from fetchbench_ms.grasping.pointops import farthest_point_sample, gather
+from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
 
 DATA_VERSION = 2  # bump when make_scene / render_view change what a seed produces
 
@@ -438,6 +438,7 @@ def main(args: Args) -> dict:
         from fetchbench_ms.grasping.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
+    log(f"farthest-point sampling on {args.device}: {fps_backend(torch.device(args.device))}")
     train, val, data_hash = load_or_build_data(args, run, log)
     data_seconds = time.perf_counter() - t_start
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr)

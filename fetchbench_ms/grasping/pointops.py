@@ -69,7 +69,7 @@ def fps_backend(device: torch.device) -> str:
     device = torch.device(device)
     if device.type != "cuda" or os.environ.get("FETCHBENCH_FPS", "auto") == "torch":
         return "torch"
-    key = str(device)
+    key = str(device if device.index is not None else torch.device("cuda", torch.cuda.current_device()))
     if key not in _FPS_BACKENDS:
         _FPS_BACKENDS[key] = "torch"
         try:

@@ -18,7 +18,10 @@ says ``"fps": "torch"`` if it failed its check and the loop ran) and the torch l
 ``quality`` renders each task's clouds, predicts grasps on the target, turns the best
 ``--top`` into the object's frame and runs them through the grasp labeller
 (``fetchbench_ms.grasps.physics``, the same trial as the annotations: close, gravity,
-shake). Run on the test suite it reports the grasp quality on test-split objects; such
+shake), and measures the coverage of the target's annotated successful grasps
+(``fetchbench_ms.grasping.metrics.grasp_coverage``: those with a prediction of score
+>= ``--coverage-score`` whose TCP is within 2 cm and approach within 30 deg; annotated
+grasps on the unseen side count too). Run on the test suite it reports the grasp quality on test-split objects; such
 figures are reporting only, never used to choose anything (training validates on held-out
 train-split objects: baselines/contact_graspnet/train.py).
 """
@@ -128,6 +131,8 @@ def cmd_quality(args) -> dict:
     from fetchbench_ms.evaluation.runner import open_suite, parse_range
     from fetchbench_ms.envs import fetch_clouds, make
     from fetchbench_ms.grasping import predict_from_clouds
+    from fetchbench_ms.grasping.metrics import grasp_coverage
+    from fetchbench_ms.grasps import load_grasps
     from fetchbench_ms.grasps.physics import GraspLabeller
     from fetchbench_ms.solutions.worlds import object_poses_base
     from fetchbench_ms.tasks.objects import load_object
@@ -150,12 +155,16 @@ def cmd_quality(args) -> dict:
         grasps = predict_from_clouds(clouds, args.grasp_model, np.random.default_rng(0))
         seconds = time.perf_counter() - t
         T_base_object = object_poses_base(env)[task.target_index]
-        T_object_hand = np.linalg.inv(T_base_object)[None] @ grasps.T_base_hand[: args.top]
+        T_object_predicted = np.linalg.inv(T_base_object)[None] @ grasps.T_base_hand
+        T_object_hand = T_object_predicted[: args.top]
+        annotated = load_grasps(task.target.object_id).successful.T_object_hand
+        coverage = grasp_coverage(T_object_predicted[grasps.scores >= args.coverage_score], annotated)
         if labeller is None:  # after the env: the labeller sets PhysX's global contact settings
             labeller = GraspLabeller()
         success = labeller.label(load_object(task.target.object_id), T_object_hand).success if len(T_object_hand) else []
         rows.append({"task_id": task_id, "category": task.target_label, "predicted": len(grasps.scores),
-                     "success": [bool(s) for s in success], "seconds": round(seconds, 2)})
+                     "success": [bool(s) for s in success], "coverage": round(coverage, 4),
+                     "seconds": round(seconds, 2)})
         print(json.dumps(rows[-1]), flush=True)
     env.close()
     judged = [r for r in rows if r.get("success")]
@@ -165,7 +174,10 @@ def cmd_quality(args) -> dict:
         "precision_top1": round(float(np.mean([r["success"][0] for r in judged])), 3) if judged else None,
         f"precision_top{args.top}": round(float(np.mean([s for r in judged for s in r["success"]])), 3) if judged else None,
         "any_success_in_top": round(float(np.mean([any(r["success"]) for r in judged])), 3) if judged else None,
-        "median_predict_s": float(np.median([r["seconds"] for r in judged])) if judged else None,
+        "coverage": round(float(np.nanmean([r["coverage"] for r in judged])), 3) if judged else None,
+        "coverage_rule": f"annotated successful grasps with a prediction of score >= {args.coverage_score} whose TCP "
+                         "is within 2 cm and approach within 30 deg",
+        "median_predict_s": round(float(np.median([r["seconds"] for r in judged])), 2) if judged else None,
     }
 
 
@@ -194,6 +206,8 @@ def main(argv=None) -> int:
     q.add_argument("--suite", default="val")
     q.add_argument("--tasks", default="0:20", help="START:END of the suite's tasks")
     q.add_argument("--top", type=int, default=10)
+    q.add_argument("--coverage-score", type=float, default=0.5,
+                   help="predictions at least this confident count for the coverage of the annotated grasps")
     q.set_defaults(func=cmd_quality)
     for p in (s, q):  # (save-cloud needs neither)
         p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))

@@ -328,3 +328,23 @@ def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_p
     assert report["points"] == 600 and report["task"] == "smoke/0003"
     assert [(r["device"], r["batch"]) for r in report["results"]] == [("cpu x1", 1), ("cpu x1", 2)]
     assert all(r["median_s"] > 0 and abs(r["per_cloud_s"] - r["median_s"] / r["batch"]) < 1e-4 for r in report["results"])
+
+
+def test_grasp_coverage_counts_annotated_grasps_near_and_aligned_with_a_prediction():
+    from fetchbench_ms.grasping.metrics import grasp_coverage
+
+    annotated = np.tile(np.eye(4), (4, 1, 1))
+    annotated[:, :3, 3] = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]
+    predicted = annotated[:2].copy()
+    predicted[0, :3, 3] += [0.015, 0, 0]  # 1.5 cm off: covers the first
+    c, s = np.cos(np.radians(60)), np.sin(np.radians(60))
+    to_tcp, turn = np.eye(4), np.eye(4)
+    to_tcp[2, 3] = 0.1034
+    turn[:3, :3] = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    predicted[1] = predicted[1] @ to_tcp @ turn @ np.linalg.inv(to_tcp)  # same TCP, approach 60 deg off: not the second
+    turned = predicted[:1] @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the fingers swapped: still covers the first
+    assert grasp_coverage(predicted, annotated) == 0.25
+    assert grasp_coverage(turned, annotated) == 0.25
+    assert grasp_coverage(predicted, annotated, max_angle_deg=70) == 0.5
+    assert grasp_coverage(predicted[:0], annotated) == 0.0
+    assert np.isnan(grasp_coverage(predicted, annotated[:0]))

@@ -25,7 +25,11 @@ def farthest_point_sample(points: torch.Tensor, n: int, start: int = 0) -> torch
     if start == 0 and n <= points.shape[1] and fps_backend(points.device) == "triton":
         from .fps_triton import farthest_point_sample_triton
 
-        return farthest_point_sample_triton(points, n)
+        try:
+            return farthest_point_sample_triton(points, n)
+        except Exception as error:  # e.g. a size it cannot compile for: the loop from now on
+            _FPS_BACKENDS[_device_key(points.device)] = "torch"
+            warnings.warn(f"Triton farthest-point sampling failed ({type(error).__name__}: {error}); using the torch loop")
     return farthest_point_sample_loop(points, n, start)
 
 
@@ -62,6 +66,11 @@ def is_farthest_point_sequence(points: torch.Tensor, index: torch.Tensor, rtol: 
 _FPS_BACKENDS: dict[str, str] = {}
 
 
+def _device_key(device: torch.device) -> str:
+    """"cuda:0" for "cuda" too, so that a device is checked once."""
+    return str(device if device.index is not None else torch.device("cuda", torch.cuda.current_device()))
+
+
 def fps_backend(device: torch.device) -> str:
     """"triton" or "torch": the Triton kernel on CUDA devices where it imports, compiles and
     picks a greedy farthest-point order of a random test cloud (checked once per device;
@@ -69,7 +78,7 @@ def fps_backend(device: torch.device) -> str:
     device = torch.device(device)
     if device.type != "cuda" or os.environ.get("FETCHBENCH_FPS", "auto") == "torch":
         return "torch"
-    key = str(device if device.index is not None else torch.device("cuda", torch.cuda.current_device()))
+    key = _device_key(device)
     if key not in _FPS_BACKENDS:
         _FPS_BACKENDS[key] = "torch"
         try:

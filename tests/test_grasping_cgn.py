@@ -56,6 +56,25 @@ def test_the_farthest_point_order_check_accepts_greedy_orders_only():
     assert torch.equal(pointops.farthest_point_sample(clouds, 50), greedy)
 
 
+def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
+    """If the Triton kernel (CUDA only) raises at some size, the loop answers, now and after."""
+    import sys
+    import types
+
+    def broken(points, n):
+        raise RuntimeError("out of resources")
+
+    monkeypatch.setitem(sys.modules, "fetchbench_ms.grasping.fps_triton",
+                        types.SimpleNamespace(farthest_point_sample_triton=broken))
+    monkeypatch.setattr(pointops, "_FPS_BACKENDS", {"cpu": "triton"})
+    monkeypatch.setattr(pointops, "fps_backend", lambda device: pointops._FPS_BACKENDS[str(device)])
+    clouds = torch.tensor(np.stack([random_cloud(np.random.default_rng(6), 300)]))
+    with pytest.warns(UserWarning, match="out of resources"):
+        picked = pointops.farthest_point_sample(clouds, 20)
+    assert torch.equal(picked, pointops.farthest_point_sample_loop(clouds, 20))
+    assert pointops._FPS_BACKENDS == {"cpu": "torch"}
+
+
 def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
     rng = np.random.default_rng(1)
     pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])

@@ -68,7 +68,9 @@ _FPS_BACKENDS: dict[str, str] = {}
 
 def _device_key(device: torch.device) -> str:
     """"cuda:0" for "cuda" too, so that a device is checked once."""
-    return str(device if device.index is not None else torch.device("cuda", torch.cuda.current_device()))
+    if device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", torch.cuda.current_device())
+    return str(device)
 
 
 def fps_backend(device: torch.device) -> str:

@@ -96,7 +96,8 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", default=",".join(str(v) for v in POLICY_SIZES.values()),
                    help="points kept per segment: SCENE,TARGET,ROBOT")
     p.add_argument("--device", default="cpu", help="farthest-point sampling on this torch device (cuda on the GPU machine)")
-    p.add_argument("--time-limit", type=float, default=0.0, help="s; > 0: start no chunk after this (re-run to resume)")
+    p.add_argument("--time-limit", type=float, default=0.0,
+                   help="s; > 0: start no chunk that would end after this, judged by the slowest so far (re-run to resume)")
     p.add_argument("--first-steps", type=int, default=None, help="keep only each demo's first steps (tests)")
     args = p.parse_args(argv)
     sizes = parse_sizes(args.sizes)
@@ -125,15 +126,17 @@ def main(argv=None) -> int:
             raise SystemExit(f"{out} holds a conversion with other settings {differ} (old, new): use another --out")
     atomic_write_text(manifest_path, json.dumps({"settings": settings, "complete": False, "chunks": []}, indent=1))
     chunks = [episodes[i:i + args.chunk] for i in range(0, len(episodes), args.chunk)]
-    t_start = time.perf_counter()
+    t_start, longest = time.perf_counter(), 0.0
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
     for k, chunk in enumerate(chunks):
         target = out / f"chunk_{k:05d}.imit.h5"
         if target.is_file():
             continue
-        if args.time_limit and time.perf_counter() - t_start > args.time_limit:
+        # Stop before a chunk that would not finish in time (as long as the slowest so far).
+        if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
             log(f"time limit: stopped before chunk {k}; run the same command again to resume")
             break
+        t_chunk = time.perf_counter()
         work = out / "work" / f"chunk_{k:05d}"
         shutil.rmtree(work, ignore_errors=True)  # a killed run's leftovers
         work.mkdir(parents=True)
@@ -150,6 +153,7 @@ def main(argv=None) -> int:
             f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
             f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), subsampled in {time.perf_counter() - t:.0f} s")
         shutil.rmtree(work)
+        longest = max(longest, time.perf_counter() - t_chunk)
     done = sorted(out.glob("chunk_*.imit.h5"))
     records = []
     for path in done:

@@ -131,7 +131,8 @@ def test_trainer_resumes_after_time_limit(sample_data, tmp_path):
 
 # ----------------------------------------------------------------------------- deployment
 def test_regrasp_state_machine_scripted():
-    cfg = ReGraspConfig(close_steps=3, reopen_steps=2, settle_steps=1, min_approach_steps=2, max_regrasps=1)
+    cfg = ReGraspConfig(close_steps=3, reopen_steps=2, settle_steps=1, min_approach_steps=2, min_retrieve_steps=3,
+                        max_regrasps=1)
     m = ReGraspStateMachine(cfg)
     open_gap, closed_gap, holding_gap = 0.08, 0.0, 0.03
     phases = []
@@ -161,7 +162,7 @@ def test_regrasp_state_machine_scripted():
     for _ in range(3):
         step(open_gap, None)
     step(closed_gap, 0.1)
-    step(closed_gap, 0.1)  # max_regrasps reached: stays in retrieval
+    step(closed_gap, 0.99)  # max_regrasps reached: stays in retrieval; fires before min_retrieve_steps: ignored
     assert m.phase == RETRIEVE
     step(closed_gap, 0.99)
     assert m.phase == DONE

@@ -229,6 +229,14 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         return {"step": step, "tasks": len(records), "success_rate": summary["overall"]["success_rate"],
                 "errors": summary["overall"]["errors"]}
 
+    def evaluate_now() -> None:
+        save()  # an evaluation takes minutes: do not lose the steps before it (its results resume too)
+        result = val_success()
+        history["val_success"].append(result)
+        save()
+        log(f"val success step {step}: {result['success_rate']:.3f} on {result['tasks']} val tasks "
+            f"({result['errors']} errors)")
+
     model.train()
     last: dict = {}
     t_log, stopped = time.perf_counter(), False
@@ -253,12 +261,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             if figures:
                 history["val_loss"].append({"step": step, **{k: round(v, 5) for k, v in figures.items()}})
                 log(f"val step {step} " + " ".join(f"{k} {v:.4f}" for k, v in figures.items()))
-        if args.eval_every and args.eval_tasks and (step % args.eval_every == 0 or step == args.steps):
-            save()  # an evaluation takes minutes: do not lose the steps before it
-            result = val_success()
-            history["val_success"].append(result)
-            log(f"val success step {step}: {result['success_rate']:.3f} on {result['tasks']} val tasks "
-                f"({result['errors']} errors)")
+        if args.eval_every and args.eval_tasks and step % args.eval_every == 0 and step < args.steps:
+            evaluate_now()
         if step % args.ckpt_every == 0:
             save()
         if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < args.steps:
@@ -268,6 +272,9 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             break
     if not stopped:
         save()
+        # The final evaluation, also when a call was cut off during it (re-running finishes it).
+        if args.eval_every and args.eval_tasks and not any(r["step"] == step for r in history["val_success"]):
+            evaluate_now()
         log(f"done: {step} steps")
         if args.export:
             export(model, kind, args, command, dhash, step, history, last, log)

@@ -48,6 +48,7 @@ class ReGraspConfig:
     closed_gap: float = 0.002  # m
     settle_steps: int = 5  # retrieval steps before the gap is judged (the fingers may still move)
     min_approach_steps: int = 5  # no termination before this many approach steps
+    min_retrieve_steps: int = 10  # nor before this many retrieval steps (a demo retrieves in ~100)
     regrasp: bool = True  # False: the two-stage deployment
     max_regrasps: int = 3
 
@@ -97,7 +98,7 @@ class ReGraspStateMachine:
         self.step += 1
         if self.phase == APPROACH and fired and self.steps_in_phase >= cfg.min_approach_steps:
             self._go(CLOSE)
-        elif self.phase == RETRIEVE and fired:
+        elif self.phase == RETRIEVE and fired and self.steps_in_phase >= cfg.min_retrieve_steps:
             self._go(DONE)
 
 

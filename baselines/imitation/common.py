@@ -226,8 +226,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         records = evaluate(EVAL_METHOD[kind], run / "eval" / f"step_{step}", suite="val", tasks=f"0:{args.eval_tasks}",
                            workers=args.eval_workers, policy_checkpoint=str(ckpt_path), progress=False)
         summary = summarize(records)
-        return {"step": step, "tasks": len(records), "success_rate": summary["overall"]["success_rate"],
-                "errors": summary["overall"]["errors"]}
+        return {"step": step, "tasks": len(records), "success_rate": summary["all"]["success_rate"],
+                "errors": summary["all"]["errors"]}
 
     def evaluate_now() -> None:
         save()  # an evaluation takes minutes: do not lose the steps before it (its results resume too)
@@ -290,7 +290,7 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: in
     path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "data_sha256": dhash, "command": command,
-            "validation": {"loss": history["val_loss"][-1:] and history["val_loss"][-1],
+            "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}
     size = save_checkpoint(path, model, meta)
     atomic_write_text(path.with_suffix(".json"), json.dumps(

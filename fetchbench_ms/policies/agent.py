@@ -19,7 +19,6 @@ network is told come from ``ReGraspStateMachine`` (the paper's end-to-end deploy
 """
 from __future__ import annotations
 
-import json
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -214,8 +213,3 @@ class ImitationPolicy:
                 actions, term = self.model.act(batch)
         return actions.cpu().numpy(), term.cpu().numpy()
 
-
-def checkpoint_summary(path: str | Path) -> str:
-    """One line about a checkpoint (kind, steps, validation figures) for logs and errors."""
-    _, meta = load_model(path)
-    return json.dumps({k: meta.get(k) for k in ("kind", "step", "validation")})

@@ -61,7 +61,7 @@ def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
     path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
     if not path.is_file():
         raise FileNotFoundError(
-            f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data DEMOS_DIR "
+            f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
             f"--export` (docs/imitation.md), or pass --policy-checkpoint PATH")
     return path
 

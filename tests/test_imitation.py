@@ -249,6 +249,7 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
     method = resolve_method("e2e-mlp", policy_checkpoint=str(paths["mlp"]))
     assert method.obs_mode == "compact_pointcloud"
     assert resolve_method("cgn-imit-diffusion", policy_checkpoint=str(paths["diffusion"])).obs_mode == "pointcloud"
+    assert resolve_method("twostage-mlp", policy_checkpoint=str(paths["mlp"])).obs_mode == "compact_pointcloud"
     with pytest.raises(FileNotFoundError, match="train_transformer.py"):
         resolve_method("e2e-transformer", policy_checkpoint=str(tmp_path / "missing.pt"))
     with pytest.raises(ValueError, match="needs a mlp checkpoint"):

@@ -42,12 +42,12 @@ def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="evaluate a method on a task suite (one JSON line per task, resumable)")
     p.add_argument("--method", default="ga-mesh-rrt",
                    help="ga-mesh-rrt, ga-ptd-rrt, cgn-ptd-rrt, cgn-mesh-rrt, e2e-mlp, e2e-transformer, e2e-diffusion, "
-                        "cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, idle, or an importable module:function")
+                        "twostage-mlp, twostage-transformer, twostage-diffusion, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, idle, or an importable module:function")
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
                    help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
                         "ours: assets/checkpoints/cgn_ours.pt)")
     p.add_argument("--policy-checkpoint", default=None,
-                   help="e2e-* / cgn-imit-* methods: the policy checkpoint (default: assets/checkpoints/imit_KIND.pt)")
+                   help="e2e-* / twostage-* / cgn-imit-* methods: the policy checkpoint (default: assets/checkpoints/imit_KIND.pt)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

@@ -95,7 +95,7 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
                 return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model)
         else:
             def run(env, seed):
-                return deploy.run_e2e(env, seed, name, policy_checkpoint)
+                return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS)
 
         return Method(name, deploy.policy_obs_mode(name), run)
     if name == IDLE:

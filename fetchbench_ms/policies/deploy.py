@@ -2,7 +2,8 @@
 
 - ``e2e-mlp`` / ``e2e-transformer`` / ``e2e-diffusion``: the policy drives the whole fetch
   through the re-grasp state machine (``agent.ReGraspStateMachine``), then FetchBench's
-  10 s settle-and-hold judges;
+  10 s settle-and-hold judges; ``twostage-*``: the same without re-grasping (the paper's
+  TwoStageImit);
 - ``cgn-imit-mlp`` / ``cgn-imit-transformer`` / ``cgn-imit-diffusion`` (the paper's
   CGN-CuRobo-Imit): the sense-plan-act pipeline (Contact-GraspNet grasps on the observed
   target, the point-cloud world, the planner to the pre-grasp, the straight approach, the
@@ -27,8 +28,10 @@ from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
 
 E2E_METHODS = {"e2e-mlp": "mlp", "e2e-transformer": "transformer", "e2e-diffusion": "diffusion"}
+#: The paper's TwoStageImit: the same policies without re-grasping (approach, then retrieve).
+TWO_STAGE_METHODS = {"twostage-mlp": "mlp", "twostage-transformer": "transformer", "twostage-diffusion": "diffusion"}
 HYBRID_METHODS = {"cgn-imit-mlp": "mlp", "cgn-imit-transformer": "transformer", "cgn-imit-diffusion": "diffusion"}
-POLICY_METHODS = {**E2E_METHODS, **HYBRID_METHODS}
+POLICY_METHODS = {**E2E_METHODS, **TWO_STAGE_METHODS, **HYBRID_METHODS}
 #: Trainers per policy kind (named in the error when a checkpoint is missing).
 TRAINERS = {"mlp": "baselines/imitation/train_mlp.py", "transformer": "baselines/imitation/train_transformer.py",
             "diffusion": "baselines/imitation/train_diffusion.py"}
@@ -49,8 +52,8 @@ def hybrid_approach_method() -> str:
 
 
 def policy_obs_mode(method: str) -> str:
-    """E2E methods read the compact cloud; the hybrids the raw cloud CGN needs (made compact per step)."""
-    return "compact_pointcloud" if method in E2E_METHODS else "pointcloud"
+    """End-to-end methods read the compact cloud; the hybrids the raw cloud CGN needs (made compact per step)."""
+    return "pointcloud" if method in HYBRID_METHODS else "compact_pointcloud"
 
 
 def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:

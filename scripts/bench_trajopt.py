@@ -17,6 +17,7 @@ finer re-check (0.005 rad), and how many trajopt plans needed the RRT fallback.
 
 Usage (val tasks: the test suite is for the final figures):
   python scripts/bench_trajopt.py --suite val --tasks 0:20 [--device cpu|cuda] [--batch 16] [--full]
+  python scripts/bench_trajopt.py --suite test --tasks 0:500 --full --workers 14   # >= 1,000 problems
 """
 from __future__ import annotations
 
@@ -106,6 +107,41 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
     return rows, recheck
 
 
+def _bench_slice(job: tuple) -> tuple:
+    """One worker's share (``--workers``): record and plan the problems of a task slice;
+    the checkers stay here (they hold the worlds), the rows travel back."""
+    suite, tasks, world, full, device, batch, time_limit, threads = job
+    torch.set_num_threads(threads)
+    problems = record_problems(suite, tasks, world, full)
+    if not problems:
+        return [], {}, {}
+    rows, recheck = run_planners(problems, device, batch, time_limit)
+    return [{k: v for k, v in p.items() if k != "checker"} for p in problems], rows, recheck
+
+
+def bench_parallel(args, device: str) -> tuple:
+    """Split the task range into ``args.workers`` contiguous slices, one process each
+    (``spawn``: CUDA and the simulator do not survive a fork), and join their rows in task
+    order. Success, C-space length and validity do not depend on the split; times do (the
+    processes share the cores and the GPU), so timings come from a run with one worker."""
+    import multiprocessing as mp
+
+    from fetchbench_ms.evaluation.runner import open_suite, parse_range
+
+    ids = parse_range(args.tasks, len(open_suite(args.suite)[0].tasks))
+    bounds = np.linspace(0, len(ids), args.workers + 1).round().astype(int)
+    jobs = [(args.suite, f"{ids[a]}:{ids[b - 1] + 1}", args.world, args.full, device, args.batch, args.time_limit,
+             args.threads) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    problems, rows, recheck = [], {}, {}
+    with mp.get_context("spawn").Pool(len(jobs)) as pool:
+        for part_problems, part_rows, part_recheck in pool.imap(_bench_slice, jobs):
+            problems += part_problems
+            for name in part_rows:
+                rows.setdefault(name, []).extend(part_rows[name])
+                recheck.setdefault(name, []).extend(part_recheck[name])
+    return problems, rows, recheck
+
+
 def print_table(problems, rows, recheck, device) -> None:
     rrt = rows["rrtconnect"]
     print(f"{len(problems)} problems ({sum(p['kind'] == 'pre-grasp' for p in problems)} pre-grasp) from "
@@ -153,6 +189,8 @@ def main() -> None:
     parser.add_argument("--time-limit", type=float, default=10.0, help="s per problem, as the pipelines")
     parser.add_argument("--verbose", action="store_true", help="a line per problem")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes over contiguous task slices (success and lengths; take timings with 1)")
     args = parser.parse_args()
     if args.suite == "test":
         print("note: the test suite is for final figures; planner tuning belongs on val")
@@ -161,11 +199,18 @@ def main() -> None:
 
     device = args.device or default_device()
     t = time.perf_counter()
-    problems = record_problems(args.suite, args.tasks, args.world, args.full)
-    print(f"recorded {len(problems)} problems in {time.perf_counter() - t:.0f} s")
-    if not problems:
-        return
-    rows, recheck = run_planners(problems, device, args.batch, args.time_limit)
+    if args.workers > 1:
+        problems, rows, recheck = bench_parallel(args, device)
+        print(f"recorded and planned {len(problems)} problems in {time.perf_counter() - t:.0f} s with "
+              f"{args.workers} workers (times below are under that load)")
+        if not problems:
+            return
+    else:
+        problems = record_problems(args.suite, args.tasks, args.world, args.full)
+        print(f"recorded {len(problems)} problems in {time.perf_counter() - t:.0f} s")
+        if not problems:
+            return
+        rows, recheck = run_planners(problems, device, args.batch, args.time_limit)
     if args.verbose:
         for i, p in enumerate(problems):
             print(f"{p['task']} {p['kind']:<15} goals {len(p['q_goals'])}: " + "; ".join(

@@ -3,6 +3,8 @@
     nice python scripts/build_suite.py --suite test --workers 2          # make scenes, then assemble
     python scripts/build_suite.py --suite test --assemble-only           # ship what is finished
     python scripts/build_suite.py --suite test --smoke 20                # also write smoke.json.gz
+    python scripts/build_suite.py --suite train --reverse                # a second machine, last scenes first
+    python scripts/build_suite.py --suite train --merge-from DIR --assemble-only   # join its copy
 
 Per-scene results go to --work-dir (default build/suites/<name>) and are skipped on
 re-run, so an interrupted build continues where it stopped. The suite file is the same
@@ -28,6 +30,9 @@ def main(argv=None) -> int:
     p.add_argument("--assemble-only", action="store_true", help="write the suite from the scenes already made")
     p.add_argument("--smoke", type=int, default=0, help="also write the smoke subset of this many tasks")
     p.add_argument("--out", default=None, help="suite file (default assets/suites/<name>.json.gz)")
+    p.add_argument("--reverse", action="store_true", help="make the scenes last first (a second machine's share)")
+    p.add_argument("--merge-from", default=None, metavar="DIR",
+                   help="first take the scenes that another copy of the work dir has further along")
     args = p.parse_args(argv)
     r = suite_build.recipe(args.suite)
     work_dir = args.work_dir or f"build/suites/{r.name}"
@@ -37,9 +42,12 @@ def main(argv=None) -> int:
         with tarfile.open(archive) as tar:
             tar.extractall(Path(work_dir).parent, filter="data")
         print(f"continuing from {archive}")
+    if args.merge_from:
+        taken = suite_build.merge_work_dirs(args.merge_from, work_dir)
+        print(f"took {len(taken)} scene files from {args.merge_from}")
     start = time.perf_counter()
     if not args.assemble_only:
-        suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit)
+        suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit, reverse=args.reverse)
         print(f"made scenes in {time.perf_counter() - start:.0f} s wall ({args.workers} workers)")
     suite = suite_build.assemble_suite(r, work_dir)
     out = args.out or SUITES_DIR / f"{r.name}.json.gz"

@@ -40,6 +40,41 @@ def test_farthest_point_sample_matches_greedy_numpy():
         assert len(set(picked)) == 40
 
 
+def test_the_farthest_point_order_check_accepts_greedy_orders_only():
+    """is_farthest_point_sequence: the check a GPU kernel must pass before it replaces the loop."""
+    rng = np.random.default_rng(5)
+    clouds = torch.tensor(np.stack([random_cloud(rng, 400), random_cloud(rng, 400)]))
+    greedy = pointops.farthest_point_sample_loop(clouds, 50)
+    assert pointops.is_farthest_point_sequence(clouds, greedy)
+    swapped = greedy.clone()
+    swapped[1, [10, 40]] = swapped[1, [40, 10]]  # a later, nearer pick too early
+    assert not pointops.is_farthest_point_sequence(clouds, swapped)
+    assert not pointops.is_farthest_point_sequence(clouds, greedy + 1)  # not from index 0
+    assert not pointops.is_farthest_point_sequence(clouds, torch.full_like(greedy, 400))  # out of range
+    # on the CPU the torch loop runs (the Triton kernel is for CUDA devices)
+    assert pointops.fps_backend(torch.device("cpu")) == "torch"
+    assert torch.equal(pointops.farthest_point_sample(clouds, 50), greedy)
+
+
+def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
+    """If the Triton kernel (CUDA only) raises at some size, the loop answers, now and after."""
+    import sys
+    import types
+
+    def broken(points, n):
+        raise RuntimeError("out of resources")
+
+    monkeypatch.setitem(sys.modules, "fetchbench_ms.grasping.fps_triton",
+                        types.SimpleNamespace(farthest_point_sample_triton=broken))
+    monkeypatch.setattr(pointops, "_FPS_BACKENDS", {"cpu": "triton"})
+    monkeypatch.setattr(pointops, "fps_backend", lambda device: pointops._FPS_BACKENDS[str(device)])
+    clouds = torch.tensor(np.stack([random_cloud(np.random.default_rng(6), 300)]))
+    with pytest.warns(UserWarning, match="out of resources"):
+        picked = pointops.farthest_point_sample(clouds, 20)
+    assert torch.equal(picked, pointops.farthest_point_sample_loop(clouds, 20))
+    assert pointops._FPS_BACKENDS == {"cpu": "torch"}
+
+
 def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
     rng = np.random.default_rng(1)
     pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])
@@ -180,9 +215,8 @@ def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
     assert result["computation_time"] > 0 and result["phases"]["grasped"]
 
 
-def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
-    """baselines/contact_graspnet/train.py: a synthetic view of a train object, labelled from its
-    verified grasps, and a small network fitted to it for a few steps."""
+def load_trainer():
+    """baselines/contact_graspnet/train.py as a module (it is a script, not a package)."""
     import importlib.util
     import sys
     from pathlib import Path
@@ -192,11 +226,16 @@ def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
     train = importlib.util.module_from_spec(spec)
     sys.modules["cgn_train"] = train  # (dataclasses look their module up there)
     spec.loader.exec_module(train)
-    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
-    from fetchbench_ms.grasps import objects_with_grasps
-    from fetchbench_ms.tasks.objects import object_ids
+    return train
 
-    object_id = next(i for i in object_ids("train") if i in set(objects_with_grasps()))
+
+def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
+    """baselines/contact_graspnet/train.py: a synthetic view of a train object, labelled from its
+    verified grasps, and a small network fitted to it for a few steps."""
+    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+
+    train = load_trainer()
+    object_id = train.train_val_objects(0.05)[0][0]
     view = train.make_view([object_id], np.random.default_rng(0), 512, 0.005)
     assert view["points"].shape == (512, 3) and view["positive"].any()
     # a positive point's label grasp has that point as one finger contact
@@ -206,9 +245,7 @@ def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
     assert np.linalg.norm(contact - view["points"][k]) < 0.006
 
     torch.manual_seed(0)
-    narrow = CGNConfig(centers=(128, 32, 8), mlps=(((8, 16),) * 3, ((16, 16),) * 3, ((16, 16),) * 3),
-                       global_mlp=(16,), fp_mlps=((16,), (16,), (16,)))
-    model = ContactGraspNet(narrow)
+    model = ContactGraspNet(CGNConfig(**train.TINY))
     args = train.Args(conf_topk=64)
     batch = {key: torch.as_tensor(value[None]) for key, value in view.items()}
     index = pointops.farthest_point_sample(batch["points"], 128)
@@ -219,8 +256,59 @@ def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-        history.append(float(loss))
+        history.append(float(loss.detach()))
     assert history[-1] < history[0], history
+
+
+def test_validation_objects_are_held_out_train_split_objects():
+    from fetchbench_ms.tasks.objects import object_ids
+
+    train = load_trainer()
+    fit, val = train.train_val_objects(0.05)
+    assert set(fit).isdisjoint(val)
+    assert set(fit) | set(val) <= set(object_ids("train"))  # never a test-split object
+    assert 0.03 < len(val) / (len(fit) + len(val)) < 0.07
+    assert train.train_val_objects(0.05) == (fit, val)  # a fixed split, whatever the seed
+    with pytest.raises(ValueError, match="val-fraction"):
+        train.train_val_objects(0.0)
+
+
+def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp_path, monkeypatch):
+    """main(): a --time-limit call checkpoints and stops, the same call resumes it; --export
+    writes the fp16 checkpoint, its JSON (retraining command, data hash, figures) and the log,
+    and --grasp-model ours loads that checkpoint."""
+    import dataclasses
+    import json
+
+    from fetchbench_ms.grasping import predict
+
+    train = load_trainer()
+    out = tmp_path / "export"
+    args = train.Args(run=str(tmp_path / "run"), device="cpu", tiny=True, init="scratch", views=4, val_views=2,
+                      steps=3, batch_size=2, warmup_steps=1, workers=1, log_every=1, time_limit=1e-6, export=True,
+                      export_dir=str(out))
+    first = train.main(args)
+    assert not first["done"] and first["step"] == 1
+    assert "time limit" in (out / "cgn_ours.log").read_text() and not (out / "cgn_ours.pt").exists()
+    with pytest.raises(ValueError, match="--lr"):  # resuming with other training flags would misreport the run
+        train.main(dataclasses.replace(args, lr=1.0))
+    second = train.main(dataclasses.replace(args, time_limit=0.0))
+    assert second["done"] and second["step"] == 3 and len(second["losses"]) == 2
+    log = (out / "cgn_ours.log").read_text()
+    assert "resumed at step 1" in log and "(cached)" in log
+    meta = json.loads((out / "cgn_ours.json").read_text())
+    assert meta["command"].startswith("python baselines/contact_graspnet/train.py ")
+    assert " --steps 3 " in meta["command"] and "--tiny" in meta["command"] and "--time-limit" not in meta["command"]
+    cached = dict(np.load(tmp_path / "run" / "data.npz"))
+    cached.pop("key")
+    assert meta["data_sha256"] == train.data_digest(cached)
+    assert set(meta["val"]) >= {"loss", "conf", "adds", "width", "top1_positive", "top10_positive"} and meta["val_init"]
+    saved = torch.load(out / "cgn_ours.pt", weights_only=True)
+    assert all(v.dtype == torch.float16 for v in saved["state_dict"].values() if v.is_floating_point())
+    assert (out / "cgn_ours.pt").stat().st_size < 16e6
+    monkeypatch.setattr(predict, "ours_checkpoint", lambda: out / "cgn_ours.pt")
+    net = predict.load_model.__wrapped__("ours")
+    assert net.config.centers[0] == 128 and not net.training
 
 
 def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
@@ -237,3 +325,45 @@ def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
     out = tmp_path / "pred.png"
     assert render_predictions_png(scene, target, grasps, out, top=2, title="synthetic") == 2
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_path):
+    """scripts/bench_cgn.py speed: the saved target region (20k points of smoke/0003), medians
+    per device and batch size, printed as JSON (run on the GPU machine with --device cuda cpu)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_cgn.py"
+    spec = importlib.util.spec_from_file_location("bench_cgn", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    saved = np.load(bench.DEFAULT_CLOUD)
+    assert saved["points_base"].shape == (20000, 3) and saved["is_target"].sum() > 1000
+    assert bench.main(["speed", "--points", "600", "--batch", "1", "2", "--cpu-warmup", "0", "--cpu-repeats", "1",
+                       "--json", str(tmp_path / "speed.json")]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert json.loads((tmp_path / "speed.json").read_text()) == report
+    assert report["points"] == 600 and report["task"] == "smoke/0003"
+    assert [(r["device"], r["batch"]) for r in report["results"]] == [("cpu x1", 1), ("cpu x1", 2)]
+    assert all(r["median_s"] > 0 and abs(r["per_cloud_s"] - r["median_s"] / r["batch"]) < 1e-4 for r in report["results"])
+
+
+def test_grasp_coverage_counts_annotated_grasps_near_and_aligned_with_a_prediction():
+    from fetchbench_ms.grasping.metrics import grasp_coverage
+
+    annotated = np.tile(np.eye(4), (4, 1, 1))
+    annotated[:, :3, 3] = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]
+    predicted = annotated[:2].copy()
+    predicted[0, :3, 3] += [0.015, 0, 0]  # 1.5 cm off: covers the first
+    c, s = np.cos(np.radians(60)), np.sin(np.radians(60))
+    to_tcp, turn = np.eye(4), np.eye(4)
+    to_tcp[2, 3] = 0.1034
+    turn[:3, :3] = [[1, 0, 0], [0, c, -s], [0, s, c]]
+    predicted[1] = predicted[1] @ to_tcp @ turn @ np.linalg.inv(to_tcp)  # same TCP, approach 60 deg off: not the second
+    turned = predicted[:1] @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the fingers swapped: still covers the first
+    assert grasp_coverage(predicted, annotated) == 0.25
+    assert grasp_coverage(turned, annotated) == 0.25
+    assert grasp_coverage(predicted, annotated, max_angle_deg=70) == 0.5
+    assert grasp_coverage(predicted[:0], annotated) == 0.0
+    assert np.isnan(grasp_coverage(predicted, annotated[:0]))

@@ -186,12 +186,16 @@ def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
         assert "PARTIAL" in format_stats(suite_stats(test_suite))
 
 
-def test_val_suite_uses_train_objects():
+@pytest.mark.parametrize("name", ["train", "val"])
+def test_learning_suites_hold_no_test_split_object(name):
+    """Every object of every arrangement (targets and clutter) of the suites that methods
+    train and tune on is a train-split object; none is of the test split."""
     from fetchbench_ms.tasks.objects import object_ids
 
-    val = load_suite("val")
-    train = set(object_ids("train"))
-    assert len(val) > 0 and all(o.object_id in train for t in val.tasks.values() for o in t.objects)
+    suite = load_suite(name)
+    used = {o.object_id for t in suite.tasks.values() for o in t.objects}
+    assert len(suite) > 0 and used <= set(object_ids("train"))
+    assert not used & set(object_ids("test"))
 
 
 def test_smoke_covers_every_category_and_most_types(smoke, test_suite):
@@ -319,3 +323,34 @@ def test_a_larger_fill_budget_continues_only_short_scenes_to_a_fresh_builds_resu
     assert continued["rejected"].get("unchecked", 0) == first["rejected"].get("unchecked", 0)
     # A result made with a larger budget is stale for a smaller one (it would differ).
     assert "more arrangements" in suite_build._stale_reason(short, scene, continued)
+
+
+def test_merging_two_copies_of_a_work_dir_keeps_each_scene_furthest_along(tmp_path):
+    """Two machines building one suite (one with ``--reverse``) each leave finished scenes
+    and progress files; merging keeps a finished scene over any progress, and the progress
+    with more arrangements tried, and never goes back."""
+    def progress(next_arrangement):
+        return json.dumps({"key": {}, "state": {"next": next_arrangement}})
+
+    here, there = tmp_path / "here", tmp_path / "there"
+    here.mkdir()
+    there.mkdir()
+    (here / "scene_000.json").write_text('{"done": "here"}')
+    (there / "scene_000.json").write_text('{"done": "there"}')
+    (here / "scene_001.progress.json").write_text(progress(5))
+    (there / "scene_001.json").write_text('{"done": "there"}')
+    (here / "scene_002.progress.json").write_text(progress(9))
+    (there / "scene_002.progress.json").write_text(progress(4))
+    (here / "scene_003.progress.json").write_text(progress(2))
+    (there / "scene_003.progress.json").write_text(progress(7))
+    (there / "scene_004.progress.json").write_text(progress(1))
+    (here / "scene_005.json").write_text('{"done": "here"}')
+    (there / "scene_005.progress.json").write_text(progress(50))
+    taken = suite_build.merge_work_dirs(there, here)
+    assert taken == ["scene_001.json", "scene_003.progress.json", "scene_004.progress.json"]
+    assert json.loads((here / "scene_000.json").read_text()) == {"done": "here"}
+    assert (here / "scene_001.json").exists() and not (here / "scene_001.progress.json").exists()
+    assert json.loads((here / "scene_002.progress.json").read_text())["state"]["next"] == 9
+    assert json.loads((here / "scene_003.progress.json").read_text())["state"]["next"] == 7
+    assert not (here / "scene_005.progress.json").exists()
+    assert suite_build.merge_work_dirs(there, here) == []

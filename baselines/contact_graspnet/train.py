@@ -4,37 +4,53 @@ One readable file in the style of CleanRL / ManiSkill's baselines: the arguments
 dataclass below (tyro flags), then data, model, losses, loop. The network is the package's
 (``fetchbench_ms.grasping.network.ContactGraspNet``); only training lives here.
 
-Data (made once per run folder, cached in ``<run>/data.npz`` with its hash): synthetic
-single-view clouds of 1-3 train-split objects on a table. Each view places the objects in
-random stable poses and yaws, samples their convex parts' surfaces and a table patch,
-and keeps what a pinhole camera (320x240, 70 deg horizontal FOV, 0.6-1.2 m away, 20-70 deg
-elevation) sees first along each pixel ray (a z-buffer "render"), in a world frame with z
-up. Labels come from the objects' physics-verified grasps (fetchbench_ms.grasps): each
-grasp's two finger contacts (TCP +- width/2 along the closing axis); a cloud point within
-5 mm of a contact is positive and carries that grasp in CGN's frame (baseline from that
-contact to the other finger, approach, width).
+Objects. Only train-split objects with verified grasps are used. A fixed, hash-based 5 %
+of them (``holdout``: sha256 of the object id) is held out: the training views never show
+them, and the validation views show only them. The validation figures (losses and the
+top-10 precision on those views) are what a run reports and what hyper-parameters may be
+chosen by. Test-split objects are never read here; their grasp quality is reported
+separately by ``scripts/bench_cgn.py quality`` (docs/grasping.md), and not used to choose
+anything.
+
+Data (made once per run folder, cached in ``<run>/data.npz``; the hash of its arrays goes
+into the checkpoint): synthetic single-view clouds of 1-3 objects on a table. Each scene
+places the objects in random stable poses and yaws, samples their convex parts' surfaces
+and a table patch; each of its ``--views-per-scene`` views keeps what a pinhole camera
+(320x240, 70 deg horizontal FOV, 0.6-1.2 m away, 20-70 deg elevation, random azimuth)
+sees first along each pixel ray (a z-buffer "render"), in a world frame with z up. Labels
+come from the objects' physics-verified grasps (fetchbench_ms.grasps): each grasp's two
+finger contacts (TCP +- width/2 along the closing axis); a cloud point within 5 mm of a
+contact is positive and carries that grasp in CGN's frame (baseline from that contact to
+the other finger, approach, width). Only the positive points' labels are stored.
 
 Losses (the original's): confidence BCE over the 512 hardest of the 2048 contact points;
 ADD-S on gripper control points (min over the two finger-symmetric labels) for positive
 points, weighted by the predicted confidence; width L1 for positive points.
 
-    # the H100 run: fine-tunes the pretrained weights; each call stops at --time-limit with a
-    # checkpoint and the same command resumes it (the run folder must survive: /tmp while the
-    # machine stays warm); the last call validates and exports
-    python baselines/contact_graspnet/train.py --run /tmp/cgn-ours --device cuda --workers 16 \
-        --views 2000 --steps 1500 --batch-size 16 --init pretrained --time-limit 480 --export
+    # the H100 run (docs/grasping.md, "Training our own weights"): fine-tunes the pretrained
+    # weights; --train-seconds fixes --steps from the measured step time at the start, each
+    # call stops at --time-limit with a checkpoint and the same command resumes it (the run
+    # folder must survive between calls); the last call validates and exports
+    python baselines/contact_graspnet/train.py --run /tmp/cgn-ours --workers 4 --train-seconds 600 \
+        --time-limit 540 --export --export-dir $OUT
     # a CPU smoke run: tiny network, few points
-    python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --steps 5
+    python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --val-views 2 --steps 5
 
-``--export`` writes ``assets/checkpoints/cgn_ours.pt`` (fp16 state dict + config) and
-``cgn_ours.json`` (command, data hash, steps, final figures) when the last step is done.
+``--export`` writes ``cgn_ours.pt`` (fp16 state dict + config, what ``--grasp-model ours``
+loads from ``assets/checkpoints/``), ``cgn_ours.json`` (the one command that retrains it,
+data hash, steps, wall times, validation figures) and ``cgn_ours.log`` (the training log)
+into ``--export-dir`` once the last step is done; a call stopped by ``--time-limit`` copies
+the log there too.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
+import math
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -44,7 +60,9 @@ import numpy as np
 import torch
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
-from fetchbench_ms.grasping.pointops import farthest_point_sample, gather
+from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
+
+DATA_VERSION = 2  # bump when make_scene / render_view change what a seed produces
 
 
 @dataclass
@@ -52,32 +70,70 @@ class Args:
     run: str = "runs/cgn/ours"  # run folder: log, data cache, checkpoint (re-running resumes)
     device: str = "cuda" if torch.cuda.is_available() else "cpu"
     seed: int = 0
-    views: int = 4000  # synthetic training views
-    val_views: int = 64  # views of test-split objects, for the validation figures
+    views: int = 6000  # synthetic training views (of held-in train-split objects)
+    views_per_scene: int = 2  # camera views rendered of each random arrangement
+    val_views: int = 128  # views of the held-out train-split objects, for the validation figures
+    val_fraction: float = 0.05  # of the train-split objects held out for validation (by id hash)
     objects_per_view: tuple[int, int] = (1, 3)
     num_points: int = 20000  # points per view fed to the network
-    steps: int = 6000
+    steps: int = 1500
+    train_seconds: float = 0.0  # > 0: set --steps from the step time measured over the first steps
     batch_size: int = 16
-    lr: float = 1e-3
-    lr_final: float = 1e-5  # cosine decay to this
-    init: str = "scratch"  # "scratch" or "pretrained" (fine-tune the cgn-pytorch weights)
+    lr: float = 1e-4
+    lr_final: float = 1e-6  # cosine decay to this after a linear warm-up
+    warmup_steps: int = 50
+    init: str = "pretrained"  # "scratch" or "pretrained" (fine-tune the cgn-pytorch weights)
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
     log_every: int = 50
-    ckpt_every: int = 500
+    ckpt_every: int = 200
     conf_topk: int = 512
     adds_weight: float = 10.0
     width_weight: float = 1.0
     positive_radius: float = 0.005  # m, cloud point to finger contact
-    tiny: bool = False  # a small network and 1024 points: for CPU tests
-    export: bool = False  # write assets/checkpoints/cgn_ours.{pt,json} when done
+    tiny: bool = False  # a small network (no pretrained init) and 1024 points: for CPU tests
+    export: bool = False  # write cgn_ours.{pt,json,log} into --export-dir when done
+    export_dir: str = "assets/checkpoints"  # where --export writes (the repo's, or $OUT on the GPU machine)
     workers: int = 0  # data-generation processes (0: all cores)
 
 
-TINY = dict(centers=(256, 64, 16))
+# Flags that change what is trained (the retraining command names them all); the others
+# (run folder, device, workers, time limits, export) change only where and how fast.
+TRAINING_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
+                  "steps", "batch_size", "lr", "lr_final", "warmup_steps", "init", "conf_topk", "adds_weight",
+                  "width_weight", "positive_radius", "tiny")
+DATA_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
+              "positive_radius")
+# --tiny: fewer centres and narrow layers, for CPU tests (seconds per step, not minutes)
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+TINY = dict(centers=(128, 32, 8), mlps=(((8, 16),) * 3, ((16, 16),) * 3, ((16, 16),) * 3), global_mlp=(16,),
+            fp_mlps=((16,), (16,), (16,)))
 CAMERA = dict(width=320, height=240, hfov_deg=70.0)
 # Control points of the gripper in CGN's frame (fingers along x): base, palm, finger bases, finger tips.
 CONTROL_POINTS = np.array([[0, 0, 0], [0, 0, 0.0584], [0.04, 0, 0.0584], [-0.04, 0, 0.0584],
                            [0.04, 0, GRIPPER_DEPTH], [-0.04, 0, GRIPPER_DEPTH]], dtype=np.float32)
+# panda_hand = cgn @ T_CGN_HAND (fetchbench_ms.grasping.predict), so cgn = hand @ inv(T_CGN_HAND)
+T_HAND_CGN = np.array([[0.0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+
+
+# ----------------------------------------------------------------------------- objects
+def holdout(object_id: str, fraction: float) -> bool:
+    """Whether a train-split object is held out for validation: a fixed hash of its id, so the
+    split is the same on every machine and for every seed."""
+    return int(hashlib.sha256(object_id.encode()).hexdigest()[:8], 16) < fraction * 16**8
+
+
+def train_val_objects(fraction: float) -> tuple[list[str], list[str]]:
+    """(training, validation) ids: train-split objects with verified grasps, split by ``holdout``."""
+    from fetchbench_ms.grasps import objects_with_grasps
+    from fetchbench_ms.tasks.objects import object_ids
+
+    kept = set(objects_with_grasps())
+    ids = [i for i in object_ids("train") if i in kept]
+    val = [i for i in ids if holdout(i, fraction)]
+    train = [i for i in ids if not holdout(i, fraction)]
+    if not train or not val:
+        raise ValueError(f"--val-fraction {fraction} leaves {len(train)} training and {len(val)} validation objects")
+    return train, val
 
 
 # ----------------------------------------------------------------------------- data
@@ -118,9 +174,9 @@ def zbuffer_visible(points: np.ndarray, T_world_camera: np.ndarray) -> np.ndarra
     return idx[order][first]
 
 
-def make_view(object_ids: list[str], rng: np.random.Generator, num_points: int, radius: float) -> dict:
-    """One labelled view (see the module docstring): points (num_points, 3) float32, z up,
-    mean-centred; per point: positive (bool), grasp (4, 4) CGN-frame label, width."""
+def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
+    """1-3 objects on a table: surface points with their owner (-1: table), and every verified
+    grasp's two finger contacts with the grasp (in CGN's frame) that each contact carries."""
     from fetchbench_ms.grasps import load_grasps
     from fetchbench_ms.tasks.objects import load_object
 
@@ -141,93 +197,163 @@ def make_view(object_ids: list[str], rng: np.random.Generator, num_points: int, 
         T[:2, 3] += xy
         mesh = trimesh.util.concatenate(list(asset.convex_parts))
         surface, _ = trimesh.sample.sample_surface(mesh, 6000, seed=int(rng.integers(2**31)))
-        surface = surface @ T[:3, :3].T + T[:3, 3]
-        clouds.append(surface)
+        clouds.append(surface @ T[:3, :3].T + T[:3, 3])
         owners.append(np.full(len(surface), k))
         grasps = load_grasps(object_id).successful
         T_world_hand = T[None] @ grasps.T_object_hand
         tcp = T_world_hand[:, :3, 3] + GRIPPER_DEPTH * T_world_hand[:, :3, 2]
         y = T_world_hand[:, :3, 1]
         w = np.asarray(grasps.width, dtype=np.float64)
-        # contact on the +y finger: baseline -y (hand = cgn @ T_CGN_HAND, hand y = -cgn x);
-        # on the -y finger: the same grasp turned half about z (baseline +y).
-        flip = _yaw(np.pi)
-        to_cgn = np.linalg.inv(np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))
-        for sign, T_extra in ((1.0, np.eye(4)), (-1.0, flip)):
+        # contact on the +y finger: baseline -y (hand y = -cgn x); on the -y finger: the same
+        # grasp turned half about z (baseline +y).
+        for sign, T_extra in ((1.0, np.eye(4)), (-1.0, _yaw(np.pi))):
             contacts.append(tcp + sign * 0.5 * w[:, None] * y)
-            labels.append(T_world_hand @ to_cgn @ T_extra)
+            labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
             widths.append(w)
     table = np.c_[rng.uniform(-0.35, 0.35, (20000, 2)), np.zeros(20000)]
-    points = np.concatenate(clouds + [table])
-    owner = np.concatenate(owners + [np.full(len(table), -1)])
+    return {"points": np.concatenate(clouds + [table]), "owner": np.concatenate(owners + [np.full(len(table), -1)]),
+            "contacts": np.concatenate(contacts), "labels": np.concatenate(labels), "widths": np.concatenate(widths)}
+
+
+def render_view(scene: dict, rng: np.random.Generator, num_points: int, radius: float) -> dict:
+    """One labelled view of a scene from a random camera: points (num_points, 3) float32, z up,
+    mean-centred; per point: positive (bool), grasp (4, 4) CGN-frame label, width."""
+    from scipy.spatial import cKDTree
+
     azimuth, elevation = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(20, 70))
     distance = rng.uniform(0.6, 1.2)
     eye = distance * np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
-    seen = zbuffer_visible(points, _look_at(eye, np.array([0.0, 0.0, 0.05])))
+    seen = zbuffer_visible(scene["points"], _look_at(eye, np.array([0.0, 0.0, 0.05])))
     pick = seen[rng.choice(len(seen), size=num_points, replace=len(seen) < num_points)]
-    points, owner = points[pick], owner[pick]
-    contacts, labels, widths = np.concatenate(contacts), np.concatenate(labels), np.concatenate(widths)
-    from scipy.spatial import cKDTree
-
-    distance_to_contact, nearest = cKDTree(contacts).query(points)
+    points, owner = scene["points"][pick], scene["owner"][pick]
+    distance_to_contact, nearest = cKDTree(scene["contacts"]).query(points)
     positive = (distance_to_contact < radius) & (owner >= 0)
     mean = points.mean(0)
-    grasp = labels[nearest].astype(np.float32)
+    grasp = scene["labels"][nearest].astype(np.float32)
     grasp[:, :3, 3] -= mean
     return {"points": (points - mean).astype(np.float32), "positive": positive,
             "grasp": np.where(positive[:, None, None], grasp, 0).astype(np.float32),
-            "width": np.where(positive, widths[nearest], 0).astype(np.float32)}
+            "width": np.where(positive, scene["widths"][nearest], 0).astype(np.float32)}
 
 
-def _view_job(job):
-    ids, seed, num_points, radius = job
-    return make_view(ids, np.random.default_rng(seed), num_points, radius)
+def make_view(object_ids: list[str], rng: np.random.Generator, num_points: int, radius: float) -> dict:
+    """One labelled view of a new scene of ``object_ids``."""
+    return render_view(make_scene(object_ids, rng), rng, num_points, radius)
 
 
-def build_views(split: str, count: int, args: Args, seed: int) -> dict:
-    from fetchbench_ms.grasps import objects_with_grasps
-    from fetchbench_ms.tasks.objects import object_ids
+def _scene_job(job) -> list[dict]:
+    """The views of one scene, their labels kept for the positive points only (about 2 %)."""
+    ids, seed, cameras, num_points, radius = job
+    rng = np.random.default_rng(seed)
+    scene = make_scene(ids, rng)
+    views = []
+    for _ in range(cameras):
+        view = render_view(scene, rng, num_points, radius)
+        index = np.flatnonzero(view["positive"])
+        views.append({"points": view["points"], "pos_index": index.astype(np.int32),
+                      "pos_grasp": view["grasp"][index, :3, :].astype(np.float16),
+                      "pos_width": view["width"][index].astype(np.float16)})
+    return views
 
-    kept = set(objects_with_grasps())
-    ids = [i for i in object_ids(split) if i in kept]
+
+def build_views(ids: list[str], count: int, args: Args, seed: int, pool=None) -> dict:
+    """``count`` views of random scenes of ``ids`` (made in ``pool`` if given): points
+    [count, N, 3], and the positive points' labels concatenated (``pos_*``) with
+    ``pos_offset`` [count + 1] marking each view's run."""
     rng = np.random.default_rng(seed)
     lo, hi = args.objects_per_view
+    cameras = max(1, args.views_per_scene)
     jobs = [(list(rng.choice(ids, size=int(rng.integers(lo, hi + 1)), replace=False)), int(rng.integers(2**31)),
-             args.num_points, args.positive_radius) for _ in range(count)]
-    workers = args.workers or os.cpu_count() or 1
-    if workers > 1 and count > 1:
-        import multiprocessing
-
-        with multiprocessing.get_context("spawn").Pool(workers) as pool:
-            views = pool.map(_view_job, jobs, chunksize=max(1, count // (4 * workers)))
+             min(cameras, count - s), args.num_points, args.positive_radius) for s in range(0, count, cameras)]
+    if pool is not None:
+        scenes = pool.map(_scene_job, jobs, chunksize=max(1, len(jobs) // 64))  # order kept: same data for any pool
     else:
-        views = [_view_job(j) for j in jobs]
-    data = {k: np.stack([v[k] for v in views]) for k in views[0]}
-    # compact storage (20k points x thousands of views): the label frames' top 3 rows and the widths in float16
-    data["grasp"] = data["grasp"][:, :, :3, :].astype(np.float16)
-    data["width"] = data["width"].astype(np.float16)
-    return data
+        scenes = [_scene_job(j) for j in jobs]
+    views = [v for scene in scenes for v in scene]
+    counts = np.array([len(v["pos_index"]) for v in views])
+    return {"points": np.stack([v["points"] for v in views]),
+            "pos_offset": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+            **{k: np.concatenate([v[k] for v in views]) for k in ("pos_index", "pos_grasp", "pos_width")}}
+
+
+@contextlib.contextmanager
+def view_pool(workers: int):
+    """A pool of ``workers`` processes of one thread each (BLAS / OpenMP would otherwise take
+    every core in each), or None for ``workers`` <= 1 (views made in this process)."""
+    if workers <= 1:
+        yield None
+        return
+    import multiprocessing
+
+    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    os.environ.update({k: "1" for k in THREAD_VARIABLES})  # inherited by the spawned workers
+    try:
+        with multiprocessing.get_context("spawn").Pool(workers) as pool:
+            yield pool
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                del os.environ[k]
+            else:
+                os.environ[k] = v
+
+
+def data_digest(arrays: dict) -> str:
+    """sha256 of named arrays (names, dtypes, shapes, bytes): the same data gives the same hash,
+    unlike the bytes of an .npz (its zip entries carry the time of writing)."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
 
 
 def load_or_build_data(args: Args, run: Path, log) -> tuple[dict, dict, str]:
     """(train, val, data hash), cached in the run folder."""
     path = run / "data.npz"
-    key = json.dumps({k: getattr(args, k) for k in ("seed", "views", "val_views", "objects_per_view", "num_points",
-                                                     "positive_radius")}, sort_keys=True)
+    key = json.dumps({"version": DATA_VERSION, **{k: getattr(args, k) for k in DATA_FLAGS}}, sort_keys=True)
     if path.is_file():
         data = dict(np.load(path))
         if str(data.pop("key")) == key:
             log(f"data: {path} (cached)")
-            digest = hashlib.sha256(path.read_bytes()).hexdigest()
             return ({k[6:]: v for k, v in data.items() if k.startswith("train_")},
-                    {k[4:]: v for k, v in data.items() if k.startswith("val_")}, digest)
+                    {k[4:]: v for k, v in data.items() if k.startswith("val_")}, data_digest(data))
     t = time.perf_counter()
-    train = build_views("train", args.views, args, args.seed)
-    val = build_views("test", args.val_views, args, args.seed + 1)
-    np.savez(path, key=key, **{f"train_{k}": v for k, v in train.items()}, **{f"val_{k}": v for k, v in val.items()})
-    log(f"data: {args.views} train / {args.val_views} val views in {time.perf_counter() - t:.0f} s, "
-        f"{train['positive'].mean():.3f} of points positive")
-    return train, val, hashlib.sha256(path.read_bytes()).hexdigest()
+    train_ids, val_ids = train_val_objects(args.val_fraction)
+    workers = args.workers or os.cpu_count() or 1
+    with view_pool(workers) as pool:
+        train = build_views(train_ids, args.views, args, args.seed, pool)
+        val = build_views(val_ids, args.val_views, args, args.seed + 1, pool)
+    arrays = {**{f"train_{k}": v for k, v in train.items()}, **{f"val_{k}": v for k, v in val.items()}}
+    tmp = path.with_name("data.tmp.npz")
+    np.savez(tmp, key=key, **arrays)
+    os.replace(tmp, path)
+    seconds = time.perf_counter() - t
+    log(f"data: {args.views} train views of {len(train_ids)} objects, {args.val_views} val views of {len(val_ids)} "
+        f"held-out train-split objects, in {seconds:.0f} s ({seconds / (args.views + args.val_views):.3f} s per view "
+        f"with {workers} workers); "
+        f"{len(train['pos_index']) / np.prod(train['points'].shape[:2]):.3f} of points positive")
+    return train, val, data_digest(arrays)
+
+
+def batch_to_device(data: dict, rows: np.ndarray, device: str) -> dict:
+    """Views ``rows`` of ``data`` as dense tensors: points [B, N, 3], positive [B, N], grasp
+    [B, N, 4, 4] (zeros but for positives), width [B, N]."""
+    points = torch.as_tensor(data["points"][rows], device=device)
+    B, N = points.shape[:2]
+    spans = [np.arange(data["pos_offset"][r], data["pos_offset"][r + 1]) for r in rows]
+    which = np.concatenate(spans).astype(np.int64)
+    view = torch.as_tensor(np.repeat(np.arange(B), [len(s) for s in spans]), device=device)
+    point = torch.as_tensor(data["pos_index"][which].astype(np.int64), device=device)
+    positive = torch.zeros(B, N, dtype=torch.bool, device=device)
+    positive[view, point] = True
+    grasp = torch.zeros(B, N, 4, 4, device=device)
+    grasp[..., 3, 3] = 1.0
+    grasp[view, point, :3, :] = torch.as_tensor(data["pos_grasp"][which], device=device).float()
+    width = torch.zeros(B, N, device=device)
+    width[view, point] = torch.as_tensor(data["pos_width"][which], device=device).float()
+    return {"points": points, "positive": positive, "grasp": grasp, "width": width}
 
 
 # ----------------------------------------------------------------------------- losses
@@ -255,13 +381,36 @@ def losses(out: dict, batch: dict, index: torch.Tensor, args: Args) -> dict:
     adds = (adds * score * positive).sum() / n_pos
     width = ((out["raw_width"] - label_w).abs() * positive).sum() / n_pos
     total = conf + args.adds_weight * adds + args.width_weight * width
-    # precision of the 10 best-scored contacts: how often they are labelled positive
+    # the best-scored contact and the 10 best: how often they are labelled positive
     top = out["logits"].topk(min(10, positive.shape[1]), dim=1).indices
-    precision = positive.gather(1, top).float().mean()
-    return {"loss": total, "conf": conf, "adds": adds, "width": width, "top10_positive": precision}
+    hits = positive.gather(1, top).float()
+    return {"loss": total, "conf": conf, "adds": adds, "width": width, "top1_positive": hits[:, 0].mean(),
+            "top10_positive": hits.mean()}
 
 
 # ----------------------------------------------------------------------------- training
+def retrain_command(args: Args) -> str:
+    """The one command that trains this checkpoint again (every flag that changes what is
+    trained, with the steps fixed; --time-limit may be added to split it into calls)."""
+    words = ["python", "baselines/contact_graspnet/train.py"]
+    for name in TRAINING_FLAGS:
+        value = getattr(args, name)
+        flag = "--" + name.replace("_", "-")
+        if isinstance(value, bool):
+            words += [flag] if value else []
+        elif isinstance(value, tuple):
+            words += [flag, *map(str, value)]
+        else:
+            words += [flag, str(value)]
+    return " ".join(words + ["--export"])
+
+
+def _atomic_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
 def main(args: Args) -> dict:
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
@@ -274,59 +423,98 @@ def main(args: Args) -> dict:
         log_file.flush()
 
     t_start = time.perf_counter()
+    if args.init not in ("scratch", "pretrained"):
+        raise ValueError(f"--init {args.init!r}: valid: scratch, pretrained")
+    log(f"call: {' '.join(sys.argv)}")
     torch.manual_seed(args.seed)
+    torch.set_num_threads(max(1, min(torch.get_num_threads(), args.workers or torch.get_num_threads())))
+    torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
     rng = np.random.default_rng(args.seed)
     if args.tiny:
         args = dataclasses.replace(args, num_points=min(args.num_points, 1024))
-    train, val, data_hash = load_or_build_data(args, run, log)
     config = CGNConfig(**TINY) if args.tiny else CGNConfig()
     model = ContactGraspNet(config).to(args.device)
-    if args.init == "pretrained" and not args.tiny:
+    if args.init == "pretrained" and not args.tiny:  # before the data: a missing package fails at once
         from fetchbench_ms.grasping.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
+    log(f"farthest-point sampling on {args.device}: {fps_backend(torch.device(args.device))}")
+    train, val, data_hash = load_or_build_data(args, run, log)
+    data_seconds = time.perf_counter() - t_start
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=args.steps, eta_min=args.lr_final)
+    # plan["steps"] is None while --train-seconds is still timing the first steps (all warm-up)
+    plan = {"steps": None if args.train_seconds > 0 else args.steps, "train_seconds": 0.0, "val_init": None}
+
+    def lr_factor(s: int) -> float:
+        if s < args.warmup_steps:
+            return (s + 1) / args.warmup_steps
+        total = plan["steps"] or max(args.steps, s + 1)
+        progress = min(1.0, (s - args.warmup_steps) / max(1, total - args.warmup_steps))
+        final = args.lr_final / args.lr
+        return final + (1 - final) * 0.5 * (1 + math.cos(math.pi * progress))
+
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_factor)
     step, ckpt = 0, run / "checkpoint.pt"
     if ckpt.is_file():
         saved = torch.load(ckpt, map_location=args.device, weights_only=False)
+        if saved["data_sha256"] != data_hash:
+            raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]}, now {data_hash[:12]}): "
+                             "use a new --run folder for other data flags")
+        changed = [k for k in TRAINING_FLAGS if k != "steps" and saved["args"][k] != getattr(args, k)]
+        if changed:
+            raise ValueError(f"{ckpt} was trained with other {', '.join('--' + k.replace('_', '-') for k in changed)}: "
+                             "resume with the same flags, or use a new --run folder")
         model.load_state_dict(saved["model"])
         optimizer.load_state_dict(saved["optimizer"])
         schedule.load_state_dict(saved["schedule"])
-        step = saved["step"]
-        rng = saved["rng"]
-        log(f"resumed at step {step}")
+        step, rng, plan = saved["step"], saved["rng"], saved["plan"]
+        log(f"resumed at step {step} of {plan['steps']}")
 
-    def to_device(data: dict, rows) -> dict:
-        out = {k: torch.as_tensor(v[rows], device=args.device) for k, v in data.items()}
-        grasp = out["grasp"].float()  # [B, N, 3, 4] -> [B, N, 4, 4]
-        bottom = torch.tensor([0.0, 0, 0, 1], device=args.device).expand(*grasp.shape[:2], 1, 4)
-        out["grasp"], out["width"] = torch.cat([grasp, bottom], -2), out["width"].float()
-        return out
+    # The contact points (level-1 farthest-point samples) of every training view, once per call:
+    # a yaw about z keeps all distances, so they hold under the augmentation, and the 2,048
+    # small sequential steps of the sampling (launch-bound on a GPU) leave the training step.
+    t = time.perf_counter()
+    train_contacts = torch.cat([farthest_point_sample(torch.as_tensor(train["points"][s:s + 256], device=args.device),
+                                                      config.centers[0]) for s in range(0, len(train["points"]), 256)])
+    log(f"contact points of {len(train_contacts)} views in {time.perf_counter() - t:.1f} s")
 
     def save() -> None:
-        torch.save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
-                    "step": step, "rng": rng, "args": dataclasses.asdict(args), "data_sha256": data_hash}, ckpt)
+        _atomic_save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
+                      "step": step, "rng": rng, "plan": plan, "args": dataclasses.asdict(args), "data_sha256": data_hash},
+                     ckpt)
 
     @torch.no_grad()
     def validate() -> dict:
         model.eval()
         sums: dict = {}
-        for s in range(0, len(val["points"]), args.batch_size):
-            batch = to_device(val, slice(s, s + args.batch_size))
+        count = len(val["points"])
+        for s in range(0, count, args.batch_size):
+            batch = batch_to_device(val, np.arange(s, min(count, s + args.batch_size)), args.device)
             index = farthest_point_sample(batch["points"], config.centers[0])
             for k, v in losses(model(batch["points"], index), batch, index, args).items():
                 sums[k] = sums.get(k, 0.0) + float(v) * len(batch["points"])
         model.train()
-        return {k: round(v / len(val["points"]), 5) for k, v in sums.items()}
+        return {k: round(v / count, 5) for k, v in sums.items()}
 
+    def sync() -> None:
+        if args.device.startswith("cuda"):
+            torch.cuda.synchronize()
+
+    if step == 0 and plan["val_init"] is None:
+        plan["val_init"] = validate()
+        log(f"validation at init ({args.init}; held-out train-split objects): {plan['val_init']}")
     model.train()
-    log(f"training from step {step} to {args.steps} on {args.device} ({sum(p.numel() for p in model.parameters())} "
-        f"parameters, {len(train['points'])} views, data {data_hash[:12]})")
+    log(f"training from step {step} to {'auto' if plan['steps'] is None else plan['steps']} on {args.device} "
+        f"({sum(p.numel() for p in model.parameters())} parameters, {len(train['points'])} views, data {data_hash[:12]})")
     history = []
-    while step < args.steps:
+    timing = (step + 5, step + 25)  # steps timed for --train-seconds (after the first, slow ones)
+    t_call = time.perf_counter()
+    while plan["steps"] is None or step < plan["steps"]:
+        if plan["steps"] is None and step == timing[0]:
+            sync()
+            t_timing = time.perf_counter()
         rows = rng.choice(len(train["points"]), size=min(args.batch_size, len(train["points"])), replace=False)
-        batch = to_device(train, rows)
+        batch = batch_to_device(train, rows, args.device)
         # augmentation: a random yaw about z (the clouds are z up, as at inference)
         angle = torch.as_tensor(rng.uniform(0, 2 * np.pi, len(rows)), device=args.device, dtype=torch.float32)
         R = torch.zeros(len(rows), 4, 4, device=args.device)
@@ -334,7 +522,7 @@ def main(args: Args) -> dict:
         R[:, 2, 2] = R[:, 3, 3] = 1.0
         batch["points"] = batch["points"] @ R[:, :3, :3].transpose(1, 2)
         batch["grasp"] = R[:, None] @ batch["grasp"]
-        index = farthest_point_sample(batch["points"], config.centers[0])
+        index = train_contacts[torch.as_tensor(rows, device=args.device)]
         parts = losses(model(batch["points"], index), batch, index, args)
         optimizer.zero_grad(set_to_none=True)
         parts["loss"].backward()
@@ -342,36 +530,63 @@ def main(args: Args) -> dict:
         optimizer.step()
         schedule.step()
         step += 1
-        history.append(float(parts["loss"].detach()))
-        if step % args.log_every == 0 or step == args.steps:
+        history.append(parts["loss"].detach())  # read back at the end, not every step
+        if plan["steps"] is None and step == timing[1]:
+            sync()
+            per_step = (time.perf_counter() - t_timing) / (timing[1] - timing[0])
+            plan["steps"] = max(step + 1, int(args.train_seconds / per_step))
+            log(f"--train-seconds {args.train_seconds:.0f}: {per_step:.3f} s per step, so --steps {plan['steps']}")
+        if step % args.log_every == 0 or step == plan["steps"]:
             log(f"step {step} " + " ".join(f"{k} {float(v.detach()):.4f}" for k, v in parts.items())
                 + f" lr {schedule.get_last_lr()[0]:.2e}")
         if step % args.ckpt_every == 0:
+            plan["train_seconds"] += time.perf_counter() - t_call
+            t_call = time.perf_counter()
             save()
-        if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < args.steps:
+        if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < (plan["steps"] or step + 1):
+            plan["train_seconds"] += time.perf_counter() - t_call
             save()
-            log(f"time limit: checkpoint at step {step}; run again to resume")
-            return {"step": step, "done": False, "losses": history}
+            log(f"time limit: checkpoint at step {step}; run the same command again to resume")
+            if args.export:
+                copy_log(run, args)
+            return {"step": step, "done": False, "losses": [float(v) for v in history]}
+    plan["train_seconds"] += time.perf_counter() - t_call
     save()
     figures = validate()
-    log(f"validation (test-split objects): {figures}")
+    log(f"validation (held-out train-split objects): {figures}; training took {plan['train_seconds']:.0f} s")
+    args = dataclasses.replace(args, steps=plan["steps"])
     if args.export:
-        export(model, config, args, data_hash, step, figures, log)
-    return {"step": step, "done": True, "losses": history, "val": figures}
+        export(model, config, args, data_hash, plan, figures, data_seconds, log)
+        copy_log(run, args)
+    return {"step": step, "done": True, "losses": [float(v) for v in history], "val": figures,
+            "val_init": plan["val_init"]}
 
 
-def export(model, config, args, data_hash, step, figures, log) -> None:
-    from fetchbench_ms.grasping.predict import ours_checkpoint
+def copy_log(run: Path, args: Args) -> None:
+    out = Path(args.export_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run / "log.txt", out / "cgn_ours.log.tmp")
+    os.replace(out / "cgn_ours.log.tmp", out / "cgn_ours.log")
 
-    path = ours_checkpoint()
-    path.parent.mkdir(parents=True, exist_ok=True)
+
+def export(model, config, args, data_hash, plan, figures, data_seconds, log) -> None:
+    out = Path(args.export_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "cgn_ours.pt"
     state = {k: (v.half() if v.is_floating_point() else v) for k, v in model.state_dict().items()}
-    torch.save({"state_dict": state, "config": dataclasses.asdict(config)}, path)
-    meta = {"command": " ".join(["python", *sys.argv]), "data_sha256": data_hash, "steps": step,
-            "args": dataclasses.asdict(args), "val": figures,
+    _atomic_save({"state_dict": state, "config": dataclasses.asdict(config)}, path)
+    meta = {"command": retrain_command(args), "data_sha256": data_hash, "data_version": DATA_VERSION,
+            "steps": plan["steps"], "train_seconds": round(plan["train_seconds"], 1),
+            "data_seconds_last_call": round(data_seconds, 1),
+            "device": torch.cuda.get_device_name() if args.device.startswith("cuda") else "cpu",
+            "args": dataclasses.asdict(args),
+            "val_split": f"train-split objects with holdout(id, {args.val_fraction}) (sha256 of the id); never test-split",
+            "val_init": plan["val_init"], "val": figures,
             "checkpoint_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
-    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    tmp = path.with_name("cgn_ours.json.tmp")
+    tmp.write_text(json.dumps(meta, indent=1) + "\n")
+    os.replace(tmp, path.with_suffix(".json"))
+    log(f"exported {path} ({path.stat().st_size / 1e6:.1f} MB) and {path.with_suffix('.json')}")
 
 
 if __name__ == "__main__":

@@ -67,6 +67,11 @@ def add_fetch_pointcloud(obs: dict, lut: torch.Tensor, p_world_base: torch.Tenso
     ``camera_pixels``: camera uid -> pixel count, in sensor order (ManiSkill concatenates
     the cameras' pixels in that order)."""
     pcd = obs["pointcloud"]
+    # The renderer may sit on another device than the simulation (CPU physics, CUDA
+    # rendering on a GPU machine): the cloud joins the env's tensors on the env's device.
+    for key in ("xyzw", "rgb", "segmentation"):
+        if key in pcd:
+            pcd[key] = pcd[key].to(lut.device)
     xyzw = pcd["xyzw"]
     seg = pcd["segmentation"][..., 0].long().clamp(min=0, max=lut.shape[1] - 1)
     labels = torch.gather(lut, 1, seg)

@@ -40,9 +40,10 @@ def cmd_report(args) -> int:
 
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("eval", help="evaluate a method on a task suite (one JSON line per task, resumable)")
+    from .methods import builtin_methods
+
     p.add_argument("--method", default="ga-mesh-rrt",
-                   help="ga-mesh-rrt, ga-ptd-rrt, cgn-ptd-rrt, cgn-mesh-rrt, e2e-mlp, e2e-transformer, e2e-diffusion, "
-                        "twostage-mlp, twostage-transformer, twostage-diffusion, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, idle, or an importable module:function")
+                   help=f"{', '.join(builtin_methods())}, or an importable module:function")
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
                    help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
                         "ours: assets/checkpoints/cgn_ours.pt)")

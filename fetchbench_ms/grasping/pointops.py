@@ -5,6 +5,9 @@ features per batch element; all elements of a batch have the same number of poin
 """
 from __future__ import annotations
 
+import os
+import warnings
+
 import torch
 
 # Rows of centres handled at once in ``ball_query`` / ``knn``: bounds the [B, rows, N]
@@ -16,7 +19,22 @@ def farthest_point_sample(points: torch.Tensor, n: int, start: int = 0) -> torch
     """Indices [B, n] of ``n`` farthest points of ``points`` [B, N, 3], greedily, from index ``start``.
 
     ``n`` may exceed N only by repetition (then the last picks repeat points already taken).
+    On CUDA the Triton kernel of ``fps_triton`` does it in one launch when it passed its
+    check on this device (``fps_backend``); otherwise, and on the CPU, the torch loop.
     """
+    if start == 0 and n <= points.shape[1] and fps_backend(points.device) == "triton":
+        from .fps_triton import farthest_point_sample_triton
+
+        try:
+            return farthest_point_sample_triton(points, n)
+        except Exception as error:  # e.g. a size it cannot compile for: the loop from now on
+            _FPS_BACKENDS[_device_key(points.device)] = "torch"
+            warnings.warn(f"Triton farthest-point sampling failed ({type(error).__name__}: {error}); using the torch loop")
+    return farthest_point_sample_loop(points, n, start)
+
+
+def farthest_point_sample_loop(points: torch.Tensor, n: int, start: int = 0) -> torch.Tensor:
+    """``farthest_point_sample`` as ``n`` steps of torch operations (any device)."""
     B, N, _ = points.shape
     out = torch.empty((B, n), dtype=torch.long, device=points.device)
     nearest = torch.full((B, N), float("inf"), device=points.device, dtype=points.dtype)
@@ -28,6 +46,56 @@ def farthest_point_sample(points: torch.Tensor, n: int, start: int = 0) -> torch
         nearest = torch.minimum(nearest, d)
         current = nearest.argmax(-1)
     return out
+
+
+def is_farthest_point_sequence(points: torch.Tensor, index: torch.Tensor, rtol: float = 1e-5) -> bool:
+    """Whether ``index`` [B, n] is a greedy farthest-point order of ``points`` [B, N, 3] (each
+    pick at the largest distance to the picks before it, up to ``rtol``) starting at 0."""
+    B, N, _ = points.shape
+    if index.shape[0] != B or bool((index < 0).any() or (index >= N).any()) or bool((index[:, 0] != 0).any()):
+        return False
+    rows = torch.arange(B, device=points.device)
+    nearest = torch.full((B, N), float("inf"), device=points.device, dtype=points.dtype)
+    for i in range(index.shape[1]):
+        if i > 0 and bool((nearest[rows, index[:, i]] < nearest.max(-1).values * (1 - rtol)).any()):
+            return False
+        nearest = torch.minimum(nearest, ((points - points[rows, index[:, i]][:, None, :]) ** 2).sum(-1))
+    return True
+
+
+_FPS_BACKENDS: dict[str, str] = {}
+
+
+def _device_key(device: torch.device) -> str:
+    """"cuda:0" for "cuda" too, so that a device is checked once."""
+    if device.type == "cuda" and device.index is None:
+        device = torch.device("cuda", torch.cuda.current_device())
+    return str(device)
+
+
+def fps_backend(device: torch.device) -> str:
+    """"triton" or "torch": the Triton kernel on CUDA devices where it imports, compiles and
+    picks a greedy farthest-point order of a random test cloud (checked once per device;
+    ``FETCHBENCH_FPS=torch`` forces the loop), else the torch loop."""
+    device = torch.device(device)
+    if device.type != "cuda" or os.environ.get("FETCHBENCH_FPS", "auto") == "torch":
+        return "torch"
+    key = _device_key(device)
+    if key not in _FPS_BACKENDS:
+        _FPS_BACKENDS[key] = "torch"
+        try:
+            from .fps_triton import farthest_point_sample_triton
+
+            generator = torch.Generator(device="cpu").manual_seed(0)
+            cloud = (torch.randn(2, 5000, 3, generator=generator) * 0.1).to(device)
+            if is_farthest_point_sequence(cloud, farthest_point_sample_triton(cloud, 256)):
+                _FPS_BACKENDS[key] = "triton"
+            else:
+                warnings.warn("the Triton farthest-point kernel failed its check on this device; using the torch loop")
+        except Exception as error:  # no Triton, or it cannot compile here: the loop is always right
+            warnings.warn(f"Triton farthest-point sampling unavailable ({type(error).__name__}: {error}); "
+                          "using the torch loop")
+    return _FPS_BACKENDS[key]
 
 
 def gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

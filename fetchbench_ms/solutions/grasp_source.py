@@ -56,9 +56,16 @@ def predicted_grasps(clouds, T_base_object: np.ndarray, model: str, max_grasps: 
     ``fetchbench_ms.envs.FetchClouds``), expressed in the object frame like the annotated
     ones (``T_base_object`` only changes the frame: the prediction sees the clouds alone).
     Ids count from ``first_index``."""
+    import os
+
+    import torch
+
     from ..grasping import predict_from_clouds
 
-    predicted = predict_from_clouds(clouds, model, rng)
+    # As the trajopt planner: the GPU when there is one (the network's inference dominates
+    # a CGN method's compute time on CPU), overridable for timing comparisons.
+    device = os.environ.get("FETCHBENCH_CGN_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
+    predicted = predict_from_clouds(clouds, model, rng, device=device)
     T_object_hand = np.linalg.inv(T_base_object)[None] @ predicted.T_base_hand[:max_grasps]
     return GraspCandidates(T_object_hand, f"cgn-{model}", first_index + np.arange(len(T_object_hand)))
 

@@ -442,9 +442,13 @@ def _build_one(args) -> str:
     return str(path)
 
 
-def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None = None, log=print) -> list[Path]:
+def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None = None, log=print,
+                 reverse: bool = False) -> list[Path]:
     """Make the per-scene results (skipping those already in ``work_dir``); ``limit``: only
-    the first that many scenes of the plan. Workers are ``spawn``ed processes."""
+    the first that many scenes of the plan. Workers are ``spawn``ed processes. ``reverse``:
+    take the scenes last first, so that two machines building one suite into copies of a
+    work directory meet in the middle instead of doing the same scenes (merge the copies
+    with ``merge_work_dirs``)."""
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     plans = plan_scenes(r)[:limit]
@@ -455,7 +459,7 @@ def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None =
     log(f"{r.name}: {len(plans) - len(todo)} of {len(plans)} scenes done, {len(todo)} to make with {workers} workers"
         + (f" (remaking stale scenes {stale})" if stale else "")
         + (f" (continuing short scenes {short} up to {r.arrangement_budget} arrangements)" if short else ""))
-    jobs = [(r, p, str(work_dir), p.index in short) for p in todo]
+    jobs = [(r, p, str(work_dir), p.index in short) for p in (todo[::-1] if reverse else todo)]
     if workers <= 1:
         _worker_init()
         for job in jobs:
@@ -467,6 +471,30 @@ def build_scenes(r: SuiteRecipe, work_dir, workers: int = 1, limit: int | None =
             for path in pool.imap_unordered(_build_one, jobs):
                 log(f"made {path}")
     return [_scene_path(work_dir, p) for p in plans]
+
+
+def merge_work_dirs(source, target) -> list[str]:
+    """Bring ``source``'s scene files into ``target`` where they are further along: a
+    finished ``scene_NNN.json`` wins over a progress file (which it replaces), and of two
+    progress files the one with more arrangements tried. Returns the names taken. (A
+    scene's result does not depend on where it was made, so either copy is the scene.)"""
+    source, target = Path(source), Path(target)
+    taken = []
+
+    def progress_next(path: Path) -> int:
+        return json.loads(path.read_text())["state"]["next"] if path.exists() else -1
+
+    for done in sorted(source.glob("scene_[0-9][0-9][0-9].json")):
+        if not (target / done.name).exists():
+            atomic_write_text(target / done.name, done.read_text())
+            (target / done.name).with_suffix(".progress.json").unlink(missing_ok=True)
+            taken.append(done.name)
+    for progress in sorted(source.glob("scene_*.progress.json")):
+        finished = target / progress.name.replace(".progress.json", ".json")
+        if not finished.exists() and progress_next(progress) > progress_next(target / progress.name):
+            atomic_write_text(target / progress.name, progress.read_text())
+            taken.append(progress.name)
+    return taken
 
 
 def load_scene_results(r: SuiteRecipe, work_dir) -> list[dict]:

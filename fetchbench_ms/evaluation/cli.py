@@ -19,7 +19,8 @@ def cmd_eval(args) -> int:
     records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
-                       retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model)
+                       retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
+                       policy_checkpoint=args.policy_checkpoint)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -46,6 +47,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
                    help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
                         "ours: assets/checkpoints/cgn_ours.pt)")
+    p.add_argument("--policy-checkpoint", default=None,
+                   help="e2e-* / twostage-* / cgn-imit-* methods: the policy checkpoint (default: assets/checkpoints/imit_KIND.pt)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

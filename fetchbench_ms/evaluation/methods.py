@@ -29,9 +29,10 @@ ERROR_FAILURE = "error"  # the failure class of a task that crashed or timed out
 
 
 def builtin_methods() -> tuple[str, ...]:
+    from ..policies.deploy import POLICY_METHODS
     from ..solutions.sense_plan_act import METHODS
 
-    return (*METHODS, IDLE)
+    return (*METHODS, *POLICY_METHODS, IDLE)
 
 
 @dataclass(frozen=True)
@@ -65,8 +66,11 @@ class Method:
     run: Callable  # run(env, seed) -> record dict
 
 
-def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained") -> Method:
-    """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods."""
+def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
+                   policy_checkpoint: Optional[str] = None) -> Method:
+    """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
+    ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one)."""
+    from ..policies import deploy
     from ..solutions.sense_plan_act import METHODS, needs_pointcloud, solve
 
     if name in METHODS:
@@ -80,6 +84,20 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained")
             return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model)
 
         return Method(name, obs_mode, run)
+    if name in deploy.POLICY_METHODS:
+        deploy.resolve_checkpoint(name, policy_checkpoint)  # missing: the error says how to train one
+        if name in deploy.HYBRID_METHODS:
+            from ..grasping import load_model
+
+            load_model(grasp_model)
+
+            def run(env, seed):
+                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model)
+        else:
+            def run(env, seed):
+                return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS)
+
+        return Method(name, deploy.policy_obs_mode(name), run)
     if name == IDLE:
         return Method(name, "none", run_idle)
     if ":" in name:
@@ -118,9 +136,10 @@ class RunnerSpec:
     retries: int = 1
     video_dir: Optional[str] = None  # record a GIF of every failed task here
     grasp_model: str = "pretrained"  # cgn-* methods: Contact-GraspNet weight set
+    policy_checkpoint: Optional[str] = None  # imitation methods: checkpoint (default: the shipped one)
 
     def make(self) -> "TaskRunner":
-        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model)
+        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -131,8 +150,8 @@ class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
-                 grasp_model: str = "pretrained"):
-        self.method = resolve_method(method_name, retries, grasp_model)
+                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None):
+        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint)
         self.video_dir = video_dir
         self.envs: dict = {}
 

@@ -108,6 +108,10 @@ class SolveConfig:
     repeatable_planning: bool = False
     retry_target_moved: float = 0.12  # a retry needs the target moved <= this
     retry_others_moved: float = 0.10  # and every other object moved < this
+    # The hybrid methods (fetchbench_ms.policies.deploy): after the gripper closed, this
+    # callable ``(env, state, executor) -> failure class or None`` retrieves instead of the
+    # lift + planned retrieval. None: the planner retrieves.
+    retrieval: object = None
 
 
 @dataclass
@@ -356,6 +360,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.stage = "close"
     ex.hold(GRIPPER_CLOSED, cfg.close_seconds)
     state.stage = "retrieve"
+    if cfg.retrieval is not None:
+        return cfg.retrieval(env, state, ex)
     T_lift = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
     T_lift[2, 3] += cfg.lift_height  # the base is upright: base z is world z
     lift = state.timed(_follow_cartesian, robot, ex.q, [T_lift], None)

@@ -1,0 +1,300 @@
+"""What the three imitation trainers share: the frames on the device, batches, the run folder
+(log, checkpoint, resume, time limit), validation (held-out demos' loss; success on `val`
+suite tasks through `fetchbench eval`) and the export of the shipped checkpoint.
+
+The trainers (``train_mlp.py``, ``train_transformer.py``, ``train_diffusion.py``) hold their
+arguments, their model and their loss; read one of them first.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional
+
+import numpy as np
+import torch
+
+from fetchbench_ms.policies.agent import save_checkpoint
+from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_training_files
+from fetchbench_ms.policies.networks import EncoderConfig
+from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
+
+EVAL_METHOD = {"mlp": "e2e-mlp", "transformer": "e2e-transformer", "diffusion": "e2e-diffusion"}
+
+
+@dataclass
+class TrainArgs:
+    data: str = "data/imit"  # folder of *.imit.h5 training files (scripts/convert_demos_for_imitation.py)
+    run: str = ""  # run folder: log, checkpoint (re-running resumes); default runs/imit/<kind>
+    device: str = "cuda" if torch.cuda.is_available() else "cpu"
+    seed: int = 0
+    steps: int = 30000
+    batch_size: int = 256
+    lr: float = 3e-4
+    lr_final: float = 1e-5  # cosine decay to this
+    warmup: int = 500
+    weight_decay: float = 1e-4
+    grad_clip: float = 1.0
+    scene_points: int = POLICY_SIZES["scene"]
+    target_points: int = POLICY_SIZES["target"]
+    robot_points: int = POLICY_SIZES["robot"]
+    termination_weight: float = 1.0
+    termination_pos_weight: float = 10.0  # few frames end a stage
+    termination_window: int = 3  # the last k frames of a stage are labelled terminal
+    point_jitter: float = 0.002  # m, Gaussian noise on the training points
+    val_fraction: float = 0.05  # demos held out (by task) for the validation loss
+    val_every: int = 1000  # steps between validation losses
+    eval_every: int = 10000  # steps between success evaluations on val tasks (and at the end); 0: never
+    eval_tasks: int = 32  # the first N tasks of the val suite
+    eval_workers: int = 16
+    time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
+    log_every: int = 100
+    ckpt_every: int = 1000
+    export: bool = False  # write the shipped checkpoint (--export-path) and its JSON when done
+    export_path: str = ""  # default assets/checkpoints/imit_<kind>.pt
+    point_dims: tuple[int, ...] = (64, 128, 256)  # the shared PointNet's layer widths
+
+    def sizes(self) -> dict:
+        return {"scene": self.scene_points, "target": self.target_points, "robot": self.robot_points}
+
+    def encoder(self) -> EncoderConfig:
+        return EncoderConfig(sizes=self.sizes(), point_dims=tuple(self.point_dims), point_out=self.point_dims[-1])
+
+
+# ----------------------------------------------------------------------------- data
+def data_hash(data_dir: str) -> str:
+    """The dataset's hash: its manifest's (which lists every chunk's hash), else the files'."""
+    root = Path(data_dir)
+    manifest = root / "manifest.json" if root.is_dir() else None
+    if manifest is not None and manifest.is_file():
+        return sha256_file(manifest)
+    files = sorted(root.glob("*.imit.h5")) if root.is_dir() else [root]
+    return sha256_bytes("".join(sha256_file(p) for p in files).encode())
+
+
+def _is_val_task(task_id: str, fraction: float) -> bool:
+    return int(hashlib.sha256(str(task_id).encode()).hexdigest()[:8], 16) / 2**32 < fraction
+
+
+class Frames:
+    """The training frames as device tensors, with the indices a batch needs."""
+
+    def __init__(self, raw: dict, device: str, args: TrainArgs):
+        self.device = torch.device(device)
+        t = lambda x: torch.from_numpy(np.ascontiguousarray(x)).to(self.device)  # noqa: E731
+        self.points, self.point_label = t(raw["points"]), t(raw["point_label"])
+        self.qpos, self.tcp, self.action = t(raw["qpos"]), t(raw["tcp"]), t(raw["action"])
+        self.stage = t(raw["stage"].astype(np.int64))
+        F_ = len(raw["qpos"])
+        # Segments: runs of one stage within one demo; a frame's history and action chunk
+        # stay inside its segment (padded by its first frame / by holding).
+        episode = np.repeat(np.arange(len(raw["episode_length"])), raw["episode_length"])
+        new = np.r_[True, (raw["stage"][1:] != raw["stage"][:-1]) | (episode[1:] != episode[:-1])]
+        seg_id = np.cumsum(new) - 1
+        starts = np.flatnonzero(new)
+        ends = np.r_[starts[1:], F_]  # exclusive
+        self.seg_start = t(starts[seg_id])
+        self.seg_end = t(ends[seg_id])
+        # Terminal: the stage's last `termination_window` frames, for segments that end a stage.
+        stage_ends = np.zeros(len(starts), bool)
+        stage_ends[seg_id[raw["stage_end"]]] = True
+        to_end = ends[seg_id] - np.arange(F_)
+        self.terminal = t(stage_ends[seg_id] & (to_end <= args.termination_window))
+        policy_frame = np.isin(raw["stage"], POLICY_STAGES)
+        tasks = [e.get("task_id") or f"{e['source']}#{e['episode_id']}" for e in raw["episodes"]]
+        val_task = np.array([_is_val_task(task, args.val_fraction) for task in tasks])
+        if val_task.all() or (not val_task.any() and len(set(tasks)) > 1):
+            # A small dataset: hold out (only) the last task's demos.
+            val_task = np.array([task == tasks[-1] for task in tasks])
+        frame_val = val_task[episode]
+        self.train_index = t(np.flatnonzero(policy_frame & ~frame_val))
+        self.val_index = t(np.flatnonzero(policy_frame & frame_val))
+        self.demos = {"train": int((~val_task).sum()), "val": int(val_task.sum())}
+
+    def observation(self, index: torch.Tensor, history: int = 1, jitter: float = 0.0,
+                    generator: Optional[torch.Generator] = None) -> dict:
+        """The model input of frames ``index`` [B]: [B, ...] (history 1) or [B, H, ...] (oldest first)."""
+        if history == 1:
+            rows = index
+        else:
+            offsets = torch.arange(1 - history, 1, device=self.device)
+            rows = torch.maximum(index[:, None] + offsets, self.seg_start[index][:, None])
+        points = self.points[rows].float()
+        if jitter:
+            points = points + jitter * torch.randn(points.shape, device=self.device, generator=generator)
+        return {"points": points, "point_label": self.point_label[rows], "qpos": self.qpos[rows],
+                "tcp": self.tcp[rows], "stage": self.stage[rows]}
+
+    def action_chunk(self, index: torch.Tensor, horizon: int) -> torch.Tensor:
+        """[B, horizon, 7]: the actions from each frame on; past its segment's end, zeros (the arm holds)."""
+        rows = index[:, None] + torch.arange(horizon, device=self.device)
+        inside = rows < self.seg_end[index][:, None]
+        return self.action[rows.clamp(max=len(self.action) - 1)] * inside[..., None]
+
+
+def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:
+    raw = load_training_files(args.data, sizes=args.sizes())
+    frames = Frames(raw, args.device, args)
+    log(f"data {args.data}: {len(raw['episodes'])} demos ({frames.demos['train']} train, {frames.demos['val']} val), "
+        f"{len(raw['qpos'])} frames ({len(frames.train_index)} train / {len(frames.val_index)} val policy frames), "
+        f"{raw['points'].nbytes / 1e9:.2f} GB of points")
+    if len(frames.train_index) == 0:
+        raise ValueError(f"no training frame in {args.data}")
+    return frames, data_hash(args.data)
+
+
+# ----------------------------------------------------------------------------- the loop
+def lr_at(step: int, args: TrainArgs) -> float:
+    if step < args.warmup:
+        return args.lr * (step + 1) / args.warmup
+    progress = (step - args.warmup) / max(1, args.steps - args.warmup)
+    return args.lr_final + 0.5 * (args.lr - args.lr_final) * (1 + math.cos(math.pi * min(1.0, progress)))
+
+
+def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
+          batch_loss: Callable[[torch.nn.Module, Frames, torch.Tensor, torch.Generator], dict]) -> dict:
+    """Train ``make_model()`` (built after seeding) with ``batch_loss(model, frames, index,
+    generator) -> {"loss": ..., ...}``; returns the model and the last figures. Resumes from
+    ``<run>/checkpoint.pt``."""
+    run = Path(args.run or f"runs/imit/{kind}")
+    run.mkdir(parents=True, exist_ok=True)
+    log_file = open(run / "log.txt", "a")
+    command = " ".join(shlex.quote(a) for a in [sys.executable.rsplit("/", 1)[-1], *sys.argv])
+
+    def log(message: str) -> None:
+        line = f"[{time.strftime('%H:%M:%S')}] {message}"
+        print(line, flush=True)
+        log_file.write(line + "\n")
+        log_file.flush()
+
+    t_start = time.perf_counter()
+    frames, dhash = load_frames(args, log)
+    torch.manual_seed(args.seed)
+    model = make_model().to(args.device)
+    n_params = sum(p.numel() for p in model.parameters())
+    optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=args.weight_decay)
+    generator = torch.Generator(device=args.device).manual_seed(args.seed)
+    step, history, ckpt = 0, {"val_loss": [], "val_success": []}, run / "checkpoint.pt"
+    if ckpt.is_file():
+        saved = torch.load(ckpt, map_location=args.device, weights_only=False)
+        if saved["data_sha256"] != dhash:
+            raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]} vs {dhash[:12]}): "
+                             "use another --run")
+        model.load_state_dict(saved["model"])
+        optimizer.load_state_dict(saved["optimizer"])
+        generator.set_state(saved["generator"].cpu())  # (map_location moved it)
+        step, history = saved["step"], saved["history"]
+        log(f"resumed at step {step}")
+    else:
+        log(f"{kind}: {n_params / 1e6:.2f} M parameters; {command}")
+
+    def save() -> None:
+        payload = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
+                   "step": step, "history": history, "args": dataclasses.asdict(args), "data_sha256": dhash}
+        tmp = ckpt.with_name(ckpt.name + ".tmp")
+        torch.save(payload, tmp)
+        tmp.replace(ckpt)
+
+    def val_loss() -> dict:
+        if len(frames.val_index) == 0:
+            return {}
+        model.eval()
+        sums: dict = {}
+        val_gen = torch.Generator(device=args.device).manual_seed(1234)  # the same noise every time
+        with torch.no_grad():
+            for chunk in frames.val_index.split(args.batch_size):
+                out = batch_loss(model, frames, chunk, val_gen)
+                for k, v in out.items():
+                    sums[k] = sums.get(k, 0.0) + float(v) * len(chunk)
+        model.train()
+        return {k: v / len(frames.val_index) for k, v in sums.items()}
+
+    def val_success() -> dict:
+        ckpt_path = run / "eval" / f"step_{step}.pt"
+        ckpt_path.parent.mkdir(parents=True, exist_ok=True)
+        save_checkpoint(ckpt_path, model, {"step": step})
+        from fetchbench_ms.evaluation.metrics import summarize
+        from fetchbench_ms.evaluation.runner import evaluate
+
+        records = evaluate(EVAL_METHOD[kind], run / "eval" / f"step_{step}", suite="val", tasks=f"0:{args.eval_tasks}",
+                           workers=args.eval_workers, policy_checkpoint=str(ckpt_path), progress=False)
+        summary = summarize(records)
+        return {"step": step, "tasks": len(records), "success_rate": summary["all"]["success_rate"],
+                "errors": summary["all"]["errors"]}
+
+    def evaluate_now() -> None:
+        save()  # an evaluation takes minutes: do not lose the steps before it (its results resume too)
+        result = val_success()
+        history["val_success"].append(result)
+        save()
+        log(f"val success step {step}: {result['success_rate']:.3f} on {result['tasks']} val tasks "
+            f"({result['errors']} errors)")
+
+    model.train()
+    last: dict = {}
+    t_log, stopped = time.perf_counter(), False
+    while step < args.steps:
+        for group in optimizer.param_groups:
+            group["lr"] = lr_at(step, args)
+        pick = torch.randint(len(frames.train_index), (args.batch_size,), device=args.device, generator=generator)
+        out = batch_loss(model, frames, frames.train_index[pick], generator)
+        optimizer.zero_grad(set_to_none=True)
+        out["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), args.grad_clip)
+        optimizer.step()
+        step += 1
+        if step % args.log_every == 0 or step == 1:
+            last = {k: round(float(v.detach()), 5) for k, v in out.items()}
+            rate = args.log_every / max(time.perf_counter() - t_log, 1e-9) if step > 1 else 0.0
+            log(f"step {step} lr {lr_at(step, args):.2e} " + " ".join(f"{k} {v:.4f}" for k, v in last.items())
+                + f" ({rate:.1f} steps/s)")
+            t_log = time.perf_counter()
+        if step % args.val_every == 0 or step == args.steps:
+            figures = val_loss()
+            if figures:
+                history["val_loss"].append({"step": step, **{k: round(v, 5) for k, v in figures.items()}})
+                log(f"val step {step} " + " ".join(f"{k} {v:.4f}" for k, v in figures.items()))
+        if args.eval_every and args.eval_tasks and step % args.eval_every == 0 and step < args.steps:
+            evaluate_now()
+        if step % args.ckpt_every == 0:
+            save()
+        if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < args.steps:
+            save()
+            log(f"time limit: checkpoint at step {step}; run the same command again to resume")
+            stopped = True
+            break
+    if not stopped:
+        save()
+        # The final evaluation, also when a call was cut off during it (re-running finishes it).
+        if args.eval_every and args.eval_tasks and not any(r["step"] == step for r in history["val_success"]):
+            evaluate_now()
+        log(f"done: {step} steps")
+        if args.export:
+            export(model, kind, args, command, dhash, step, history, last, log)
+    return {"model": model, "step": step, "last": last, "history": history, "stopped": stopped}
+
+
+def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: int, history: dict, last: dict,
+           log) -> Path:
+    """``assets/checkpoints/imit_<kind>.pt`` (fp16) and ``.json`` beside it: the command, the
+    data hash, the steps and the validation figures."""
+    from fetchbench_ms.policies.deploy import default_checkpoint
+
+    path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"kind": kind, "step": step, "data_sha256": dhash, "command": command,
+            "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
+                           "success": history["val_success"]}}
+    size = save_checkpoint(path, model, meta)
+    atomic_write_text(path.with_suffix(".json"), json.dumps(
+        {**meta, "args": dataclasses.asdict(args), "last_train_loss": last, "checkpoint_bytes": size,
+         "validation_loss_history": history["val_loss"]}, indent=1))
+    log(f"exported {path} ({size / 1e6:.2f} MB)")
+    return path

@@ -1,0 +1,215 @@
+"""Trained imitation policies as ManiSkill agents, and the re-grasp state machine.
+
+    policy = ImitationPolicy.load("assets/checkpoints/imit_e2e_mlp.pt")
+    env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud", control_mode="pd_joint_delta_pos")
+    obs, _ = env.reset(seed=0)
+    policy.reset(episode_seed=0)
+    while not policy.done:
+        obs, *_ = env.step(policy.get_action(obs))
+
+``get_action`` returns a ``pd_joint_delta_pos`` action [B, 8] (7 normalised arm deltas, the
+gripper: 1 open, -1 closed). The arm comes from the network; the gripper and the stage the
+network is told come from ``ReGraspStateMachine`` (the paper's end-to-end deployment):
+
+    APPROACH --termination--> CLOSE --close_steps--> RETRIEVE --termination--> DONE
+        ^                                              |
+        +--- reopen_steps --- REOPEN <-- fingers fully closed (grasped nothing)
+
+``regrasp=False`` is the paper's two-stage deployment (approach, then retrieve, no way back).
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, observation_input
+from .networks import build_policy, config_from_dict, config_to_dict
+
+APPROACH, CLOSE, RETRIEVE, REOPEN, DONE = "approach", "close", "retrieve", "reopen", "done"
+PHASES = (APPROACH, CLOSE, RETRIEVE, REOPEN, DONE)
+GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0
+#: The phase the network acts in -> the demo stage id it was trained with.
+PHASE_STAGE = {APPROACH: STAGE_APPROACH, RETRIEVE: STAGE_RETRIEVE}
+CHECKPOINT_VERSION = 1
+
+
+@dataclass
+class ReGraspConfig:
+    termination_threshold: float = 0.5
+    close_steps: int = 30  # 1.5 s at 20 Hz, as the demos close
+    reopen_steps: int = 10
+    # Fingers (sum of the two finger joints) below this in retrieval: closed on nothing.
+    closed_gap: float = 0.002  # m
+    settle_steps: int = 5  # retrieval steps before the gap is judged (the fingers may still move)
+    min_approach_steps: int = 5  # no termination before this many approach steps
+    min_retrieve_steps: int = 10  # nor before this many retrieval steps (a demo retrieves in ~100)
+    regrasp: bool = True  # False: the two-stage deployment
+    max_regrasps: int = 3
+
+
+@dataclass
+class ReGraspStateMachine:
+    """The deployment's phases. Per control step: ``begin_step(finger_gap)`` moves on by time
+    and by the gripper; the network then acts if ``acting`` and ``end_step(p)`` takes its
+    termination probability."""
+
+    config: ReGraspConfig = field(default_factory=ReGraspConfig)
+    phase: str = APPROACH
+    steps_in_phase: int = 0
+    regrasps: int = 0
+    log: list = field(default_factory=list)  # (step, from, to) of every transition
+    step: int = 0
+
+    def _go(self, phase: str) -> None:
+        self.log.append((self.step, self.phase, phase))
+        self.phase, self.steps_in_phase = phase, 0
+
+    def begin_step(self, finger_gap: float) -> str:
+        cfg = self.config
+        if self.phase == CLOSE and self.steps_in_phase >= cfg.close_steps:
+            self._go(RETRIEVE)
+        elif self.phase == REOPEN and self.steps_in_phase >= cfg.reopen_steps:
+            self.regrasps += 1
+            self._go(APPROACH)
+        elif (self.phase == RETRIEVE and cfg.regrasp and self.regrasps < cfg.max_regrasps
+              and self.steps_in_phase >= cfg.settle_steps and finger_gap < cfg.closed_gap):
+            self._go(REOPEN)
+        return self.phase
+
+    @property
+    def acting(self) -> bool:
+        """Whether the network commands the arm in this phase (else the arm holds)."""
+        return self.phase in PHASE_STAGE
+
+    @property
+    def gripper(self) -> float:
+        return GRIPPER_OPEN if self.phase in (APPROACH, REOPEN) else GRIPPER_CLOSED
+
+    def end_step(self, termination_prob: float | None = None) -> None:
+        cfg = self.config
+        fired = termination_prob is not None and termination_prob > cfg.termination_threshold
+        self.steps_in_phase += 1
+        self.step += 1
+        if self.phase == APPROACH and fired and self.steps_in_phase >= cfg.min_approach_steps:
+            self._go(CLOSE)
+        elif self.phase == RETRIEVE and fired and self.steps_in_phase >= cfg.min_retrieve_steps:
+            self._go(DONE)
+
+
+def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: bool = True) -> int:
+    """The model's weights (fp16 by default) and config, plus ``meta`` (training command,
+    data hash, ...), written atomically; returns the file size."""
+    import io
+
+    from ..utils.io import atomic_write_bytes
+
+    state = {k: (v.half() if fp16 and v.is_floating_point() else v).cpu() for k, v in model.state_dict().items()}
+    payload = {"version": CHECKPOINT_VERSION, "kind": model.kind, "config": config_to_dict(model.cfg),
+               "state_dict": state, "meta": meta}
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+    return len(buffer.getvalue())
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no policy checkpoint at {path}")
+    payload = torch.load(path, map_location="cpu", weights_only=False)
+    if payload.get("version") != CHECKPOINT_VERSION:
+        raise ValueError(f"{path}: checkpoint version {payload.get('version')}, this code reads {CHECKPOINT_VERSION}")
+    model = build_policy(payload["kind"], config_from_dict(payload["kind"], payload["config"]))
+    model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()})
+    return model.to(device).eval(), payload.get("meta", {})
+
+
+class ImitationPolicy:
+    """A trained policy with its observation history, action queue and state machine."""
+
+    def __init__(self, model: torch.nn.Module, meta: dict | None = None, device: str | torch.device = "cpu",
+                 regrasp: ReGraspConfig | None = None, seed: int = 0):
+        self.model, self.meta, self.device = model.to(device).eval(), meta or {}, torch.device(device)
+        self.regrasp_config = regrasp or ReGraspConfig()
+        self.seed = seed
+        self.reset()
+
+    @classmethod
+    def load(cls, path: str | Path, device: str | torch.device = "cpu", **kwargs) -> "ImitationPolicy":
+        model, meta = load_model(path, device)
+        return cls(model, meta, device, **kwargs)
+
+    def reset(self, episode_seed: int | None = None, phase: str = APPROACH) -> None:
+        """A new episode (``phase``: where it starts; the hybrid methods start in retrieval)."""
+        if phase not in PHASES:
+            raise ValueError(f"unknown phase {phase!r}; valid: {', '.join(PHASES)}")
+        self.machine = ReGraspStateMachine(self.regrasp_config, phase=phase)
+        self.episode_seed = episode_seed
+        self.history: deque = deque(maxlen=self.model.history)
+        self.queue: deque = deque()
+        self.last_phase = phase
+        self.generator = torch.Generator(device=self.device).manual_seed(
+            int(self.seed if episode_seed is None else episode_seed) % 2**63)
+        self.inference_time = 0.0
+        self.steps = 0
+
+    @property
+    def done(self) -> bool:
+        return self.machine.phase == DONE
+
+    def _batch(self, step_input: PolicyInput, stage: int) -> dict:
+        """The model's input from the history (oldest first; at a phase's start the first
+        step is repeated, as training windows are padded)."""
+        frames = list(self.history)
+        frames = [frames[0]] * (self.model.history - len(frames)) + frames
+        obs = {k: torch.from_numpy(np.stack([getattr(f, k) for f in frames], axis=1)).to(self.device)
+               for k in ("points", "point_label", "qpos", "tcp")}
+        obs["stage"] = torch.full(obs["qpos"].shape[:2], stage, dtype=torch.long, device=self.device)
+        if self.model.history == 1:
+            obs = {k: v[:, 0] for k, v in obs.items()}
+        return obs
+
+    def get_action(self, obs: dict) -> np.ndarray:
+        """The ``pd_joint_delta_pos`` action [1, 8] for a FetchBench observation (compact or raw
+        point cloud, one sub-scene)."""
+        step_input = observation_input(obs, self.model.cfg.encoder.sizes, self.episode_seed, self.steps)
+        qpos = step_input.qpos[0]
+        phase = self.machine.begin_step(float(qpos[7] + qpos[8]))
+        if phase != self.last_phase:  # a new phase: its own history and action chunk
+            self.history.clear()
+            self.queue.clear()
+            self.last_phase = phase
+        arm = np.zeros(ARM_DOF, np.float32)
+        termination = None
+        if self.machine.acting:
+            self.history.append(step_input)
+            t = time.perf_counter()
+            if not self.queue or self.model.kind != "diffusion":
+                actions, term = self._act(self._batch(step_input, PHASE_STAGE[phase]))
+                self.queue = deque(actions[0])
+            else:  # an action chunk in progress: only the termination output is fresh
+                _, term = self._act(self._batch(step_input, PHASE_STAGE[phase]), termination_only=True)
+            termination = float(term[0])
+            arm = np.asarray(self.queue.popleft(), np.float32)
+            self.inference_time += time.perf_counter() - t
+        action = np.concatenate([np.clip(arm, -1, 1), [self.machine.gripper]]).astype(np.float32)
+        self.machine.end_step(termination)
+        self.steps += 1
+        return action[None]
+
+    def _act(self, batch: dict, termination_only: bool = False):
+        with torch.no_grad():
+            if self.model.kind == "diffusion":
+                if termination_only:
+                    cond = self.model.condition(batch)
+                    return None, torch.sigmoid(self.model.termination(cond)[:, 0]).cpu().numpy()
+                actions, term = self.model.act(batch, generator=self.generator)
+            else:
+                actions, term = self.model.act(batch)
+        return actions.cpu().numpy(), term.cpu().numpy()
+

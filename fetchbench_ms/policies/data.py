@@ -1,0 +1,320 @@
+"""Imitation data: what a policy sees of an observation, and the compact training format.
+
+The Fetch dataset's demos (``fetchbench demos run``) store env states and ``pd_joint_pos``
+actions; ManiSkill's replay tool renders them into ``compact_pointcloud`` observations with
+``pd_joint_delta_pos`` actions (``python -m fetchbench_ms.replay_trajectory -c
+pd_joint_delta_pos -o compact_pointcloud --save-traj``): 22,528 points a frame, ~139 KB.
+5,000 trajectories of ~200 frames would be ~140 GB, so ``scripts/convert_demos_for_imitation.py``
+keeps, at conversion time, only what the policies read (``POLICY_SIZES``: 1,024 scene + 512
+target + 256 robot points, farthest-point sampled within each segment, fp16, with their
+labels) plus the joint positions, the TCP pose, the arm action and the stage labels of the
+source demo: about 12.6 KB a frame (docs/imitation.md), ~12.6 GB for 1M frames, which fits
+in an H100's memory whole.
+
+A training file (``*.imit.h5``) holds frames of whole trajectories back to back:
+
+- ``points`` [F, N, 3] float16, ``point_label`` [F, N] uint8 (``envs.pointcloud.LABEL_*``):
+  the segments scene, target, robot one after the other, sizes in the ``sizes`` attribute;
+- ``qpos`` [F, 9] float32 (arm + fingers), ``tcp`` [F, 9] float32 (``tcp_features``);
+- ``action`` [F, 7] float32: the normalised ``pd_joint_delta_pos`` arm action of the frame
+  (x 0.1 rad), ``gripper`` [F] float32 (its gripper action: 1 open, -1 closed);
+- ``stage`` [F] int8 (0 approach, 1 close, 2 retrieve) and ``stage_end`` [F] bool;
+- ``episode_start`` [E] int64, ``episode_length`` [E] int64, and the attribute ``episodes``:
+  JSON of each trajectory's source (file, episode id, task id, grasp id).
+
+The same functions turn a live observation into the policy's input (``PolicyInput``), so
+training and deployment see the same numbers.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..envs.pointcloud import (COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET,
+                               compact_pointcloud_obs, compact_seed)
+from ..grasping.pointops import farthest_point_sample
+
+#: Points per segment the policies read (scene, target, robot), farthest-point sampled
+#: from the compact cloud's blocks.
+POLICY_SIZES = {"scene": 1024, "target": 512, "robot": 256}
+#: Farthest-point sampling starts from at most this many candidates per point kept (every
+#: k-th point of a compact block, itself a seeded random voxel draw): FPS costs
+#: candidates x kept, and the full 16,384-point scene block would triple a CPU step's cost.
+FPS_CANDIDATES_PER_POINT = 4
+#: Per-point one-hot classes (a point labelled none, i.e. an unseen segment's filler, is all zeros).
+POINT_CLASSES = (LABEL_FURNITURE, LABEL_OBJECT, LABEL_TARGET, LABEL_ROBOT)
+ARM_DOF = 7
+ARM_DELTA_SCALE = 0.1  # rad: ManiSkill's Panda pd_joint_delta_pos maps [-1, 1] to +-0.1 rad
+#: Stages of the demos (solutions.sense_plan_act.STAGES) the policies act in; "close" is
+#: scripted at deployment (the arm holds while the gripper closes), so its frames are not learned.
+STAGE_APPROACH, STAGE_CLOSE, STAGE_RETRIEVE = 0, 1, 2
+POLICY_STAGES = (STAGE_APPROACH, STAGE_RETRIEVE)
+FORMAT_VERSION = 1
+
+
+def segment_slices(sizes: dict) -> dict:
+    """name -> slice of that segment's points in a cloud laid out scene, target, robot."""
+    out, start = {}, 0
+    for name in ("scene", "target", "robot"):
+        out[name] = slice(start, start + sizes[name])
+        start += sizes[name]
+    return out
+
+
+def subsample_compact(xyz, label, sizes: dict = POLICY_SIZES, compact_sizes: dict = COMPACT_SIZES,
+                      device: str | torch.device = "cpu", batch: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Farthest-point sample each segment block of compact clouds (``xyz`` [F, M, 3], ``label``
+    [F, M], laid out as ``compact_sizes``) down to ``sizes``; returns (points [F, N, 3]
+    float16, labels [F, N] uint8). The candidates are every k-th point of the block
+    (``FPS_CANDIDATES_PER_POINT``). Deterministic: the sampling starts at each block's first
+    point (itself a seeded random draw of the compact cloud)."""
+    for name in sizes:
+        if sizes[name] > compact_sizes[name]:
+            raise ValueError(f"{name}: {sizes[name]} points asked, the compact cloud has {compact_sizes[name]}")
+    xyz = np.asarray(xyz)
+    label = np.asarray(label)
+    source, target = segment_slices(compact_sizes), segment_slices(sizes)
+    n_out = sum(sizes.values())
+    points = np.empty((len(xyz), n_out, 3), np.float16)
+    labels = np.empty((len(xyz), n_out), np.uint8)
+    for f0 in range(0, len(xyz), batch):
+        block_xyz = torch.from_numpy(xyz[f0:f0 + batch].astype(np.float32)).to(device)
+        block_label = torch.from_numpy(label[f0:f0 + batch].astype(np.int64)).to(device)
+        for name in ("scene", "target", "robot"):
+            stride = max(1, compact_sizes[name] // (FPS_CANDIDATES_PER_POINT * sizes[name]))
+            seg_xyz = block_xyz[:, source[name]][:, ::stride]
+            index = farthest_point_sample(seg_xyz, sizes[name])
+            picked = torch.gather(seg_xyz, 1, index[..., None].expand(-1, -1, 3))
+            points[f0:f0 + batch, target[name]] = picked.cpu().numpy().astype(np.float16)
+            seg_label = block_label[:, source[name]][:, ::stride]
+            labels[f0:f0 + batch, target[name]] = torch.gather(seg_label, 1, index).cpu().numpy()
+    return points, labels
+
+
+def tcp_features(qpos) -> np.ndarray:
+    """[F, 9] float32: the TCP position in the base frame and the first two columns of its
+    rotation (a continuous 6-D rotation code), by the package's Panda FK from the arm joints."""
+    from ..planning.robot import panda
+
+    q = torch.as_tensor(np.asarray(qpos, dtype=np.float64)[:, :ARM_DOF])
+    T = panda().tcp_pose(q).numpy()
+    return np.concatenate([T[:, :3, 3], T[:, :3, 0], T[:, :3, 1]], axis=1).astype(np.float32)
+
+
+@dataclass
+class PolicyInput:
+    """What a policy reads at one step (numpy, batched [B, ...])."""
+
+    points: np.ndarray  # [B, N, 3] float16, base frame, segments scene/target/robot
+    point_label: np.ndarray  # [B, N] uint8
+    qpos: np.ndarray  # [B, 9] float32
+    tcp: np.ndarray  # [B, 9] float32
+
+
+def observation_input(obs: dict, sizes: dict = POLICY_SIZES, episode_seed: int | None = None,
+                      step: int = 0) -> PolicyInput:
+    """A ManiSkill observation of a FetchBench env to the policy's input.
+
+    ``obs_mode="compact_pointcloud"`` observations are used as they are; a raw
+    ``obs_mode="pointcloud"`` one (what the sense-plan-act methods read) is made compact first,
+    seeded as the env would (``compact_seed(episode_seed, step)``)."""
+    pcd = obs["pointcloud"]
+    if "xyz" not in pcd:
+        if "xyz_base" not in pcd:
+            raise ValueError("a policy reads obs_mode='compact_pointcloud' (or 'pointcloud') observations; "
+                             f"this one has pointcloud keys {sorted(pcd)}")
+        batch = len(pcd["xyz_base"])
+        seed = 0 if episode_seed is None else episode_seed
+        pcd = compact_pointcloud_obs(obs, [compact_seed(seed, step)] * batch)["pointcloud"]
+    xyz = _numpy(pcd["xyz"])
+    label = _numpy(pcd["seg"])
+    points, point_label = subsample_compact(xyz, label, sizes)
+    qpos = _numpy(obs["agent"]["qpos"]).astype(np.float32).reshape(len(points), -1)
+    return PolicyInput(points, point_label, qpos, tcp_features(qpos))
+
+
+def _numpy(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else np.asarray(x)
+
+
+# ----------------------------------------------------------------------- converted demos
+def _episode_key(episode: dict) -> str:
+    return json.dumps(episode.get("reset_kwargs", {}), sort_keys=True)
+
+
+def source_steps(converted_actions: np.ndarray, source_actions: np.ndarray) -> np.ndarray | None:
+    """The source step of each converted step, or None if they do not line up.
+
+    ManiSkill's conversion from ``pd_joint_pos`` (``from_pd_joint_pos``) takes one
+    ``pd_joint_delta_pos`` step per source step, or two when the delta to the source's target
+    had to be clipped to +-0.1 rad (the PD-tracked arm lags its targets): a clipped step
+    (an arm action at +-1) and the one after it belong to one source step. The gripper action
+    is copied, so it must agree step for step."""
+    clipped = np.abs(converted_actions[:, :ARM_DOF]).max(axis=1) >= 1.0
+    counts, k = [], 0
+    while k < len(converted_actions):
+        n = 2 if clipped[k] and k + 1 < len(converted_actions) else 1
+        counts.append(n)
+        k += n
+    if len(counts) != len(source_actions):
+        return None
+    index = np.repeat(np.arange(len(counts)), counts)
+    if np.abs(converted_actions[:, ARM_DOF] - source_actions[index, ARM_DOF]).max() > 1e-6:
+        return None
+    return index
+
+
+def match_converted_episodes(source_json: dict, converted_json: dict, source_h5, converted_h5,
+                             tolerance: float = 0.15) -> list[tuple[dict, dict, np.ndarray]]:
+    """Triples (source episode, converted episode, source step of each converted step). The
+    replay tool keeps the source order but drops episodes it could not replay and numbers its
+    output anew; several trajectories of one task share their reset kwargs, so a pair also
+    needs its steps to line up (``source_steps``) and about the same final arm joints (about:
+    the converted arm lags while the clipped deltas catch up, e.g. 0.06 rad 12 steps into a demo)."""
+    out, sources = [], list(source_json["episodes"])
+    k = 0
+    for converted in converted_json["episodes"]:
+        c_traj = converted_h5[f"traj_{converted['episode_id']}"]
+        c_actions = c_traj["actions"][:]
+        c_final = c_traj["obs"]["agent"]["qpos"][-1, :ARM_DOF]
+        for j in range(k, len(sources)):
+            source = sources[j]
+            if _episode_key(source) != _episode_key(converted):
+                continue
+            s_traj = source_h5[f"traj_{source['episode_id']}"]
+            index = source_steps(c_actions, s_traj["actions"][:])
+            if index is None:
+                continue
+            # ManiSkill's articulation state: root pose (7), root velocities (6), qpos, qvel.
+            s_qpos = s_traj["env_states"]["articulations"]["panda"][-1, 13:13 + ARM_DOF]
+            if np.abs(s_qpos - c_final).max() <= tolerance:
+                out.append((source, converted, index))
+                k = j + 1
+                break
+    return out
+
+
+def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes: dict = POLICY_SIZES,
+                     device: str = "cpu", log=print) -> dict:
+    """Frames of every converted trajectory (the replay tool's ``compact_pointcloud`` /
+    ``pd_joint_delta_pos`` output) that matches a source demo, in the training format's
+    arrays (see the module docstring), with the source's stage labels."""
+    import h5py
+
+    converted_path, source_path = Path(converted_path), Path(source_path)
+    source_json = json.loads(source_path.with_suffix(".json").read_text())
+    converted_json = json.loads(converted_path.with_suffix(".json").read_text())
+    control = converted_json["env_info"]["env_kwargs"].get("control_mode")
+    obs_mode = converted_json["env_info"]["env_kwargs"].get("obs_mode")
+    if control != "pd_joint_delta_pos" or obs_mode != "compact_pointcloud":
+        raise ValueError(f"{converted_path}: converted with control_mode={control!r}, obs_mode={obs_mode!r}; the "
+                         "policies need -c pd_joint_delta_pos -o compact_pointcloud")
+    parts: dict[str, list] = {k: [] for k in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage",
+                                                "stage_end")}
+    episodes = []
+    with h5py.File(source_path, "r") as source_h5, h5py.File(converted_path, "r") as converted_h5:
+        pairs = match_converted_episodes(source_json, converted_json, source_h5, converted_h5)
+        for source, converted, index in pairs:
+            c_traj = converted_h5[f"traj_{converted['episode_id']}"]
+            s_traj = source_h5[f"traj_{source['episode_id']}"]
+            actions = c_traj["actions"][:]
+            n = len(actions)
+            xyz = c_traj["obs"]["pointcloud"]["xyz"][:n]
+            label = c_traj["obs"]["pointcloud"]["seg"][:n]
+            points, point_label = subsample_compact(xyz, label, sizes, device=device)
+            qpos = c_traj["obs"]["agent"]["qpos"][:n].astype(np.float32)
+            parts["points"].append(points)
+            parts["point_label"].append(point_label)
+            parts["qpos"].append(qpos)
+            parts["tcp"].append(tcp_features(qpos))
+            parts["action"].append(actions[:, :ARM_DOF].astype(np.float32))
+            parts["gripper"].append(actions[:, ARM_DOF].astype(np.float32))
+            # A source step converted into two steps: its stage on both, its end flag on the second.
+            last_of_step = np.r_[index[1:] != index[:-1], True]
+            parts["stage"].append(s_traj["stage"][:][index].astype(np.int8))
+            parts["stage_end"].append(s_traj["stage_end"][:][index].astype(bool) & last_of_step)
+            episodes.append({"source": source_path.name, "episode_id": int(source["episode_id"]),
+                             "task_id": source.get("task_id"), "grasp_id": source.get("grasp_id"),
+                             "length": n, "source_length": int(len(s_traj["actions"]))})
+    dropped = len(converted_json["episodes"]) - len(pairs)
+    if dropped:
+        log(f"{converted_path.name}: {dropped} converted trajectories matched no source demo (left out)")
+    if not episodes:
+        return {"episodes": [], "sizes": dict(sizes)}
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    lengths = np.array([e["length"] for e in episodes], np.int64)
+    out["episode_length"] = lengths
+    out["episode_start"] = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    out["episodes"] = episodes
+    out["sizes"] = dict(sizes)
+    return out
+
+
+def write_training_file(path: str | Path, data: dict) -> int:
+    """Write ``convert_episodes``' arrays as a training file (temp name, then renamed);
+    returns its size in bytes."""
+    import os
+
+    import h5py
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["sizes"] = json.dumps(data["sizes"])
+        f.attrs["episodes"] = json.dumps(data["episodes"])
+        for key in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage", "stage_end",
+                    "episode_start", "episode_length"):
+            if key in data:
+                f.create_dataset(key, data=data[key])
+    os.replace(tmp, path)
+    return path.stat().st_size
+
+
+ARRAYS = ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage", "stage_end")
+
+
+def load_training_files(paths, sizes: dict | None = None) -> dict:
+    """Concatenate training files (``*.imit.h5``, or folders of them, in sorted order) into
+    one dict of numpy arrays plus ``episode_start`` / ``episode_length`` / ``episodes``."""
+    import h5py
+
+    files = []
+    for p in [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]:
+        files += sorted(p.glob("*.imit.h5")) if p.is_dir() else [p]
+    if not files:
+        raise FileNotFoundError(f"no training files (*.imit.h5) in {paths}; make them with "
+                                "scripts/convert_demos_for_imitation.py")
+    parts = {k: [] for k in ARRAYS}
+    episodes, lengths, file_sizes = [], [], None
+    for path in files:
+        with h5py.File(path, "r") as f:
+            if int(f.attrs.get("format_version", -1)) != FORMAT_VERSION:
+                raise ValueError(f"{path}: training format {f.attrs.get('format_version')}, this code reads "
+                                 f"{FORMAT_VERSION}: convert the demos again")
+            these = json.loads(f.attrs["sizes"])
+            if file_sizes is not None and these != file_sizes:
+                raise ValueError(f"{path}: point sizes {these} differ from the other files' {file_sizes}")
+            file_sizes = these
+            if "points" not in f:  # a chunk none of whose trajectories replayed
+                continue
+            for k in ARRAYS:
+                parts[k].append(f[k][:])
+            episodes += json.loads(f.attrs["episodes"])
+            lengths.append(f["episode_length"][:])
+    if sizes is not None and file_sizes != dict(sizes):
+        raise ValueError(f"the training files hold {file_sizes} points per segment, the policy wants {dict(sizes)}")
+    if not episodes:
+        raise ValueError(f"the training files in {paths} hold no trajectory")
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    lengths = np.concatenate(lengths)
+    out["episode_length"] = lengths
+    out["episode_start"] = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    out["episodes"] = episodes
+    out["sizes"] = file_sizes
+    out["files"] = [str(p) for p in files]
+    return out

@@ -1,0 +1,191 @@
+"""The imitation methods of ``fetchbench eval``: end-to-end and hybrid (CGN + planner + policy).
+
+- ``e2e-mlp`` / ``e2e-transformer`` / ``e2e-diffusion``: the policy drives the whole fetch
+  through the re-grasp state machine (``agent.ReGraspStateMachine``), then FetchBench's
+  10 s settle-and-hold judges; ``twostage-*``: the same without re-grasping (the paper's
+  TwoStageImit);
+- ``cgn-imit-mlp`` / ``cgn-imit-transformer`` / ``cgn-imit-diffusion`` (the paper's
+  CGN-CuRobo-Imit): the sense-plan-act pipeline (Contact-GraspNet grasps on the observed
+  target, the point-cloud world, the planner to the pre-grasp, the straight approach, the
+  gripper closing) and then the policy retrieves (``SolveConfig.retrieval``).
+
+Each loads its checkpoint from ``assets/checkpoints/imit_<method>.pt`` (``DEFAULT_CHECKPOINTS``)
+or from the one given (``fetchbench eval --policy-checkpoint PATH``). Policies speak
+``pd_joint_delta_pos``; the evaluation env drives ``pd_joint_pos`` (as the planners do), so a
+delta is sent as the target qpos + 0.1 rad x action, which is what ManiSkill's
+``pd_joint_delta_pos`` controller (targets from the current qpos) does with it.
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..utils.paths import assets_root
+from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
+from .data import ARM_DELTA_SCALE, ARM_DOF
+
+E2E_METHODS = {"e2e-mlp": "mlp", "e2e-transformer": "transformer", "e2e-diffusion": "diffusion"}
+#: The paper's TwoStageImit: the same policies without re-grasping (approach, then retrieve).
+TWO_STAGE_METHODS = {"twostage-mlp": "mlp", "twostage-transformer": "transformer", "twostage-diffusion": "diffusion"}
+HYBRID_METHODS = {"cgn-imit-mlp": "mlp", "cgn-imit-transformer": "transformer", "cgn-imit-diffusion": "diffusion"}
+POLICY_METHODS = {**E2E_METHODS, **TWO_STAGE_METHODS, **HYBRID_METHODS}
+#: Trainers per policy kind (named in the error when a checkpoint is missing).
+TRAINERS = {"mlp": "baselines/imitation/train_mlp.py", "transformer": "baselines/imitation/train_transformer.py",
+            "diffusion": "baselines/imitation/train_diffusion.py"}
+MAX_POLICY_STEPS = 600  # 30 s at 20 Hz: a demo takes ~200, re-grasps take more
+MAX_RETRIEVE_STEPS = 300
+
+
+def default_checkpoint(kind: str) -> Path:
+    return assets_root() / "checkpoints" / f"imit_{kind}.pt"
+
+
+def hybrid_approach_method() -> str:
+    """The sense-plan-act method the hybrids approach with: CGN grasps in the point-cloud world
+    with the trajectory optimiser where that method exists (the paper's CuRobo), else RRTConnect."""
+    from ..solutions.sense_plan_act import METHODS
+
+    return "cgn-ptd-trajopt" if "cgn-ptd-trajopt" in METHODS else "cgn-ptd-rrt"
+
+
+def policy_obs_mode(method: str) -> str:
+    """End-to-end methods read the compact cloud; the hybrids the raw cloud CGN needs (made compact per step)."""
+    return "pointcloud" if method in HYBRID_METHODS else "compact_pointcloud"
+
+
+def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
+    """The checkpoint a policy method loads; a clear error naming the trainer when absent."""
+    if method not in POLICY_METHODS:
+        raise ValueError(f"unknown imitation method {method!r}; valid: {', '.join(POLICY_METHODS)}")
+    kind = POLICY_METHODS[method]
+    path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
+            f"--export` (docs/imitation.md), or pass --policy-checkpoint PATH")
+    return path
+
+
+def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, **kwargs) -> ImitationPolicy:
+    import torch
+
+    path = resolve_checkpoint(method, checkpoint)
+    device = device or os.environ.get("FETCHBENCH_POLICY_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
+    policy = ImitationPolicy.load(path, device, **kwargs)
+    expected = POLICY_METHODS[method]
+    if policy.model.kind != expected:
+        raise ValueError(f"{method} needs a {expected} checkpoint; {path} holds a {policy.model.kind} policy")
+    return policy
+
+
+def env_action(env, action: np.ndarray) -> np.ndarray:
+    """A policy's ``pd_joint_delta_pos`` action for the env's controller (that mode, or
+    ``pd_joint_pos``: target = current arm qpos + 0.1 rad x the clipped delta)."""
+    mode = env.unwrapped.agent.control_mode
+    if mode == "pd_joint_delta_pos":
+        return action
+    if mode != "pd_joint_pos":
+        raise ValueError(f"imitation policies drive pd_joint_delta_pos or pd_joint_pos; the env uses {mode!r}")
+    qpos = env.unwrapped.agent.robot.get_qpos()[0].cpu().numpy()
+    out = action.copy()
+    out[:, :ARM_DOF] = qpos[:ARM_DOF] + ARM_DELTA_SCALE * np.clip(action[:, :ARM_DOF], -1, 1)
+    return out
+
+
+def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None) -> dict:
+    """Step ``env`` with ``policy`` until it is done or ``max_steps``; returns what it did."""
+    u = env.unwrapped
+    obs = u.get_obs(unflattened=True) if hasattr(u, "get_obs") else None
+    qpos_last = u.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
+    cspace, steps, grasped = 0.0, 0, False
+    for steps in range(1, max_steps + 1):
+        action = env_action(env, policy.get_action(obs))
+        if on_step is not None:
+            obs = on_step(action[0])
+        else:
+            obs, *_ = env.step(action)
+        qpos = u.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
+        cspace += float(np.abs(qpos - qpos_last).sum())
+        qpos_last = qpos
+        if policy.machine.phase == RETRIEVE and not grasped:  # held the target after some closing
+            grasped = bool(u.agent.is_grasping(u.target)[0])
+        if policy.done:
+            break
+    return {"steps": steps, "cspace_length": cspace, "inference_time": policy.inference_time, "grasped": grasped,
+            "regrasps": policy.machine.regrasps, "phase_log": [list(t) for t in policy.machine.log],
+            "final_phase": policy.machine.phase}
+
+
+def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_steps: int = MAX_POLICY_STEPS,
+            regrasp: bool = True) -> dict:
+    """One end-to-end episode on an env already reset to its task; FetchBench's judge after."""
+    from ..envs import settle_and_hold
+
+    policy = load_policy(method, checkpoint, regrasp=ReGraspConfig(regrasp=regrasp))
+    policy.reset(episode_seed=seed)
+    t = time.perf_counter()
+    did = run_policy(env, policy, max_steps)
+    info = settle_and_hold(env)
+    u = env.unwrapped
+    success = bool(info["success"][0])
+    held = bool(u.agent.is_grasping(u.target)[0])
+    failure = None
+    if not success:
+        failure = "collision" if not bool(info["others_undisturbed"][0]) else "grasp_failure"
+    return {
+        "method": method,
+        "success": success,
+        "failure": failure,
+        "computation_time": round(did["inference_time"], 4),
+        "cspace_length": round(did["cspace_length"], 4),
+        # The funnel's stages (evaluation.metrics.FUNNEL) an end-to-end policy passes through.
+        "phases": {"approach_reached": any(to == "close" for _, _, to in did["phase_log"]),
+                   "grasped": did["grasped"], "retrieval_plan": did["final_phase"] == "done", "held_at_end": held},
+        "regrasps": did["regrasps"],
+        "policy_steps": did["steps"],
+        "phase_log": did["phase_log"],
+        "checkpoint": str(resolve_checkpoint(method, checkpoint)),
+        "target_moved": round(float(info["target_moved"][0]), 4),
+        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
+        "wall_time": round(time.perf_counter() - t, 2),
+    }
+
+
+def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX_RETRIEVE_STEPS):
+    """A ``SolveConfig.retrieval`` callback: after the gripper closed, the policy retrieves
+    (steps through the solver's executor, so C-space length and step counts stay its)."""
+
+    def retrieve(env, state, executor) -> str | None:
+        u = env.unwrapped
+        policy.reset(episode_seed=seed, phase=RETRIEVE)
+
+        def step(action):
+            executor.step(action[:ARM_DOF], float(action[ARM_DOF]))
+            return u.get_obs(unflattened=True)
+
+        t = time.perf_counter()
+        did = run_policy(env, policy, max_steps, on_step=step)
+        state.computation_time += did["inference_time"]
+        state.notes.append(f"policy retrieval: {did['steps']} steps, ended {did['final_phase']} "
+                           f"({time.perf_counter() - t:.1f} s)")
+        state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
+        state.phases["retrieval_plan"] = did["final_phase"] == "done"
+        return None if state.phases["grasped"] else "grasp_failure"
+
+    return retrieve
+
+
+def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retries: int = 1,
+               grasp_model: str = "pretrained") -> dict:
+    """CGN + planner approach (``hybrid_approach_method()``), then the policy's retrieval."""
+    from ..solutions.sense_plan_act import SolveConfig, solve
+
+    policy = load_policy(method, checkpoint, regrasp=ReGraspConfig(regrasp=False))
+    approach = hybrid_approach_method()
+    record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
+                   config=SolveConfig(retrieval=retrieval_by_policy(policy, seed)))
+    record.update(method=method, approach_method=approach, checkpoint=str(resolve_checkpoint(method, checkpoint)))
+    return record

@@ -1,0 +1,179 @@
+"""Convert Fetch-dataset demos into the imitation baselines' compact training files.
+
+Per chunk of trajectories: a chunk source file (the demos' h5 + json subset) -> ManiSkill's
+replay tool (``python -m fetchbench_ms.replay_trajectory -c pd_joint_delta_pos -o
+compact_pointcloud --save-traj --num-envs N``, in a subprocess) -> the policies' points
+farthest-point sampled per segment + joints + TCP + arm action + the source's stage labels
+(``fetchbench_ms.policies.data``) -> ``OUT/chunk_NNNNN.imit.h5``; the replay tool's
+139 KB-a-frame file is deleted. Resumable: finished chunks are skipped, so the same command
+continues after ``--time-limit`` or a kill. ``OUT/manifest.json`` records the source's hash,
+the sizes and every chunk's hash and frames (the trainers record its hash).
+
+    # the GPU machine (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
+    python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
+        --out data/imit --count 5000 --chunk 128 --num-envs 16 --device cuda --time-limit 540
+    # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
+    python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
+        --out /tmp/imit-sample --count 2 --first-steps 12 --sizes 128,64,32
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+
+from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
+from fetchbench_ms.utils.io import atomic_write_text, sha256_file
+
+CONVERTED_SUFFIX = "compact_pointcloud.pd_joint_delta_pos.physx_cpu"
+
+
+def parse_sizes(text: str) -> dict:
+    try:
+        values = [int(v) for v in text.split(",")]
+        if len(values) != 3 or min(values) < 1:
+            raise ValueError
+    except ValueError:
+        raise SystemExit(f"--sizes takes SCENE,TARGET,ROBOT point counts (e.g. 1024,512,256), got {text!r}")
+    return dict(zip(("scene", "target", "robot"), values))
+
+
+def write_chunk_source(source_h5: Path, episodes: list[dict], env_info: dict, out_h5: Path,
+                       first_steps: int | None) -> None:
+    """The demos of ``episodes`` as their own trajectory file (same ids), optionally cut to
+    their first steps (a test: the replay then needs --allow-failure)."""
+    tmp = out_h5.with_name(out_h5.name + ".tmp")
+    with h5py.File(source_h5, "r") as src, h5py.File(tmp, "w") as dst:
+        for episode in episodes:
+            name = f"traj_{episode['episode_id']}"
+            if first_steps is None:
+                src.copy(src[name], dst, name=name)
+                continue
+            group = dst.create_group(name)
+
+            def cut(path, obj, group=group, n=first_steps):
+                if isinstance(obj, h5py.Dataset):
+                    # env_states (and obs) have one more row than the actions
+                    keep = n + 1 if path.startswith(("env_states", "obs")) else n
+                    group.create_dataset(path, data=obj[:keep])
+
+            src[name].visititems(cut)
+    os.replace(tmp, out_h5)
+    if first_steps is not None:
+        episodes = [{**e, "elapsed_steps": min(first_steps, e["elapsed_steps"])} for e in episodes]
+    atomic_write_text(out_h5.with_suffix(".json"), json.dumps({"env_info": env_info, "episodes": episodes}))
+
+
+def replay(chunk_h5: Path, num_envs: int, allow_failure: bool, log) -> Path:
+    command = [sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(chunk_h5),
+               "-c", "pd_joint_delta_pos", "-o", "compact_pointcloud", "--save-traj", "--num-envs", str(num_envs)]
+    if allow_failure:
+        command.append("--allow-failure")
+    t = time.perf_counter()
+    result = subprocess.run(command, capture_output=True, text=True)
+    converted = chunk_h5.with_name(f"{chunk_h5.stem}.{CONVERTED_SUFFIX}.h5")
+    if result.returncode != 0 or not converted.is_file():
+        raise RuntimeError(f"the replay tool failed on {chunk_h5} (exit {result.returncode}):\n"
+                           f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
+    log(f"  replayed {chunk_h5.name} in {time.perf_counter() - t:.0f} s")
+    return converted
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--traj-path", required=True, help="the demos' h5 (ManiSkill trajectory format + stage labels)")
+    p.add_argument("--out", required=True, help="folder of the training files (re-running resumes)")
+    p.add_argument("--count", type=int, default=None, help="the first N demos (default: all)")
+    p.add_argument("--chunk", type=int, default=128, help="demos per replay call / training file")
+    p.add_argument("--num-envs", type=int, default=1, help="replay processes (one core each)")
+    p.add_argument("--sizes", default=",".join(str(v) for v in POLICY_SIZES.values()),
+                   help="points kept per segment: SCENE,TARGET,ROBOT")
+    p.add_argument("--device", default="cpu", help="farthest-point sampling on this torch device (cuda on the GPU machine)")
+    p.add_argument("--time-limit", type=float, default=0.0,
+                   help="s; > 0: start no chunk that would end after this, judged by the slowest so far (re-run to resume)")
+    p.add_argument("--first-steps", type=int, default=None, help="keep only each demo's first steps (tests)")
+    args = p.parse_args(argv)
+    sizes = parse_sizes(args.sizes)
+    source = Path(args.traj_path)
+    if not source.is_file() or not source.with_suffix(".json").is_file():
+        raise SystemExit(f"no demos at {source} (+ .json); make them with `fetchbench demos run` (docs/demos.md)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log_file = open(out / "convert.log", "a")
+
+    def log(message: str) -> None:
+        print(message, flush=True)
+        log_file.write(message + "\n")
+        log_file.flush()
+
+    meta = json.loads(source.with_suffix(".json").read_text())
+    episodes = meta["episodes"][: args.count]
+    source_sha = sha256_file(source)
+    settings = {"source": str(source.resolve()), "source_sha256": source_sha, "sizes": sizes,
+                "chunk": args.chunk, "count": len(episodes), "first_steps": args.first_steps}
+    manifest_path = out / "manifest.json"
+    if manifest_path.is_file():
+        old = json.loads(manifest_path.read_text())["settings"]
+        differ = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v and k != "source"}
+        if differ:
+            raise SystemExit(f"{out} holds a conversion with other settings {differ} (old, new): use another --out")
+    atomic_write_text(manifest_path, json.dumps({"settings": settings, "complete": False, "chunks": []}, indent=1))
+    chunks = [episodes[i:i + args.chunk] for i in range(0, len(episodes), args.chunk)]
+    t_start, longest = time.perf_counter(), 0.0
+    log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
+    for k, chunk in enumerate(chunks):
+        target = out / f"chunk_{k:05d}.imit.h5"
+        if target.is_file():
+            continue
+        # Stop before a chunk that would not finish in time (as long as the slowest so far).
+        if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
+            log(f"time limit: stopped before chunk {k}; run the same command again to resume")
+            break
+        t_chunk = time.perf_counter()
+        work = out / "work" / f"chunk_{k:05d}"
+        shutil.rmtree(work, ignore_errors=True)  # a killed run's leftovers
+        work.mkdir(parents=True)
+        chunk_h5 = work / "demos.h5"
+        write_chunk_source(source, chunk, meta["env_info"], chunk_h5, args.first_steps)
+        converted = replay(chunk_h5, min(args.num_envs, len(chunk)), args.first_steps is not None, log)
+        t = time.perf_counter()
+        data = convert_episodes(converted, chunk_h5, sizes, device=args.device, log=log)
+        for e in data["episodes"]:
+            e["source"] = source.name  # the chunk file is a temporary copy
+        size = write_training_file(target, data)
+        frames = int(len(data.get("qpos", [])))
+        log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos, {frames} frames, {size / 1e6:.1f} MB "
+            f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
+            f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), subsampled in {time.perf_counter() - t:.0f} s")
+        shutil.rmtree(work)
+        longest = max(longest, time.perf_counter() - t_chunk)
+    done = sorted(out.glob("chunk_*.imit.h5"))
+    records = []
+    for path in done:
+        with h5py.File(path, "r") as f:
+            frames = int(len(f["qpos"])) if "qpos" in f else 0
+            demos = len(json.loads(f.attrs["episodes"]))
+        records.append({"file": path.name, "sha256": sha256_file(path), "demos": demos, "frames": frames,
+                        "bytes": path.stat().st_size})
+    complete = len(done) == len(chunks)
+    frames = sum(r["frames"] for r in records)
+    nbytes = sum(r["bytes"] for r in records)
+    atomic_write_text(manifest_path, json.dumps({
+        "settings": settings, "complete": complete, "chunks": records,
+        "totals": {"demos": sum(r["demos"] for r in records), "frames": frames, "bytes": nbytes,
+                   "bytes_per_frame": round(nbytes / max(frames, 1), 1)}}, indent=1))
+    shutil.rmtree(out / "work", ignore_errors=True)
+    log(f"{len(done)}/{len(chunks)} chunks done, {frames} frames, {nbytes / 1e9:.2f} GB"
+        + ("" if complete else " (incomplete: run again)"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

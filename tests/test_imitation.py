@@ -1,0 +1,287 @@
+"""Imitation baselines: conversion of the shipped demo sample, the three trainers (loss falls,
+resume), checkpoints acting in the env, the re-grasp state machine, the eval methods.
+
+The sample is regenerated with the train suite: nothing here depends on its trajectories or
+their number (the first 2 demos' first steps are converted, whatever they are)."""
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from fetchbench_ms.policies import agent as agent_mod
+from fetchbench_ms.policies.agent import (APPROACH, CLOSE, DONE, GRIPPER_CLOSED, GRIPPER_OPEN, REOPEN, RETRIEVE,
+                                          ImitationPolicy, ReGraspConfig, ReGraspStateMachine, load_model)
+from fetchbench_ms.policies.data import (load_training_files, observation_input, source_steps)
+from fetchbench_ms.envs.pointcloud import COMPACT_SIZES, LABEL_FURNITURE, LABEL_ROBOT, LABEL_TARGET
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
+SIZES = dict(scene=128, target=64, robot=32)
+FIRST_STEPS = 12
+# Tiny networks so a CPU trains a few steps in seconds; the defaults are the GPU's.
+TINY = dict(point_dims=(32, 64), batch_size=16, scene_points=SIZES["scene"], target_points=SIZES["target"],
+            robot_points=SIZES["robot"], device="cpu", eval_every=0, val_every=10_000, log_every=5, warmup=1,
+            lr=2e-3, lr_final=2e-3, point_jitter=0.0, ckpt_every=10_000)
+TRAINER_KW = {"mlp": dict(hidden=64), "transformer": dict(d_model=32, layers=1, heads=2, dropout=0.0),
+              "diffusion": dict(unet_dims=(16, 32), pred_horizon=8, act_horizon=4, train_diffusion_steps=20,
+                                sample_steps=4)}
+
+
+def _import(path: Path, name: str):
+    sys.path.insert(0, str(path.parent))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(path.parent))
+
+
+@pytest.fixture(scope="module")
+def sample_data(tmp_path_factory) -> Path:
+    """The first steps of the sample's first 2 demos, through ManiSkill's replay tool."""
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    out = tmp_path_factory.mktemp("imit-data")
+    assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
+                         "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
+    return out
+
+
+def test_conversion_writes_the_policies_frames(sample_data):
+    data = load_training_files(sample_data, sizes=SIZES)
+    n = len(data["qpos"])
+    assert len(data["episodes"]) >= 1
+    # one or two converted steps per source step (clipped deltas take two)
+    for e in data["episodes"]:
+        assert FIRST_STEPS <= e["length"] <= 2 * FIRST_STEPS and e["source_length"] == FIRST_STEPS
+    assert data["points"].shape == (n, 224, 3) and data["points"].dtype == np.float16
+    assert data["action"].shape == (n, 7) and np.abs(data["action"]).max() <= 1.0
+    assert set(np.unique(data["stage"])) <= {0, 1, 2}
+    label = data["point_label"]
+    assert np.isin(label[:, :128], (0, 3, 4)).all()  # scene block: furniture / other objects
+    assert np.isin(label[:, 128:192], (0, LABEL_TARGET)).all()
+    assert np.isin(label[:, 192:], (0, LABEL_ROBOT)).all() and (label[:, 192:] == LABEL_ROBOT).any()
+    # the TCP is in front of the base, within the Panda's reach
+    assert (np.linalg.norm(data["tcp"][:, :3], axis=1) < 1.0).all()
+    # re-running resumes: nothing is converted again
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    before = sorted((p.name, p.stat().st_mtime_ns) for p in sample_data.glob("*.imit.h5"))
+    assert convert.main(["--traj-path", str(SAMPLE), "--out", str(sample_data), "--count", "2", "--chunk", "2",
+                         "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
+    assert sorted((p.name, p.stat().st_mtime_ns) for p in sample_data.glob("*.imit.h5")) == before
+    with pytest.raises(SystemExit, match="other settings"):
+        convert.main(["--traj-path", str(SAMPLE), "--out", str(sample_data), "--count", "2", "--chunk", "2",
+                      "--first-steps", str(FIRST_STEPS), "--sizes", "256,64,32"])
+
+
+def test_source_steps_pairs_clipped_steps():
+    source = np.zeros((3, 8), np.float32)
+    source[:, 7] = [1, 1, -1]
+    converted = np.zeros((5, 8), np.float32)
+    converted[:, 7] = [1, 1, 1, 1, -1]
+    converted[0, 2] = 1.0  # clipped: it and the next step make source step 0
+    converted[2, 5] = -1.0  # clipped: steps 2, 3 make source step 1
+    assert source_steps(converted, source).tolist() == [0, 0, 1, 1, 2]
+    converted[4, 7] = 1  # the copied gripper disagrees: not this demo
+    assert source_steps(converted, source) is None
+    assert source_steps(converted[:4], source) is None  # too few steps
+
+
+def _full_loss(module, model, data_dir: Path, args) -> float:
+    common = _import(ROOT / "baselines/imitation/common.py", "common")
+    frames = common.Frames(load_training_files(data_dir, sizes=SIZES), "cpu", args)
+    model.eval()
+    with torch.no_grad():
+        out = module.batch_loss(model, frames, frames.train_index, torch.Generator().manual_seed(5), args)
+    return float(out["loss"])
+
+
+@pytest.mark.parametrize("kind", ["mlp", "transformer", "diffusion"])
+def test_trainer_loss_falls_and_checkpoint_exports(kind, sample_data, tmp_path):
+    module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
+    export = tmp_path / f"{kind}.pt"
+    args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=30, export=True,
+                       export_path=str(export), **TINY, **TRAINER_KW[kind])
+    torch.manual_seed(args.seed)
+    before = _full_loss(module, module.make_model(args), sample_data, args)  # the trainer's initial weights
+    result = module.main(args)
+    assert result["step"] == 30 and not result["stopped"]
+    model, meta = load_model(export)
+    after = _full_loss(module, model, sample_data, args)
+    assert after < before, (before, after)
+    assert export.stat().st_size < 8e6 and meta["kind"] == kind and len(meta["data_sha256"]) == 64
+    assert export.with_suffix(".json").is_file()
+
+
+def test_trainer_resumes_after_time_limit(sample_data, tmp_path):
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=6, time_limit=1e-9, **TINY,
+                       **TRAINER_KW["mlp"])
+    first = module.main(args)
+    assert first["stopped"] and first["step"] == 1
+    args.time_limit = 0.0
+    second = module.main(args)
+    assert second["step"] == 6 and not second["stopped"]
+    log = (tmp_path / "run" / "log.txt").read_text()
+    assert "resumed at step 1" in log and "done: 6 steps" in log
+
+
+# ----------------------------------------------------------------------------- deployment
+def test_regrasp_state_machine_scripted():
+    cfg = ReGraspConfig(close_steps=3, reopen_steps=2, settle_steps=1, min_approach_steps=2, min_retrieve_steps=3,
+                        max_regrasps=1)
+    m = ReGraspStateMachine(cfg)
+    open_gap, closed_gap, holding_gap = 0.08, 0.0, 0.03
+    phases = []
+
+    def step(gap, p):
+        phase = m.begin_step(gap)
+        phases.append((phase, m.gripper, m.acting))
+        m.end_step(p if m.acting else None)
+
+    step(open_gap, 0.9)  # fires before min_approach_steps: ignored
+    step(open_gap, 0.1)
+    step(open_gap, 0.9)  # -> close
+    assert m.phase == CLOSE
+    for _ in range(3):
+        step(open_gap, None)
+    step(holding_gap, 0.1)  # retrieval begins
+    assert m.phase == RETRIEVE
+    step(closed_gap, 0.1)  # fingers met: grasped nothing
+    step(closed_gap, 0.1)
+    assert m.phase == REOPEN
+    step(open_gap, None)
+    step(open_gap, None)
+    step(open_gap, 0.1)  # back in approach, one re-grasp counted
+    assert m.phase == APPROACH and m.regrasps == 1
+    step(open_gap, 0.1)
+    step(open_gap, 0.95)
+    for _ in range(3):
+        step(open_gap, None)
+    step(closed_gap, 0.1)
+    step(closed_gap, 0.99)  # max_regrasps reached: stays in retrieval; fires before min_retrieve_steps: ignored
+    assert m.phase == RETRIEVE
+    step(closed_gap, 0.99)
+    assert m.phase == DONE
+    # the gripper follows the phase; the network acts only in approach and retrieval
+    gripper = {p: g for p, g, _ in phases}
+    assert gripper[APPROACH] == GRIPPER_OPEN and gripper[REOPEN] == GRIPPER_OPEN
+    assert gripper[CLOSE] == GRIPPER_CLOSED and gripper[RETRIEVE] == GRIPPER_CLOSED
+    assert {p for p, _, acting in phases if acting} == {APPROACH, RETRIEVE}
+    assert [t[2] for t in m.log] == [CLOSE, RETRIEVE, REOPEN, APPROACH, CLOSE, RETRIEVE, DONE]
+    # two-stage: a closed gripper never re-opens
+    two = ReGraspStateMachine(ReGraspConfig(regrasp=False), phase=RETRIEVE)
+    for _ in range(20):
+        two.begin_step(0.0)
+        two.end_step(0.0)
+    assert two.phase == RETRIEVE
+
+
+def _synthetic_obs(rng, finger: float) -> dict:
+    n = sum(COMPACT_SIZES.values())
+    seg = np.full(n, LABEL_FURNITURE, np.uint8)
+    seg[16384:18432], seg[18432:] = LABEL_TARGET, LABEL_ROBOT
+    qpos = np.r_[0.0, -1.0, 0.0, -2.2, 0.0, 1.2, 0.5, finger, finger].astype(np.float32)
+    return {"pointcloud": {"xyz": rng.uniform(-0.5, 1.0, (1, n, 3)).astype(np.float16), "seg": seg[None]},
+            "agent": {"qpos": qpos[None]}}
+
+
+def test_policy_drives_state_machine_and_resets_history(monkeypatch):
+    """A policy whose termination output is scripted: the gripper, the frozen arm while
+    closing and the history restarting at each phase."""
+    from fetchbench_ms.policies.networks import EncoderConfig, TransformerConfig, TransformerPolicy
+
+    model = TransformerPolicy(TransformerConfig(encoder=EncoderConfig(sizes=SIZES, point_dims=(16, 32), point_out=32),
+                                                d_model=32, layers=1, heads=2))
+    policy = ImitationPolicy(model, regrasp=ReGraspConfig(close_steps=2, min_approach_steps=1, settle_steps=1))
+    script = iter([0.1, 0.9, 0.1, 0.1, 0.1])
+    seen_history = []
+
+    def act(self, batch, termination_only=False):
+        seen_history.append(len(self.history))
+        return np.full((1, 1, 7), 0.5, np.float32), np.array([next(script)])
+
+    monkeypatch.setattr(ImitationPolicy, "_act", act)
+    rng = np.random.default_rng(0)
+    policy.reset(episode_seed=0)
+    actions = [policy.get_action(_synthetic_obs(rng, 0.04)) for _ in range(4)]  # approach x2, close x2
+    actions += [policy.get_action(_synthetic_obs(rng, 0.02)) for _ in range(2)]  # retrieve
+    actions = np.concatenate(actions)
+    assert actions.shape == (6, 8) and actions.dtype == np.float32
+    assert actions[:2, 7].tolist() == [GRIPPER_OPEN] * 2 and (actions[2:, 7] == GRIPPER_CLOSED).all()
+    assert np.allclose(actions[:2, :7], 0.5) and np.allclose(actions[2:4, :7], 0.0) and np.allclose(actions[4:, :7], 0.5)
+    assert seen_history == [1, 2, 1, 2]  # the retrieval history starts afresh
+
+
+def test_observation_input_from_raw_pointcloud():
+    """The hybrids read obs_mode='pointcloud': the compact cloud is made as the env would."""
+    rng = np.random.default_rng(1)
+    n = 5000
+    labels = rng.choice([LABEL_FURNITURE, LABEL_TARGET, LABEL_ROBOT], n).astype(np.uint8)
+    raw = {"pointcloud": {"xyz_base": rng.uniform(0.0, 1.0, (1, n, 3)).astype(np.float32), "fetch_label": labels[None]},
+           "agent": {"qpos": np.zeros((1, 9), np.float32)}}
+    a = observation_input(raw, SIZES, episode_seed=3, step=7)
+    b = observation_input(raw, SIZES, episode_seed=3, step=7)
+    assert a.points.shape == (1, 224, 3) and np.array_equal(a.points, b.points)
+    assert (a.point_label[0, 128:192] == LABEL_TARGET).all() and (a.point_label[0, 192:] == LABEL_ROBOT).all()
+    with pytest.raises(ValueError, match="compact_pointcloud"):
+        observation_input({"pointcloud": {"rgb": np.zeros(1)}, "agent": {"qpos": np.zeros((1, 9))}}, SIZES)
+
+
+def test_checkpoints_act_in_the_env(sample_data, tmp_path):
+    """Checkpoints saved by the trainers load and act on a smoke task: the eval path (a
+    pd_joint_pos env, deltas turned into targets) and get_action's valid actions."""
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.evaluation.methods import resolve_method
+    from fetchbench_ms.policies import deploy
+
+    paths = {}
+    for kind in ("mlp", "diffusion"):
+        module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
+        paths[kind] = tmp_path / f"{kind}.pt"
+        module.main(module.Args(data=str(sample_data), run=str(tmp_path / kind), steps=2, export=True,
+                                export_path=str(paths[kind]), **TINY, **TRAINER_KW[kind]))
+    method = resolve_method("e2e-mlp", policy_checkpoint=str(paths["mlp"]))
+    assert method.obs_mode == "compact_pointcloud"
+    assert resolve_method("cgn-imit-diffusion", policy_checkpoint=str(paths["diffusion"])).obs_mode == "pointcloud"
+    assert resolve_method("twostage-mlp", policy_checkpoint=str(paths["mlp"])).obs_mode == "compact_pointcloud"
+    with pytest.raises(FileNotFoundError, match="train_transformer.py"):
+        resolve_method("e2e-transformer", policy_checkpoint=str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="needs a mlp checkpoint"):
+        deploy.load_policy("e2e-mlp", str(paths["diffusion"]), device="cpu")
+
+    env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud", control_mode="pd_joint_pos", task_suite="smoke")
+    try:
+        env.reset(seed=0)
+        u = env.unwrapped
+        policy = deploy.load_policy("e2e-diffusion", str(paths["diffusion"]), device="cpu")
+        policy.reset(episode_seed=0)
+        obs = u.get_obs(unflattened=True)
+        for _ in range(2):
+            action = policy.get_action(obs)
+            assert action.shape == (1, 8) and np.isfinite(action).all() and np.abs(action).max() <= 1.0
+            qpos = u.agent.robot.get_qpos()[0].cpu().numpy()
+            target = deploy.env_action(env, action)
+            assert np.allclose(target[0, :7], qpos[:7] + 0.1 * action[0, :7], atol=1e-6)
+            obs, *_ = env.step(target)
+        record = deploy.run_e2e(env, 0, "e2e-mlp", str(paths["mlp"]), max_steps=3)
+        assert record["policy_steps"] == 3 and isinstance(record["success"], bool)
+        assert record["cspace_length"] > 0 and record["checkpoint"] == str(paths["mlp"])
+    finally:
+        env.close()
+
+
+def test_unknown_phase_and_kind_are_named():
+    from fetchbench_ms.policies.networks import build_policy
+
+    with pytest.raises(ValueError, match="valid: mlp, transformer, diffusion"):
+        build_policy("gpt")
+    policy = ImitationPolicy(build_policy("mlp"))
+    with pytest.raises(ValueError, match="valid: approach"):
+        policy.reset(phase="grasp")
+    assert agent_mod.PHASES[0] == APPROACH

@@ -63,10 +63,6 @@ GRASP_ORDERS = ("random", "clearance")
 @dataclass
 class SolveConfig:
     pregrasp_distance: float = 0.04  # m back along the approach axis
-    # Shorter pre-grasp distances tried, in order, for a candidate whose open hand is not
-    # free at ``pregrasp_distance`` (a grasp under a shelf board or against a drawer wall,
-    # whose 4 cm stand-off pokes into the furniture). () = the original's fixed 4 cm.
-    shorter_pregrasps: tuple = ()
     approach_overshoot: float = 1.05  # the approach goes 4 cm x 1.05
     lift_height: float = 0.02  # m, straight up after closing
     # After the lift, back the held object out along the reverse approach (first of these
@@ -296,7 +292,6 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return "no_grasp_candidate"
     T_grasp_tcp = T_grasp_tcp[untried]
     T_pre_tcp = retreat(T_grasp_tcp, cfg.pregrasp_distance)
-    stand_off = np.full(len(T_grasp_tcp), cfg.pregrasp_distance)  # m, per candidate
 
     open_checker = CollisionChecker(robot, world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, world, exclude=("target",), margin=cfg.margin)
@@ -305,31 +300,21 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
     clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(T_pre_tcp @ to_hand),
                                                near_target.hand_clearance(T_grasp_tcp @ to_hand)))
-    for distance in cfg.shorter_pregrasps:
-        blocked = np.flatnonzero(clearance <= cfg.margin)
-        if not len(blocked):
-            break
-        T_shorter = retreat(T_grasp_tcp[blocked], distance)
-        shorter = state.timed(lambda: np.minimum(open_checker.hand_clearance(T_shorter @ to_hand),
-                                                 near_target.hand_clearance(T_grasp_tcp[blocked] @ to_hand)))
-        freed = shorter > cfg.margin
-        T_pre_tcp[blocked[freed]], stand_off[blocked[freed]] = T_shorter[freed], distance
-        clearance[blocked[freed]] = shorter[freed]
     order = np.flatnonzero(clearance > cfg.margin)
     if cfg.grasp_order == "clearance":
         order = order[np.argsort(-clearance[order], kind="stable")]
     order = order[: cfg.ik_grasps if METHODS[method]["grasps"] == "oracle" else cfg.cgn_grasps]
     keep = [keep[i] for i in order]
-    T_grasp_tcp, T_pre_tcp, stand_off = T_grasp_tcp[order], T_pre_tcp[order], stand_off[order]
+    T_grasp_tcp, T_pre_tcp = T_grasp_tcp[order], T_pre_tcp[order]
     if not keep:
         return "no_grasp_candidate"
     q_now = ex.q
     pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds, rng=rng)
     best_pre = pre.best_per_target()
-    # Approach: Cartesian line from each pre-grasp to its stand-off x 1.05 along the approach.
+    # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
     candidates = []  # (candidate index, q_pre, approach path)
     for i, q_pre in best_pre.items():
-        T_end = retreat(T_pre_tcp[i], -stand_off[i] * cfg.approach_overshoot)
+        T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
         path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4), near_target)
         if path is not None:
             candidates.append((i, q_pre, path))
@@ -354,7 +339,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
     T_tcp_actual = u.agent.tcp.pose.raw_pose[0].cpu().numpy()
     T_base_tcp_actual = np.linalg.inv(T_world_base(env)) @ pose_matrix(T_tcp_actual[:3], T_tcp_actual[3:])
-    T_end = retreat(T_pre_tcp[chosen], -stand_off[chosen] * cfg.approach_overshoot)
+    T_end = retreat(T_pre_tcp[chosen], -cfg.pregrasp_distance * cfg.approach_overshoot)
     state.phases["approach_reached"] = bool(np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]) < 0.01)
 
     state.stage = "close"

@@ -49,6 +49,11 @@ METHODS = {
     "ga-ptd-trajopt": dict(world="pointcloud", grasps="oracle", planner="trajopt"),
     "cgn-ptd-rrt": dict(world="pointcloud", grasps="cgn", planner="rrt"),
     "cgn-mesh-rrt": dict(world="mesh", grasps="cgn", planner="rrt"),
+    # MPPI (planning.mppi): scene collision from the learned network on the observed cloud, or
+    # (the mesh oracle) from the meshes' distance fields.
+    "cgn-ptd-mppi": dict(world="pointcloud", grasps="cgn", planner="mppi", collision="network"),
+    "ga-ptd-mppi": dict(world="pointcloud", grasps="oracle", planner="mppi", collision="network"),
+    "ga-mesh-mppi": dict(world="mesh", grasps="oracle", planner="mppi", collision="distance"),
 }
 FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision")
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
@@ -104,6 +109,9 @@ class SolveConfig:
     repeatable_planning: bool = False
     retry_target_moved: float = 0.12  # a retry needs the target moved <= this
     retry_others_moved: float = 0.10  # and every other object moved < this
+    # MPPI methods: the scene-collision cost, "network" or "distance" (the ablation: the
+    # world's distance fields); None: the method's own (METHODS[...]["collision"]).
+    mppi_cost: str | None = None
 
 
 @dataclass
@@ -321,7 +329,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["ik_found"] = True
 
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    plan = _plan(state, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
+    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
@@ -331,7 +339,6 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     chosen, _, approach_path = candidates[plan.goal_index]
     tried.add(keep[chosen])
     state.grasp_id = keep[chosen]
-    ex.follow(plan.path, cfg.speed_scale)
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
     T_tcp_actual = u.agent.tcp.pose.raw_pose[0].cpu().numpy()
     T_base_tcp_actual = np.linalg.inv(T_world_base(env)) @ pose_matrix(T_tcp_actual[:3], T_tcp_actual[3:])
@@ -397,15 +404,38 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if len(goals) == 0 or budget <= 0:
         return "motion_planning_failure"
-    plan = _plan(state, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
+    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s"
                        + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
         return "motion_planning_failure"
     state.phases["retrieval_plan"] = True
-    ex.follow(plan.path, cfg.speed_scale)
     return None
+
+
+def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, budget: float, method: str):
+    """Plan with the method's planner and move along the plan (when it succeeded). MPPI
+    moves while it plans: every replan executes a second of its plan from where the robot
+    really is (``planning.mppi``); its ``planning_time`` is its computation only."""
+    cfg = state.config
+    if METHODS[method]["planner"] == "mppi":
+        from ..planning.mppi import MppiConfig, plan_mppi
+
+        cost = cfg.mppi_cost or METHODS[method]["collision"]
+        mppi_cfg = MppiConfig(cost=cost, speed_scale=cfg.speed_scale, seed=int(rng.integers(2**31)) if rng is not None else 0)
+
+        def execute(path):
+            ex.follow(path, cfg.speed_scale, settle_steps=0)
+            return ex.q
+
+        plan = plan_mppi(checker, q_start, q_goals, execute, mppi_cfg)
+        state.computation_time += plan.planning_time
+        return plan
+    plan = _plan(state, rng, checker, q_start, q_goals, budget, method)
+    if plan.success:
+        ex.follow(plan.path, cfg.speed_scale)
+    return plan
 
 
 def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float, method: str = "ga-mesh-rrt"):
@@ -434,12 +464,9 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
     if budget <= 0:
         return False
-    plan = _plan(state, None, checker, ex.q, q_home, budget, method)
+    plan = _plan_and_move(state, ex, None, checker, ex.q, q_home, budget, method)
     state.planning_time_left -= plan.planning_time
-    if not plan.success:
-        return False
-    ex.follow(plan.path, cfg.speed_scale)
-    return True
+    return plan.success
 
 
 def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: int = 1,

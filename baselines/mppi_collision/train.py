@@ -64,6 +64,7 @@ class Args:
     val_every: int = 1000
     val_queries: int = 2000  # per validation task
     export: bool = False  # when the last step is done: assets/checkpoints/collision_net.{pt,json} (and --export-dir)
+    false_free_target: float = 0.02  # the decision margin is chosen on val for at most this false-free rate
     export_dir: str = ""  # also copy the checkpoint, JSON and log here (e.g. $OUT)
 
 
@@ -140,10 +141,22 @@ def confusion(pred_collide: np.ndarray, label: np.ndarray) -> dict:
                 false_free_of_free=fn / max(1, fn + tn), false_free_of_all=fn / n, collide_share=(tp + fn) / n)
 
 
+def calibrate(clearance: np.ndarray, label: np.ndarray, target: float) -> float:
+    """The smallest decision margin (m, 0.5 mm steps up to 3 cm) at which at most ``target``
+    of the queries called free collide."""
+    for margin in np.arange(0.0, 0.0305, 0.0005):
+        if confusion(clearance < margin, label)["false_free_of_free"] <= target:
+            return float(margin)
+    return 0.03
+
+
 @torch.no_grad()
-def evaluate(model: SceneCollisionNet, spheres: RobotSpheres, data: Tasks, n_queries: int) -> dict:
+def evaluate(model: SceneCollisionNet, spheres: RobotSpheres, data: Tasks, n_queries: int,
+             false_free_target: float | None = None) -> dict:
     """Figures over the first ``n_queries`` of every task, with the cloud-only distance
-    field (``distance - radius < 0``, what the Ptd planners see) beside the network."""
+    field (``distance - radius < 0``, what the Ptd planners see) beside the network: at
+    clearance 0 and at the model's decision margin; ``false_free_target``: first choose that
+    margin (validation tasks only)."""
     model.eval()
     preds, cloud, labels = [], [], []
     for i in range(data.n):
@@ -164,8 +177,11 @@ def evaluate(model: SceneCollisionNet, spheres: RobotSpheres, data: Tasks, n_que
             cloud.append(torch.where(checked, d, big).amin(-1).flatten().cpu().numpy())
             labels.append(b["label"].flatten().cpu().numpy())
     model.train()
-    label = np.concatenate(labels)
-    return dict(network=confusion(np.concatenate(preds) < 0, label),
+    label, pred = np.concatenate(labels), np.concatenate(preds)
+    if false_free_target is not None:
+        model.decision_margin = calibrate(pred, label, false_free_target)
+    m = model.decision_margin
+    return dict(network=confusion(pred < 0, label), decision_margin=m, network_at_margin=confusion(pred < m, label),
                 cloud_distance=confusion(np.concatenate(cloud) < 0, label))
 
 
@@ -241,7 +257,7 @@ def main(args: Args) -> None:
             figures = evaluate(model, spheres, val, args.val_queries)
             say(f"val step {step}: {json.dumps(figures)}")
     save()
-    figures = evaluate(model, spheres, val, val.k)
+    figures = evaluate(model, spheres, val, val.k, args.false_free_target)
     say(f"final val (all {val.k} queries of {val.n} tasks): {json.dumps(figures)}")
     if args.export:
         out = checkpoint_path()

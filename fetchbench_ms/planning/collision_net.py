@@ -138,6 +138,9 @@ class SceneCollisionNet(nn.Module):
         lo, hi = torch.tensor(GRID_BOUNDS[0]), torch.tensor(GRID_BOUNDS[1])
         self.register_buffer("lo", lo, persistent=False)
         self.register_buffer("span", hi - lo, persistent=False)
+        # Clearance below which a query is called colliding: chosen on the validation tasks
+        # (train.py) so that few colliding queries are called free; saved with the weights.
+        self.decision_margin = 0.0
 
     # -- scene ------------------------------------------------------------------------------
     def encode(self, grid: torch.Tensor) -> dict:
@@ -194,8 +197,8 @@ class SceneCollisionNet(nn.Module):
 
     def probability(self, scene: dict, centers: torch.Tensor, radii: torch.Tensor,
                     mask: torch.Tensor | None = None) -> torch.Tensor:
-        """(...,) collision probability of each query."""
-        return torch.sigmoid(-self.clearance(scene, centers, radii, mask) / TAU)
+        """(...,) collision probability of each query (> 0.5: clearance below the decision margin)."""
+        return torch.sigmoid((self.decision_margin - self.clearance(scene, centers, radii, mask)) / TAU)
 
 
 class RobotSpheres:
@@ -253,7 +256,8 @@ def save_checkpoint(model: SceneCollisionNet, path, extra: dict | None = None) -
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().half() if v.is_floating_point() else v.cpu() for k, v in model.state_dict().items()}
     tmp = path.with_name(path.name + ".tmp")
-    torch.save({"state_dict": state, "config": asdict(model.config), **(extra or {})}, tmp)
+    torch.save({"state_dict": state, "config": asdict(model.config), "decision_margin": float(model.decision_margin),
+                **(extra or {})}, tmp)
     tmp.replace(path)
 
 
@@ -272,6 +276,7 @@ def load_collision_net(path: str | None = None, device: str = "cpu") -> SceneCol
     model = SceneCollisionNet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}))
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in saved["state_dict"].items()},
                           strict=True)
+    model.decision_margin = float(saved.get("decision_margin", 0.0))
     return model.eval().to(device)
 
 

@@ -133,7 +133,8 @@ class SceneClearance:
     def clearance(self, q: torch.Tensor) -> torch.Tensor:
         if self.cost == "network":
             centers = self.spheres.centers(q, self.finger, self.att_c)
-            return self.net.clearance(self.scene, centers, self.radii, self.mask)
+            # Relative to the network's decision margin: < 0 is what it calls a collision.
+            return self.net.clearance(self.scene, centers, self.radii, self.mask) - self.net.decision_margin
         centers, att = self.robot.spheres(q[None])
         S = centers.shape[2]
         d = self.torch_world.distance(centers.reshape(1, -1, 3)).reshape(1, -1, S) - self.robot.world_radii[:, None]

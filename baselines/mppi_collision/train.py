@@ -126,7 +126,7 @@ def loss_fn(pred: torch.Tensor, b: dict, args: Args) -> tuple[torch.Tensor, dict
     reg = (F.smooth_l1_loss(pred / 0.01, target / 0.01, beta=0.5, reduction="none") * weight).sum() / weight.sum()
     q_clear = torch.where(checked, pred, torch.full_like(pred, CLEARANCE_CLIP[1])).amin(dim=-1)
     cls = F.binary_cross_entropy_with_logits(-q_clear / TAU, b["label"].float())
-    return reg + args.cls_weight * cls, dict(reg=float(reg), cls=float(cls))
+    return reg + args.cls_weight * cls, dict(reg=float(reg.detach()), cls=float(cls.detach()))
 
 
 def confusion(pred_collide: np.ndarray, label: np.ndarray) -> dict:

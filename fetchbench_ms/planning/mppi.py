@@ -46,6 +46,7 @@ from .rrt import PlanResult, densify
 from .world import PointCloudField
 
 COSTS = ("network", "distance")
+FLOOR_SLACK = 0.002  # m: how much deeper than an in-contact start a move may go (float noise, tracking)
 
 
 def default_device() -> str:
@@ -203,12 +204,14 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         k = torch.arange(H, device=device)[:, None]
         return torch.where(k < n, step, torch.zeros_like(step))
 
-    def costs(q_now: torch.Tensor, steps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def costs(q_now: torch.Tensor, steps: torch.Tensor, floor: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """(R,) rollout costs and (R, H) clearances; ``floor``: the clearance below which a
+        state is a contact (0, or a little below a start that is already in contact)."""
         states = _rollout(q_now, steps, lo, hi)  # (R, H, 7)
         R_ = len(steps)
         flat = states.reshape(-1, 7)
         clear = scene.clearance(flat).reshape(R_, H)
-        hit = (clear < 0).float()
+        hit = (clear < floor).float()
         crashed = torch.cummax(hit, dim=1).values  # a contact stays for the rest of the rollout
         coll = cfg.w_collision * collision_cost(clear - cfg.safety, cfg.eta) + cfg.w_contact * crashed
         self_c = cfg.w_self * scene.self_cost(flat, cfg.self_tolerance).reshape(R_, H)
@@ -231,13 +234,24 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         if replan == cfg.max_replans:
             t_compute += time.perf_counter() - tc
             break
-        # Near the goal: the straight segment, if the cost model calls all of it free.
+        # A start the cost model calls in contact (the robot at rest on a support, a goal
+        # that the planner's checker accepted but the network doubts) may be left, never
+        # entered deeper: moves are allowed down to a little below the start's clearance.
+        c_start = float(scene.clearance(q_now[None])[0])
+        self_start = float(scene.self_cost(q_now[None], cfg.self_tolerance)[0])
+        floor = 0.0 if c_start >= 0 else c_start - FLOOR_SLACK
+        # Near the goal: the straight segment, if the cost model calls all of it free (or no
+        # deeper than its ends: the goal comes checked by the caller's checker).
         path = None
         if float(np.abs(q - goals_np[g]).max()) <= cfg.snap_distance:
             segment = densify(np.stack([q, goals_np[g]]), 0.02)
             seg_t = torch.as_tensor(segment, **dd)
             n_checked += len(segment)
-            if bool((scene.clearance(seg_t) > 0).all()) and bool((scene.self_cost(seg_t, cfg.self_tolerance) == 0).all()):
+            seg_clear = scene.clearance(seg_t)
+            seg_self = scene.self_cost(seg_t, cfg.self_tolerance)
+            c_goal = float(seg_clear[-1])
+            seg_floor = floor if c_goal >= 0 else min(floor, c_goal - FLOOR_SLACK)
+            if bool((seg_clear > seg_floor).all()) and bool((seg_self <= max(self_start, float(seg_self[-1])) + 1e-6).all()):
                 path = segment[[0, -1]]
         if path is None:
             mean = straight(q_now) if mean is None else mean
@@ -247,19 +261,23 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
                 cand = mean + noise
                 cand[1] = straight(q_now)  # heading straight for the goal
                 cand = torch.maximum(torch.minimum(cand, max_step), -max_step)
-                c, clear = costs(q_now, cand)
+                c, clear = costs(q_now, cand, floor)
                 n_checked += R * H
                 spread = (c.mean() - c.min()).clamp(min=1e-9)
                 w = torch.softmax(-(c - c.min()) / (cfg.temperature * spread), dim=0)
                 mean = (w[:, None, None] * cand).sum(dim=0)
             # Execute the mean if its first second is free, else the best free rollout.
-            c_mean, clear_mean = costs(q_now, mean[None])
+            def free_first(steps: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
+                states = _rollout(q_now, steps[:, :replan_steps], lo, hi)
+                self_c = scene.self_cost(states.reshape(-1, 7), cfg.self_tolerance).reshape(len(steps), -1)
+                return (clear[:, :replan_steps] > floor).all(dim=1) & (self_c <= self_start + 1e-6).all(dim=1)
+
+            c_mean, clear_mean = costs(q_now, mean[None], floor)
             n_checked += H
-            first = slice(0, replan_steps)
-            if bool((clear_mean[0, first] > 0).all()):
+            if bool(free_first(mean[None], clear_mean)[0]):
                 chosen = mean
             else:
-                free = (clear[:, first] > 0).all(dim=1)
+                free = free_first(cand, clear)
                 chosen = cand[torch.argmin(torch.where(free, c, torch.full_like(c, float("inf"))))] if free.any() else None
             if chosen is not None:
                 states = _rollout(q_now, chosen[None], lo, hi)[0, :replan_steps]

@@ -167,22 +167,23 @@ class SceneCollisionNet(nn.Module):
                 "distance_shape": tuple(g.shape[2:])}
 
     # -- queries ----------------------------------------------------------------------------
-    def sphere_clearance(self, scene: dict, centers: torch.Tensor, radii: torch.Tensor,
-                         scene_index: torch.Tensor | None = None) -> torch.Tensor:
+    def sphere_clearance(self, scene: dict, centers: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
         """Predicted clearance (m) of spheres ``centers`` (..., S, 3), ``radii`` (S,) or
-        (..., S), base frame. One encoded scene: any leading shape; several: ``centers``
-        (N, ..., S, 3) with scene n for row n (``scene_index`` is not needed)."""
+        (..., S), base frame. One encoded scene: any leading shape; N scenes: ``centers``
+        (N, ..., S, 3), scene n for row n."""
         feats = scene["features"]
         n = feats.shape[0]
         shape = centers.shape[:-1]
-        s = (centers.reshape(n, -1, 3).to(feats.dtype) - self.lo) / self.span  # (N, M, 3) in [0, 1] inside
-        f = _trilinear(feats, scene["features_shape"], s)
-        d = _trilinear(scene["distance"], scene["distance_shape"], s)
+        # Positions, distances and radii in float32 whatever the features' dtype (under bf16
+        # autocast a position would be rounded to ~4 mm); the MLP may run in bf16.
+        s = (centers.reshape(n, -1, 3).float() - self.lo) / self.span  # (N, M, 3) in [0, 1] inside
+        f = _trilinear(feats, scene["features_shape"], s).float()
+        d = _trilinear(scene["distance"], scene["distance_shape"], s).float()
         u = 2 * s - 1
-        r = torch.broadcast_to(radii.to(feats.dtype), shape).reshape(n, -1, 1)
-        outside = ((u.abs() > 1).any(dim=-1, keepdim=True)).to(feats.dtype)  # beyond the grid: nothing known
+        r = torch.broadcast_to(radii.float(), shape).reshape(n, -1, 1)
+        outside = (u.abs() > 1).any(dim=-1, keepdim=True).float()  # beyond the grid: nothing known
         x = torch.cat([f, d / TRUNCATION, torch.exp(-d / 0.02), r / 0.05, u], dim=-1)
-        correction = 0.05 * self.head(x)
+        correction = 0.05 * self.head(x).float()
         clearance = d - r + correction * (1 - outside) + outside * TRUNCATION
         return clearance.reshape(shape)
 

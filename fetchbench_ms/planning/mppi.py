@@ -59,10 +59,13 @@ class MppiConfig:
     rollouts: int = 50
     horizon: int = 40  # steps
     noise_std: float = 0.08  # rad per step
+    noise_knot_steps: int = 5  # noise drawn every this many steps, interpolated between (1: white)
     dt: float = 0.1  # s per step: 40 steps look 4 s ahead
     replan_seconds: float = 1.0  # executed between replans
     max_replans: int = 30  # per call (one phase)
     iterations: int = 3  # MPPI updates per replan
+    check_resolution: float = 0.02  # rad: the executed second is checked this densely first (as RRT's edges)
+    fallback_rollouts: int = 8  # when the mean's first second is not free: the cheapest rollouts tried
     temperature: float = 0.05  # of the cost spread among rollouts
     speed_scale: float = 0.4  # of the velocity limits, as the executor's
     goal_tolerance: float = 0.01  # rad, max joint error
@@ -190,6 +193,18 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
     replan_steps = max(1, int(round(cfg.replan_seconds / cfg.dt)))
     t_compute += time.perf_counter() - tc  # building or encoding the scene counts as planning
 
+    # Noise drawn at knots every ``noise_knot_steps`` and interpolated between them: a
+    # perturbation that lasts changes where a rollout goes (white noise per step averages out).
+    n_knots = max(2, int(np.ceil(H / max(1, cfg.noise_knot_steps))) + 1)
+    knot_t = torch.linspace(0, n_knots - 1, H, **dd)
+    k0 = knot_t.floor().long().clamp(max=n_knots - 2)
+    frac = (knot_t - k0)[None, :, None]
+
+    def smooth_noise(knots: torch.Tensor) -> torch.Tensor:
+        if cfg.noise_knot_steps <= 1:
+            return knots[:, :H] if knots.shape[1] >= H else torch.randn((R, H, 7), generator=gen, **dd)
+        return knots[:, k0] * (1 - frac) + knots[:, k0 + 1] * frac
+
     def nearest_goal(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         d = torch.cdist(x.reshape(-1, 7), goals)  # (N, K)
         v, i = d.min(dim=1)
@@ -256,7 +271,7 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         if path is None:
             mean = straight(q_now) if mean is None else mean
             for _ in range(cfg.iterations):
-                noise = torch.randn((R, H, 7), generator=gen, **dd) * cfg.noise_std
+                noise = smooth_noise(torch.randn((R, n_knots, 7), generator=gen, **dd)) * cfg.noise_std
                 noise[0] = 0  # the mean itself
                 cand = mean + noise
                 cand[1] = straight(q_now)  # heading straight for the goal
@@ -267,21 +282,28 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
                 w = torch.softmax(-(c - c.min()) / (cfg.temperature * spread), dim=0)
                 mean = (w[:, None, None] * cand).sum(dim=0)
             # Execute the mean if its first second is free, else the best free rollout.
-            def free_first(steps: torch.Tensor, clear: torch.Tensor) -> torch.Tensor:
-                states = _rollout(q_now, steps[:, :replan_steps], lo, hi)
-                self_c = scene.self_cost(states.reshape(-1, 7), cfg.self_tolerance).reshape(len(steps), -1)
-                return (clear[:, :replan_steps] > floor).all(dim=1) & (self_c <= self_start + 1e-6).all(dim=1)
+            def free_first(steps: torch.Tensor) -> bool:
+                """The first second of a sequence, checked densely (``check_resolution``)."""
+                states = _rollout(q_now, steps[None, :replan_steps], lo, hi)[0]
+                dense = torch.as_tensor(densify(np.concatenate([q[None], states.double().cpu().numpy()]),
+                                                cfg.check_resolution), **dd)
+                nonlocal n_checked
+                n_checked += len(dense)
+                return bool((scene.clearance(dense) > floor).all()) and bool(
+                    (scene.self_cost(dense, cfg.self_tolerance) <= self_start + 1e-6).all())
 
-            c_mean, clear_mean = costs(q_now, mean[None], floor)
-            n_checked += H
-            if bool(free_first(mean[None], clear_mean)[0]):
-                chosen = mean
-            else:
-                free = free_first(cand, clear)
-                chosen = cand[torch.argmin(torch.where(free, c, torch.full_like(c, float("inf"))))] if free.any() else None
+            # Execute the mean's first second if it is free, else that of the best free
+            # rollout (the cheapest few are tried).
+            chosen = mean if free_first(mean) else None
+            if chosen is None:
+                for i in torch.argsort(c)[: cfg.fallback_rollouts].tolist():
+                    if free_first(cand[i]):
+                        chosen = cand[i]
+                        break
             if chosen is not None:
                 states = _rollout(q_now, chosen[None], lo, hi)[0, :replan_steps]
-                path = np.concatenate([q[None], states.double().cpu().numpy()])
+                # Exactly within the limits in float64 (float32 clipping can overshoot by 1e-7).
+                path = np.concatenate([q[None], np.clip(states.double().cpu().numpy(), robot.q_min, robot.q_max)])
             # Warm start: the rest of the sequence, shifted; zeros after it.
             mean = torch.cat([mean[replan_steps:], torch.zeros((replan_steps, 7), **dd)])
         t_compute += time.perf_counter() - tc

@@ -133,9 +133,9 @@ def test_mppi_goes_around_the_shelf_boards(robot, shelf):
     assert not any(checker.motion_valid(Q_DEFAULT, g) for g in goals)  # the straight line collides
     moves = []
 
-    def execute(path):  # a robot that tracks with a small lag: MPPI replans from where it is
+    def execute(path):  # a robot that lags a little behind: MPPI replans from where it is
         moves.append(path)
-        return path[-1] + 0.002
+        return path[-1] + np.clip(path[0] - path[-1], -0.002, 0.002)
 
     result = plan_mppi(checker, Q_DEFAULT, goals, execute, MppiConfig(cost="distance", device="cpu"))
     assert result.status == "solved", result

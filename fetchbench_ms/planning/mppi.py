@@ -66,7 +66,7 @@ class MppiConfig:
     iterations: int = 3  # MPPI updates per replan
     check_resolution: float = 0.02  # rad: the executed second is checked this densely first (as RRT's edges)
     fallback_rollouts: int = 8  # when the mean's first second is not free: the cheapest rollouts tried
-    temperature: float = 0.05  # of the cost spread among rollouts
+    temperature: float = 0.02  # of the cost spread among rollouts
     speed_scale: float = 0.4  # of the velocity limits, as the executor's
     goal_tolerance: float = 0.01  # rad, max joint error
     snap_distance: float = 0.3  # rad: a free straight segment to the goal from this near is taken
@@ -76,6 +76,7 @@ class MppiConfig:
     self_tolerance: float = 0.015  # m of sphere self overlap left free (trajopt's)
     w_goal: float = 1.0
     w_terminal: float = 10.0
+    w_tcp: float = 3.0  # rad per m of TCP distance in the goal cost
     w_collision: float = 300.0
     w_contact: float = 50.0  # per state at and after a predicted contact
     w_self: float = 300.0
@@ -183,6 +184,19 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
     tc = time.perf_counter()
     scene = SceneClearance(checker, cfg.cost, device, cfg.checkpoint)
     goals = torch.as_tensor(goals_np, **dd)
+    finger = torch.full((1, 2), float(checker.finger), **dd)
+
+    def tcp(x: torch.Tensor) -> torch.Tensor:
+        return scene.robot.fk.forward(torch.cat([x, finger.expand(len(x), 2)], 1))["panda_hand_tcp"][:, :3, 3]
+
+    goal_tcp = tcp(goals)
+
+    def goal_distance(x: torch.Tensor) -> torch.Tensor:
+        """(N,) distance of configurations (N, 7) to the nearest goal: joint space (rad) plus
+        ``w_tcp`` x the TCP's distance (m) to that goal's (the hand has to come in through
+        the shelf's opening, which joint distance alone does not see)."""
+        d = torch.cdist(x, goals) + cfg.w_tcp * torch.cdist(tcp(x), goal_tcp)
+        return d.amin(dim=1)
     lo, hi = torch.as_tensor(robot.q_min, **dd), torch.as_tensor(robot.q_max, **dd)
     max_step = torch.as_tensor(robot.velocity_limits * cfg.speed_scale * cfg.dt, **dd)
     H, R = cfg.horizon, cfg.rollouts
@@ -230,7 +244,7 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         crashed = torch.cummax(hit, dim=1).values  # a contact stays for the rest of the rollout
         coll = cfg.w_collision * collision_cost(clear - cfg.safety, cfg.eta) + cfg.w_contact * crashed
         self_c = cfg.w_self * scene.self_cost(flat, cfg.self_tolerance).reshape(R_, H)
-        dist, _ = nearest_goal(states)
+        dist = goal_distance(flat).reshape(R_, H)
         goal = cfg.w_goal * dist.mean(dim=1) + cfg.w_terminal * dist[:, -1]
         smooth = cfg.w_smooth * (torch.diff(steps, dim=1) ** 2).sum(dim=(1, 2))
         return goal + (coll + self_c).mean(dim=1) + smooth, clear

@@ -98,6 +98,26 @@ def tiny_net(robot, shelf, tmp_path_factory):
     return net, grid, held_out, float(before), float(after), path
 
 
+def test_labels_are_the_checkers_clearances(robot, shelf):
+    """labels.py's sphere clearances are the collision checker's world distances minus the
+    radii (the shelf's boxes; within the label range), and its verdict the checker's."""
+    world, _, checker, goals = shelf
+    labeller = labelling.Labeller(world, (), 0.04, None, False)
+    rng = np.random.default_rng(3)
+    q = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (60, 7)), robot.q_min, robot.q_max)
+    q = np.concatenate([q, goals, labelling._boundary(Q_DEFAULT[None].repeat(len(goals), 0), goals, labeller.collides)])
+    label = labeller.clearance(q)[:, : labelling.ARM_SPHERES]
+    from fetchbench_ms.planning.robot import WORLD_LINKS
+
+    mask = robot.sphere_mask(WORLD_LINKS)
+    centers = robot.sphere_centers(q)[:, mask]
+    exact = world.distance(centers.reshape(-1, 3), 0.3).numpy().reshape(len(q), -1) - robot.spheres.radii[mask]
+    near = exact < 0.09
+    assert near.sum() > 100 and np.abs(label[near] - exact[near]).max() < 1e-4
+    assert ((label.min(1) < 0) == (exact.min(1) < 0)).all()
+    assert (label.min(1) < 0).any() and (label.min(1) >= 0).any()
+
+
 def test_tiny_network_learns_the_shelf(robot, tiny_net):
     net, grid, held_out, before, after, _ = tiny_net
     assert after < 0.8 * before, (before, after)

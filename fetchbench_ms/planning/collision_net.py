@@ -270,8 +270,8 @@ def load_collision_net(path: str | None = None, device: str = "cpu") -> SceneCol
     if not p.is_file():
         raise FileNotFoundError(
             f"no scene-collision network checkpoint at {p}: make one with baselines/mppi_collision/labels.py and "
-            "baselines/mppi_collision/train.py --export (docs/planning.md, 'MPPI'), or use a method that plans "
-            "with the point-cloud distance field (MppiConfig(cost='distance'))")
+            "baselines/mppi_collision/train.py --export (docs/planning.md, 'MPPI'), or plan with the distance "
+            "fields instead: method ga-mesh-mppi, SolveConfig(mppi_cost='distance') or MppiConfig(cost='distance')")
     saved = torch.load(p, map_location="cpu", weights_only=True)
     cfg = dict(saved.get("config", {}))
     model = SceneCollisionNet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}))

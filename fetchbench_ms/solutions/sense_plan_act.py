@@ -14,7 +14,10 @@ release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-tra
 (``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect. ``cgn-ptd-rrt`` (the
 paper's CGN-RRTConnect) and ``cgn-mesh-rrt`` (CGN-Mesh-RRTConnect) take the top
 Contact-GraspNet predictions on the observed target instead (``SolveConfig.grasp_model``:
-``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``).
+``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``). ``cgn-ptd-mppi`` (the paper's CGN-Cabinet),
+``ga-ptd-mppi`` and ``ga-mesh-mppi`` move by receding-horizon MPPI (``planning.mppi``), which
+executes while it plans; its collision cost is the learned scene-collision network on the
+observed cloud (``planning.collision_net``), or for ``ga-mesh-mppi`` the meshes' distances.
 
 Execution drives the env's ``pd_joint_pos`` controller open loop with the time-
 parametrised plan. Rendering cameras at every control step would only slow an open-loop

@@ -106,7 +106,7 @@ class Labeller:
         """(B, 77 + 64, 3) sphere centres: the arm's world spheres, then the carried object's."""
         return self.spheres.centers(self.torch.as_tensor(q), self.finger, self.att_c)
 
-    def clearance(self, q: np.ndarray, chunk: int = 500) -> np.ndarray:
+    def clearance(self, q: np.ndarray, chunk: int = 250) -> np.ndarray:
         """(B, 141) exact clearance of every sphere (m) up to the label range (beyond it, any
         value >= its top); unchecked spheres get +inf."""
         torch = self.torch

@@ -184,6 +184,9 @@ def test_missing_checkpoint_is_a_clear_error(robot, tmp_path, monkeypatch):
     with pytest.raises(FileNotFoundError, match="cost='distance'"):
         plan_mppi(CollisionChecker(robot, CollisionWorld().add("scene", PointCloudField(np.zeros((1, 3))))),
                   Q_DEFAULT, Q_DEFAULT + 0.1, config=MppiConfig(cost="network", device="cpu"))
+    with pytest.raises(ValueError, match="point-cloud world"):  # the network reads clouds, not meshes
+        plan_mppi(CollisionChecker(robot, shelf_worlds()[0]), Q_DEFAULT, Q_DEFAULT + 0.1,
+                  config=MppiConfig(cost="network", device="cpu"))
     with pytest.raises(ValueError, match="valid: network, distance"):
         MppiConfig(cost="mesh")
     collision_net.load_collision_net.cache_clear()

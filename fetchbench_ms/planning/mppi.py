@@ -90,13 +90,13 @@ class MppiConfig:
             raise ValueError(f"unknown MPPI cost {self.cost!r}; valid: {', '.join(COSTS)}")
 
 
-def _cloud_points(checker: CollisionChecker) -> np.ndarray:
-    """The observed points of a point-cloud world's groups the checker does not exclude."""
+def _cloud_fields(checker: CollisionChecker) -> list[PointCloudField]:
+    """The observed clouds of a point-cloud world's groups the checker does not exclude."""
     fields = [s for g, sets in checker.world.groups.items() if g not in checker.exclude for s in sets]
     if not fields or not all(isinstance(s, PointCloudField) for s in fields):
         raise ValueError("the network cost reads an observed point cloud: plan in a point-cloud world "
                          "(solutions.worlds.pointcloud_world), or use cost='distance'")
-    return np.concatenate([f.centers for f in fields]) if fields else np.zeros((0, 3))
+    return fields
 
 
 class SceneClearance:
@@ -112,14 +112,14 @@ class SceneClearance:
             return
         from .collision_net import RobotSpheres, load_collision_net, scene_grid
 
+        fields = _cloud_fields(checker)
         self.net = load_collision_net(checkpoint, str(self.device))
         self.spheres = RobotSpheres(self.device)
-        fields = [s for g, sets in checker.world.groups.items() if g not in checker.exclude for s in sets]
-        points = _cloud_points(checker)
         # The encoding is made once per world and exclusion (a phase replans many times).
-        cache = fields[0].__dict__.setdefault("_collision_net_scene", {}) if fields else {}
+        cache = fields[0].__dict__.setdefault("_collision_net_scene", {})
         key = (tuple(id(f) for f in fields), str(self.device), id(self.net))
         if key not in cache:
+            points = np.concatenate([f.centers for f in fields])
             with torch.no_grad():
                 cache[key] = self.net.encode(torch.as_tensor(scene_grid(points)))
         self.scene = cache[key]

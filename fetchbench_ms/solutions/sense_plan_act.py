@@ -405,7 +405,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
             break
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if len(goals) == 0 or budget <= 0:
+    if len(goals) == 0 or (budget <= 0 and _time_budgeted(method)):
+        state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning time left")
         return "motion_planning_failure"
     plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
     state.planning_time_left -= plan.planning_time
@@ -415,6 +416,13 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return "motion_planning_failure"
     state.phases["retrieval_plan"] = True
     return None
+
+
+def _time_budgeted(method: str) -> bool:
+    """Whether the method's planner works to the episode's planning time budget (RRTConnect's
+    10 s a call, 30 s in all; trajopt alike). MPPI is bounded by its replans per phase (the
+    original's 30), not by seconds: on a CPU its computation can pass 30 s in one phase."""
+    return METHODS[method]["planner"] != "mppi"
 
 
 def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, budget: float, method: str):
@@ -465,7 +473,7 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
     checker = CollisionChecker(robot, world, margin=cfg.margin)
     q_home = np.asarray(u.tasks[0].robot_init_qpos[:7], float)
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if budget <= 0:
+    if budget <= 0 and _time_budgeted(method):
         return False
     plan = _plan_and_move(state, ex, None, checker, ex.q, q_home, budget, method)
     state.planning_time_left -= plan.planning_time

@@ -79,6 +79,10 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
             from ..grasping import load_model
 
             load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
+        if METHODS[name].get("collision") == "network":
+            from ..planning.collision_net import load_collision_net
+
+            load_collision_net()  # no trained scene-collision network: a clear error before any task runs
 
         def run(env, seed):
             return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model)

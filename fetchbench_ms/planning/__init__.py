@@ -11,7 +11,10 @@
 - ``distance``: the worlds and the robot's spheres as differentiable torch distances,
   batched over problems, on any device;
 - ``trajopt``: the cuRobo-style trajectory optimiser (seeds, MPPI, Adam), returning the
-  same ``PlanResult`` as ``rrt`` (docs/planning.md).
+  same ``PlanResult`` as ``rrt`` (docs/planning.md);
+- ``collision_net``: the learned scene-collision network (observed cloud + query spheres ->
+  collision probability), CabiNet-style;
+- ``mppi``: receding-horizon MPPI in joint space, scored by the network or by ``distance``.
 """
 from .checker import Attachment, CollisionChecker
 from .ik import IKResult, solve_ik

@@ -41,11 +41,13 @@ class PlanResult:
     n_checked: int  # configurations checked
     goal_index: int = -1  # which of the asked goals was reached
     start_escaped: bool = False  # the path begins with a move out of an invalid start
-    planner: str = "rrtconnect"  # what found the path: rrtconnect | trajopt | trajopt+rrtconnect (fallback)
+    planner: str = "rrtconnect"  # what found the path: rrtconnect | trajopt | trajopt+rrtconnect (fallback) | mppi
+    executed: bool = False  # the robot already moved along ``path`` (MPPI executes while it plans)
 
     @property
     def success(self) -> bool:
-        return self.path is not None
+        # An executing planner (MPPI) returns the path it moved along even when it fell short.
+        return self.path is not None and (not self.executed or self.status == "solved")
 
 
 def _to_np(state, dim: int = 7) -> np.ndarray:

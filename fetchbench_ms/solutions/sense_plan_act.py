@@ -14,7 +14,10 @@ release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-tra
 (``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect. ``cgn-ptd-rrt`` (the
 paper's CGN-RRTConnect) and ``cgn-mesh-rrt`` (CGN-Mesh-RRTConnect) take the top
 Contact-GraspNet predictions on the observed target instead (``SolveConfig.grasp_model``:
-``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``).
+``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``). ``cgn-ptd-mppi`` (the paper's CGN-Cabinet),
+``ga-ptd-mppi`` and ``ga-mesh-mppi`` move by receding-horizon MPPI (``planning.mppi``), which
+executes while it plans; its collision cost is the learned scene-collision network on the
+observed cloud (``planning.collision_net``), or for ``ga-mesh-mppi`` the meshes' distances.
 
 Execution drives the env's ``pd_joint_pos`` controller open loop with the time-
 parametrised plan. Rendering cameras at every control step would only slow an open-loop
@@ -49,6 +52,11 @@ METHODS = {
     "ga-ptd-trajopt": dict(world="pointcloud", grasps="oracle", planner="trajopt"),
     "cgn-ptd-rrt": dict(world="pointcloud", grasps="cgn", planner="rrt"),
     "cgn-mesh-rrt": dict(world="mesh", grasps="cgn", planner="rrt"),
+    # MPPI (planning.mppi): scene collision from the learned network on the observed cloud, or
+    # (the mesh oracle) from the meshes' distance fields.
+    "cgn-ptd-mppi": dict(world="pointcloud", grasps="cgn", planner="mppi", collision="network"),
+    "ga-ptd-mppi": dict(world="pointcloud", grasps="oracle", planner="mppi", collision="network"),
+    "ga-mesh-mppi": dict(world="mesh", grasps="oracle", planner="mppi", collision="distance"),
 }
 FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision")
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
@@ -108,6 +116,9 @@ class SolveConfig:
     # callable ``(env, state, executor) -> failure class or None`` retrieves instead of the
     # lift + planned retrieval. None: the planner retrieves.
     retrieval: object = None
+    # MPPI methods: the scene-collision cost, "network" or "distance" (the ablation: the
+    # world's distance fields); None: the method's own (METHODS[...]["collision"]).
+    mppi_cost: str | None = None
 
 
 @dataclass
@@ -325,7 +336,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.phases["ik_found"] = True
 
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    plan = _plan(state, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
+    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
@@ -335,7 +346,6 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     chosen, _, approach_path = candidates[plan.goal_index]
     tried.add(keep[chosen])
     state.grasp_id = keep[chosen]
-    ex.follow(plan.path, cfg.speed_scale)
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
     T_tcp_actual = u.agent.tcp.pose.raw_pose[0].cpu().numpy()
     T_base_tcp_actual = np.linalg.inv(T_world_base(env)) @ pose_matrix(T_tcp_actual[:3], T_tcp_actual[3:])
@@ -401,17 +411,48 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
             break
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if len(goals) == 0 or budget <= 0:
+    if len(goals) == 0 or (budget <= 0 and _time_budgeted(method)):
+        state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning time left")
         return "motion_planning_failure"
-    plan = _plan(state, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
+    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
     state.planning_time_left -= plan.planning_time
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s"
                        + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
         return "motion_planning_failure"
     state.phases["retrieval_plan"] = True
-    ex.follow(plan.path, cfg.speed_scale)
     return None
+
+
+def _time_budgeted(method: str) -> bool:
+    """Whether the method's planner works to the episode's planning time budget (RRTConnect's
+    10 s a call, 30 s in all; trajopt alike). MPPI is bounded by its replans per phase (the
+    original's 30), not by seconds: on a CPU its computation can pass 30 s in one phase."""
+    return METHODS[method]["planner"] != "mppi"
+
+
+def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, budget: float, method: str):
+    """Plan with the method's planner and move along the plan (when it succeeded). MPPI
+    moves while it plans: every replan executes a second of its plan from where the robot
+    really is (``planning.mppi``); its ``planning_time`` is its computation only."""
+    cfg = state.config
+    if METHODS[method]["planner"] == "mppi":
+        from ..planning.mppi import MppiConfig, plan_mppi
+
+        cost = cfg.mppi_cost or METHODS[method]["collision"]
+        mppi_cfg = MppiConfig(cost=cost, speed_scale=cfg.speed_scale, seed=int(rng.integers(2**31)) if rng is not None else 0)
+
+        def execute(path):
+            ex.follow(path, cfg.speed_scale, settle_steps=0)
+            return ex.q
+
+        plan = plan_mppi(checker, q_start, q_goals, execute, mppi_cfg)
+        state.computation_time += plan.planning_time
+        return plan
+    plan = _plan(state, rng, checker, q_start, q_goals, budget, method)
+    if plan.success:
+        ex.follow(plan.path, cfg.speed_scale)
+    return plan
 
 
 def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float, method: str = "ga-mesh-rrt"):
@@ -438,14 +479,11 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
     checker = CollisionChecker(robot, world, margin=cfg.margin)
     q_home = np.asarray(u.tasks[0].robot_init_qpos[:7], float)
     budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if budget <= 0:
+    if budget <= 0 and _time_budgeted(method):
         return False
-    plan = _plan(state, None, checker, ex.q, q_home, budget, method)
+    plan = _plan_and_move(state, ex, None, checker, ex.q, q_home, budget, method)
     state.planning_time_left -= plan.planning_time
-    if not plan.success:
-        return False
-    ex.follow(plan.path, cfg.speed_scale)
-    return True
+    return plan.success
 
 
 def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: int = 1,

@@ -205,3 +205,25 @@ def test_ppo_maniskill_vector_env_path_runs_on_cpu(tmp_path):
     assert result["state"]["global_step"] == 8 and result["final_eval"]["episodes"] == 1
     train = _rows(tmp_path / "train.csv")
     assert len(train) == 1 and int(train[0]["episodes"]) == 1
+
+
+def test_pointcloud_observation_wrapper_feeds_the_pointnet_agent():
+    from fetchbench_ms.envs.pointcloud import LABEL_TARGET
+    from fetchbench_ms.envs.wrappers import PointCloudStateObs
+
+    ppo = _ppo()
+    env = PointCloudStateObs(gym.make("FetchBench-Table-v0", obs_mode="compact_pointcloud",
+                                      control_mode="pd_joint_delta_pos"), points=64)
+    try:
+        obs, _ = env.reset(seed=1)
+        assert obs.shape == (1, env.state_dim + 4 * 64) == (1, env.unwrapped.single_observation_space.shape[0])
+        cloud = obs[:, env.state_dim:].reshape(1, 64, 4)
+        # The last quarter comes from the target's block: every point labelled target.
+        assert torch.all(cloud[0, 48:, 3] == LABEL_TARGET / 4.0) and torch.isfinite(obs).all()
+        agent = ppo.Agent(obs.shape[1], 8, hidden=32, points=64)
+        action, logprob, _, value = agent.get_action_and_value(obs)
+        assert action.shape == (1, 8) and value.shape == (1, 1) and torch.isfinite(logprob).all()
+        obs, *_ = env.step(action)
+        assert obs.shape == (1, env.state_dim + 4 * 64)
+    finally:
+        env.close()

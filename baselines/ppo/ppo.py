@@ -69,6 +69,8 @@ class Args:
     """resume from <out-dir>/checkpoint.pt when it exists"""
     tensorboard: bool = True
     """also write TensorBoard events (when the package is installed)"""
+    torch_threads: int = 2
+    """torch threads of the learner process (the env workers use one each)"""
 
     # environment
     env_id: str = "FetchBench-Table-v0"
@@ -239,7 +241,7 @@ class PointNet(nn.Module):
 
 class Agent(nn.Module):
     """Actor (Gaussian, state-independent log std) and critic MLPs on the normalised
-    state, or on [state MLP features, PointNet features] with a point cloud."""
+    state, with a point cloud on [normalised state, PointNet features]."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 256, points: int = 0):
         super().__init__()
@@ -326,9 +328,11 @@ def evaluate(agent: Agent, envs, num_episodes: int, seed: int) -> dict:
     """Deterministic-policy episodes until ``num_episodes`` have ended: their success rate
     (success at any step), mean return and length."""
     obs, _ = envs.reset(seed=seed)
+    low, high = (torch.as_tensor(b, device=obs.device) for b in (envs.single_action_space.low,
+                                                                   envs.single_action_space.high))
     done_metrics: dict[str, list] = {"success_once": [], "return": [], "episode_len": []}
     while len(done_metrics["return"]) < num_episodes:
-        obs, _, _, _, info = envs.step(agent.get_action(obs, deterministic=True))
+        obs, _, _, _, info = envs.step(torch.clamp(agent.get_action(obs, deterministic=True), low, high))
         if "final_info" in info:
             mask = info["_final_info"]
             for key in done_metrics:
@@ -355,7 +359,10 @@ def main(args: Args) -> dict:
     random.seed(args.seed)
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
-    device = torch.device("cuda" if args.cuda and torch.cuda.is_available() else "cpu")
+    torch.set_num_threads(args.torch_threads)
+    gpu_sim = args.sim_backend.split(":")[0] in ("physx_cuda", "gpu", "cuda")
+    # GPU simulation hands out CUDA tensors: the policy goes where they are.
+    device = torch.device("cuda" if (args.cuda or gpu_sim) and torch.cuda.is_available() else "cpu")
     if args.num_envs < 1 or args.num_eval_envs < 1:
         raise ValueError(f"--num-envs and --num-eval-envs must be >= 1, got {args.num_envs}, {args.num_eval_envs}")
     batch_size = args.num_envs * args.num_steps
@@ -437,7 +444,6 @@ def main(args: Args) -> dict:
         for step in range(args.num_steps):
             obs_buf[step], dones[step] = next_obs, next_done
             with torch.no_grad():
-                agent.obs_rms.update(next_obs[:, : agent.state_dim])
                 action, logprob, _, value = agent.get_action_and_value(next_obs)
             values[step], actions[step], logprobs[step] = value.flatten(), action, logprob
             next_obs, reward, terminations, truncations, info = envs.step(torch.clamp(action, action_low, action_high))
@@ -509,6 +515,9 @@ def main(args: Args) -> dict:
                 optimizer.step()
             if args.target_kl is not None and approx_kl > args.target_kl:
                 break
+        # The observation statistics move only between iterations, so the rollout and its
+        # update saw the same normalisation (the ratios start at 1).
+        agent.obs_rms.update(b_obs[:, : agent.state_dim])
         state["iteration"] += 1
 
         row = {"iteration": state["iteration"], "global_step": state["global_step"], "wall_s": wall(),

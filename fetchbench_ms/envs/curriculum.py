@@ -262,6 +262,12 @@ def _apply_one(args) -> str:
     return curriculum.apply(task).content_hash()
 
 
+def _one_thread() -> None:
+    import torch
+
+    torch.set_num_threads(1)  # one process per core: torch's pool would oversubscribe them
+
+
 def prepare(env_id: str, curriculum, task_suite: Optional[str] = None, processes: int = 1) -> int:
     """Make (into the disk cache) the curriculum's version of every task its env serves,
     on ``processes`` processes: run before starting many env workers, which then read
@@ -274,7 +280,7 @@ def prepare(env_id: str, curriculum, task_suite: Optional[str] = None, processes
         for job in jobs:
             _apply_one(job)
     else:
-        with multiprocessing.get_context("spawn").Pool(processes) as pool:
+        with multiprocessing.get_context("spawn").Pool(processes, initializer=_one_thread) as pool:
             pool.map(_apply_one, jobs, chunksize=1)
     return len(jobs)
 

@@ -602,9 +602,10 @@ class FetchBenchEnv(BaseEnv):
         b = self.built
         links = [link for link in self.agent.robot.links if link.name != "panda_link0"]
         if self.gpu_sim_enabled:
-            pairs = [(link._bodies[i], statics[i]._bodies[0]) for link in links
-                     for statics in (b.furniture, b.robot_tables) for i in range(self.num_envs)]
-            self._furniture_query = self.scene.px.gpu_create_contact_pair_impulse_query(pairs)
+            # Made on first use (as ManiSkill's own pairwise queries), after the GPU system is set up.
+            self._furniture_query = None
+            self._furniture_pairs = [(link._bodies[i], statics[i]._bodies[0]) for link in links
+                                     for statics in (b.furniture, b.robot_tables) for i in range(self.num_envs)]
             self._furniture_query_shape = (len(links) * 2, self.num_envs, 3)
             return
         self._robot_entity_ids = frozenset(link._objs[0].entity.per_scene_id for link in links)
@@ -690,6 +691,8 @@ class FetchBenchEnv(BaseEnv):
 
     def _robot_furniture_force_gpu(self) -> torch.Tensor:
         """[B] total force between robot links and furniture / robot table (GPU sim)."""
+        if self._furniture_query is None:
+            self._furniture_query = self.scene.px.gpu_create_contact_pair_impulse_query(self._furniture_pairs)
         self.scene.px.gpu_query_contact_pair_impulses(self._furniture_query)
         impulses = self._furniture_query.cuda_impulses.torch().reshape(self._furniture_query_shape)
         return torch.linalg.norm(impulses, dim=-1).sum(dim=0) / self.scene.px.timestep

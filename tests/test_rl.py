@@ -159,6 +159,35 @@ def test_curriculum_env_serves_on_table_tasks_with_fewer_objects():
         env.close()
 
 
+def test_curriculum_pregrasp_start_is_near_the_target_and_prepared_once(tmp_path, monkeypatch):
+    from fetchbench_ms.envs import curriculum as curriculum_module
+
+    monkeypatch.setenv("FETCHBENCH_CACHE", str(tmp_path))
+    curriculum_module._apply_cached.cache_clear()
+    spec = dict(num_objects=2, target_labels=["on_table"], max_tasks=1, pregrasp=True)
+    assert curriculum_module.prepare("FetchBench-v0", spec) == 1
+    assert len(list((tmp_path / "curriculum").glob("*.json"))) == 1  # made once, on disk
+    plain = gym.make("FetchBench-v0", obs_mode="state", render_backend="none",
+                     curriculum=dict(num_objects=2, target_labels=["on_table"], max_tasks=1))
+    env = gym.make("FetchBench-v0", obs_mode="state", render_backend="none", curriculum=spec)
+    try:
+        plain.reset(seed=0)
+        env.reset(seed=0)
+        task = env.unwrapped.tasks[0]
+        assert task.extra["curriculum_info"]["pregrasp"] and task.robot_init_qpos != plain.unwrapped.tasks[0].robot_init_qpos
+        start = plain.unwrapped.target_surface_distance()
+        near = env.unwrapped.target_surface_distance()
+        # 8 cm behind a grasp (the TCP sits between the pads at the grasp): within ~12 cm
+        # of the surface, and much nearer than the default start.
+        assert float(near) < 0.12 < float(start)
+        _, _, _, _, info = env.step(torch.zeros(env.action_space.shape))
+        assert float(info["robot_furniture_force"]) == 0.0 and float(info["max_others_moved"]) < 0.01
+    finally:
+        env.close()
+        plain.close()
+        curriculum_module._apply_cached.cache_clear()
+
+
 # ---------------------------------------------------------------------------- PPO
 def _ppo():
     spec = importlib.util.spec_from_file_location("ppo", ROOT / "baselines/ppo/ppo.py")

@@ -94,14 +94,14 @@ class Args:
     num_envs: int = 16
     num_eval_envs: int = 4
     num_eval_episodes: int = 16
-    eval_freq: int = 20
+    eval_freq: int = 6
     """evaluate (and checkpoint) every this many iterations (0: only at the end)"""
     partial_reset: bool = True
     """an episode ends at success (else only at the time limit)"""
 
     # algorithm
     total_timesteps: int = 10_000_000
-    num_steps: int = 50
+    num_steps: int = 100
     """steps per env per rollout"""
     learning_rate: float = 3e-4
     anneal_lr: bool = False

@@ -100,9 +100,10 @@ class Curriculum:
 CURRICULA = {
     # On-table targets among 3 other objects, the robot up to 15 cm closer, 32 tasks.
     "table-near": Curriculum(num_objects=4, target_labels=("on_table",), max_tasks=32, base_advance=0.15),
-    # The same, the arm starting 8 cm behind a grasp of the target.
+    # The same, the arm starting 5 cm behind a grasp of the target (the expert's
+    # pre-grasp is 4 cm back), fingers open.
     "table-near-pregrasp": Curriculum(num_objects=4, target_labels=("on_table",), max_tasks=32, base_advance=0.15,
-                                      pregrasp=True),
+                                      pregrasp=True, pregrasp_distance=0.05),
 }
 
 

@@ -69,8 +69,10 @@ class Args:
     """resume from <out-dir>/checkpoint.pt when it exists"""
     tensorboard: bool = True
     """also write TensorBoard events (when the package is installed)"""
-    torch_threads: int = 2
-    """torch threads of the learner process (the env workers use one each)"""
+    torch_threads: int = 1
+    """torch threads of the learner process (the env workers use one each). More only on
+    idle cores: with every core busy stepping envs, a thread pool makes each tiny MLP op
+    wait for a time slice (measured: 6 ms a tanh with 2 threads on 2 busy cores)"""
 
     # environment
     env_id: str = "FetchBench-Table-v0"
@@ -78,8 +80,8 @@ class Args:
     """an env curriculum preset (fetchbench_ms.envs.curriculum.CURRICULA), e.g. table-near-pregrasp"""
     task_suite: Optional[str] = None
     """the suite training tasks come from (None: the env's default, train)"""
-    eval_task_suite: str = "val"
-    """the suite evaluation tasks come from (never test)"""
+    eval_task_suite: Optional[str] = "val"
+    """the suite evaluation tasks come from (never test; None: the env's default)"""
     control_mode: str = "pd_joint_delta_pos"
     reward_mode: str = "normalized_dense"
     obs: Literal["state", "pointcloud"] = "state"

@@ -229,7 +229,7 @@ def test_rewards_are_finite_and_normalised():
             _, reward, _, _, _ = env.step(torch.zeros(env.action_space.shape))
             assert torch.isfinite(reward).all()
             if mode == "normalized_dense":
-                assert -1.0 <= float(reward) <= 1.0
+                assert 0.0 <= float(reward) <= 1.0
             _place_target_com_in_base(env, [-0.2, 0.25, 0.66])
             info = env.unwrapped.evaluate()
             top = env.unwrapped.get_reward(obs=None, action=None, info=info)
@@ -352,7 +352,7 @@ def test_grasp_held_in_free_space_survives_the_ten_second_hold(seed):
         assert bool(base.agent.is_grasping(base.target)) and bool(base.evaluate()["is_grasped"])
         info = settle_and_hold(env)  # 10 s, gripper squeezing
         assert info["success"] and info["is_grasped"]
-        l_force, r_force = base._finger_forces_cpu()
+        l_force, r_force = base._contact_forces_cpu()["finger_forces"]
         np.testing.assert_allclose(l_force, base.scene.get_pairwise_contact_forces(base.agent.finger1_link, base.target), atol=1e-4)
         np.testing.assert_allclose(r_force, base.scene.get_pairwise_contact_forces(base.agent.finger2_link, base.target), atol=1e-4)
         assert float(info["target_com_base"][0, 0]) < 0.0 and float(info["target_height"]) > 0.5

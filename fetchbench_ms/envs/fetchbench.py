@@ -29,6 +29,7 @@ from ..tasks.spec import CATEGORY_LABELS, TaskSpec
 from ..utils.io import canonical_json
 from . import pointcloud
 from .bodies import default_sim_config
+from .curriculum import resolve_curriculum
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
 
 #: Success thresholds on the target's centre of mass in the robot-base frame, and on the
@@ -44,7 +45,23 @@ HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
 # around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
 # this, the fingers cannot touch it.
 FINGER_REACH = 0.08  # m
-DENSE_REWARD_MAX = 6.0
+#: The dense reward (``FetchBenchEnv.reward_terms``, docs/rl.md): the stages of a fetch,
+#: each in [0, 1], times these weights. A later stage counts only once the earlier ones
+#: hold (grasp, lift, carry and hold need the grasp), so a state of a later stage earns
+#: more than any state of an earlier one; success earns the maximum.
+REWARD_WEIGHTS = {"reach": 1.0, "grasp": 1.0, "lift": 1.0, "carry": 2.0, "hold": 1.0}
+DENSE_REWARD_MAX = sum(REWARD_WEIGHTS.values())  # 6
+REACH_TOLERANCE = 0.02  # m of TCP-to-surface distance that count as reached (the TCP sits between the pads)
+REACH_SCALE = 5.0  # 1/m: reach = 1 - tanh(5 * distance beyond the tolerance)
+LIFT_HEIGHT = 0.05  # m above its start at which the target is off its support
+CARRY_MARGIN = 0.05  # m past the success thresholds the carry term aims at
+CARRY_SCALE = 3.0  # 1/m
+HOLD_SPEED_SCALE = 5.0  # s/m: hold = 1 - tanh(5 * target speed) once in the success region
+#: Penalties, as fractions of the stage reward taken away: others' largest displacement
+#: (at the success threshold, 0.10 m, and beyond) and robot-furniture contact.
+DISTURB_PENALTY = 0.5
+CONTACT_PENALTY = 0.25
+CONTACT_FORCE = 1.0  # N: a robot link pushing furniture or the robot table harder than this is in contact
 FULL_GC_EVERY = 16  # CPU reconfigures between full garbage collections (see FetchBenchEnv._clear)
 #: Where seed-sampled tasks take their objects from. "train" by default, so an env made
 #: for learning never shows a policy a test object; evaluation asks for "test" explicitly
@@ -151,9 +168,11 @@ def _check_id_fixes(id_fixes: Optional[dict], **given) -> None:
 
 
 def _resolve_task_source(task_source: Optional[str], task_suite, object_split: str, scene_type: Optional[str],
-                         category: Optional[str]):
+                         category: Optional[str], curriculum=None):
     """(task source, loaded suite or None, ids of the suite tasks a seed may pick) for the
-    env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets."""
+    env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets.
+    A ``curriculum`` (``envs.curriculum``) narrows the pool to its target labels and its
+    first ``max_tasks``."""
     from ..tasks.suite import SUITES_DIR, load_suite
 
     defaulted = task_source is None and task_suite is None  # nothing asked for: the default suite
@@ -172,6 +191,9 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
         else:
             task_source = "suite"
     if task_source == "sampled":
+        if curriculum is not None and curriculum.max_tasks is not None:
+            raise ValueError("curriculum max_tasks cuts a suite's task pool, but task_source='sampled'; valid: "
+                             "task_source='suite', or leave max_tasks out")
         return task_source, (load_suite(task_suite) if task_suite is not None else None), None
     if task_suite is None:
         if object_split != DEFAULT_OBJECT_SPLIT:
@@ -187,9 +209,13 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
                              f"{', '.join(shipped_suites()) or '(none shipped)'} or a suite file's path, "
                              "or task_source='sampled'")
     suite = load_suite(task_suite)
-    label = CATEGORY_LABELS[category] if category is not None else None
+    labels = {CATEGORY_LABELS[category]} if category is not None else None
+    if curriculum is not None and curriculum.target_labels is not None:
+        labels = set(curriculum.target_labels) & labels if labels is not None else set(curriculum.target_labels)
     pool = [i for i, t in suite.tasks.items()
-            if (scene_type is None or t.scene_type == scene_type) and (label is None or t.target_label == label)]
+            if (scene_type is None or t.scene_type == scene_type) and (labels is None or t.target_label in labels)]
+    if curriculum is not None and curriculum.max_tasks is not None:
+        pool = pool[: curriculum.max_tasks]
     if not pool and defaulted:
         # The shipped default suite may be partial (docs/suite.md, "State"): an id it does
         # not cover yet samples, as it would without the suite, and says so.
@@ -199,8 +225,9 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
                       "sample raw, unfiltered tasks (task_source='sampled')", stacklevel=3)
         return "sampled", None, None
     if not pool:
-        what = " and ".join(f"{k} {v!r}" for k, v in (("scene type", scene_type), ("category", category)) if v)
-        types = sorted({t.scene_type for t in suite.tasks.values() if label is None or t.target_label == label})
+        what = " and ".join(f"{k} {v!r}" for k, v in (("scene type", scene_type), ("category", category),
+                                                        ("target labels", sorted(labels or ()))) if v)
+        types = sorted({t.scene_type for t in suite.tasks.values() if labels is None or t.target_label in labels})
         raise ValueError(f"task suite {suite.name!r} has no task for {what}; its tasks cover scene types "
                          f"{', '.join(types) or '(none)'}" + (f" for category {category!r}" if category else "")
                          + "; valid: another env id / suite, or task_source='sampled'")
@@ -225,6 +252,8 @@ class FetchBenchEnv(BaseEnv):
     - per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution U(0, 0.1)
     - robot base position in the scene type's robot region; robot table size x U(0.4, 0.7) m,
       y U(0.6, 1.0) m; two cameras left and right (mirrored), aimed at the supports
+    - ``curriculum`` (``fetchbench_ms.envs.curriculum``, for RL): fewer objects, targets on
+      chosen supports, the robot closer, the arm starting at a pre-grasp configuration
     - ``reset(options={"task": task_dict})`` replays a given task instead (a task of a suite,
       e.g. ``task_suite="test"`` with ``options={"task_id": ...}``, keeps the suite's
       objects, test objects for the test suite); a changed task rebuilds the scene
@@ -268,6 +297,7 @@ class FetchBenchEnv(BaseEnv):
         task_suite: Optional[str] = None,
         task_source: Optional[str] = None,
         robot_init_qpos_noise: float = 0.0,
+        curriculum=None,
         num_envs: int = 1,
         reconfiguration_freq: Optional[int] = None,
         id_fixes: Optional[dict] = None,
@@ -299,9 +329,12 @@ class FetchBenchEnv(BaseEnv):
         self.category = category
         self.camera_size = (camera_width, camera_height)
         self.success_criteria = success_criteria
+        self.curriculum = resolve_curriculum(curriculum)
+        self.task_source_kwarg = task_source
+        self._sample_category = self._curriculum_category(category)
         self.sampler_config = SamplerConfig(num_objects=num_objects, object_split=object_split)
         self.task_source, self.task_suite, self._suite_pool = _resolve_task_source(
-            task_source, task_suite, object_split, scene_type, category)
+            task_source, task_suite, object_split, scene_type, category, self.curriculum)
         self._task_ids: Optional[list[Optional[str]]] = None
         self.robot_init_qpos_noise = robot_init_qpos_noise
         self._tasks: Optional[list[TaskSpec]] = None
@@ -367,6 +400,8 @@ class FetchBenchEnv(BaseEnv):
         options = dict(options) if options else {}
         partial = "env_idx" in options and len(options["env_idx"]) != self.num_envs
         tasks = self._tasks_from_options(options)
+        if tasks is not None and self.curriculum is not None:
+            tasks = [self.curriculum.apply(t) for t in tasks]
         ids = [options["task_id"]] * self.num_envs if "task_id" in options else [None] * self.num_envs
         if tasks is not None and partial and tasks != [self._tasks[int(i)] for i in options["env_idx"]]:
             raise ValueError("a partial reset (env_idx) cannot load new tasks; reset all sub-scenes to change tasks")
@@ -385,6 +420,8 @@ class FetchBenchEnv(BaseEnv):
                 tasks = [self.task_suite.get(i) for i in ids]
             else:
                 tasks = [self._sample_task(s) for s in seeds]
+            if self.curriculum is not None:
+                tasks = [self.curriculum.apply(t) for t in tasks]
         if tasks is not None and not partial and tasks != self._tasks:
             for task in tasks:  # before anything is torn down: a refused task leaves the env as it was
                 self._check_task(task)
@@ -415,6 +452,27 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} sub-scenes; give 1 or {self.num_envs}")
         return seeds
 
+    def _curriculum_category(self, category: Optional[str]) -> Optional[str]:
+        """The category seed-sampled tasks are drawn with: the env's, or the curriculum's
+        one target label; ValueError where the two contradict."""
+        labels = self.curriculum.target_labels if self.curriculum is not None else None
+        if labels is None:
+            return category
+        if category is not None:
+            if CATEGORY_LABELS[category] not in labels:
+                raise ValueError(f"the env's category {category!r} ({CATEGORY_LABELS[category]}) is not among the "
+                                 f"curriculum's target_labels {list(labels)}; valid: target_labels including "
+                                 f"{CATEGORY_LABELS[category]!r}, or an env id of one of "
+                                 + ", ".join(c for c, lab in CATEGORY_LABELS.items() if lab in labels))
+            return category
+        if len(labels) == 1:
+            return next(c for c, lab in CATEGORY_LABELS.items() if lab == labels[0])
+        if self.task_source_kwarg == "sampled":
+            raise ValueError(f"a sampled task is drawn for one category, but the curriculum's target_labels are "
+                             f"{list(labels)}; valid: one target label with task_source='sampled', or "
+                             "task_source='suite'")
+        return None
+
     def suite_task_id(self, seed: int) -> str:
         """The id of the suite task a seed picks (``task_source="suite"``): uniform over the
         suite's tasks of this env's scene type / category, from the seed alone."""
@@ -422,7 +480,7 @@ class FetchBenchEnv(BaseEnv):
 
     def _sample_task(self, seed: int) -> TaskSpec:
         # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
-        return copy.deepcopy(_sample_task_cached(seed, self.scene_type, self.category, self.sampler_config))
+        return copy.deepcopy(_sample_task_cached(seed, self.scene_type, self._sample_category, self.sampler_config))
 
     def _tasks_from_options(self, options: dict) -> Optional[list[TaskSpec]]:
         given = [k for k in ("task", "tasks", "task_id") if k in options]
@@ -533,6 +591,29 @@ class FetchBenchEnv(BaseEnv):
         self._initial_com_world = self._com_world(b.initial_pose)
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
+        self._init_contact_queries()
+
+    def _init_contact_queries(self) -> None:
+        """What the reward's contact terms look up: the robot links that count for
+        robot-furniture contact (all but the base, which stands on the robot table) and the
+        static furniture and robot table of each sub-scene. On the GPU one pairwise impulse
+        query holds every (link, furniture / robot table) pair of every sub-scene; on the
+        CPU the contact list is walked once a step (``_contact_forces_cpu``)."""
+        b = self.built
+        links = [link for link in self.agent.robot.links if link.name != "panda_link0"]
+        if self.gpu_sim_enabled:
+            # Made on first use (as ManiSkill's own pairwise queries), after the GPU system is set up.
+            self._furniture_query = None
+            self._furniture_pairs = [(link._bodies[i], statics[i]._bodies[0]) for link in links
+                                     for statics in (b.furniture, b.robot_tables) for i in range(self.num_envs)]
+            self._furniture_query_shape = (len(links) * 2, self.num_envs, 3)
+            return
+        # The physics components themselves: SAPIEN hands out the same Python object for a
+        # body every time, so a contact's bodies are found by identity (4x faster than
+        # comparing entity ids, with ~150 resting contacts a step).
+        self._robot_bodies = frozenset(link._bodies[0] for link in links)
+        self._furniture_bodies = frozenset(a._bodies[0] for a in b.furniture + b.robot_tables)
+        self._finger_bodies = (self.agent.finger1_link._bodies[0], self.agent.finger2_link._bodies[0])
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
@@ -561,20 +642,26 @@ class FetchBenchEnv(BaseEnv):
         raw = np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32)
         return torch.from_numpy(raw)[None]
 
-    def _is_grasping(self, target_com_world: torch.Tensor) -> torch.Tensor:
+    def _is_grasping(self, target_com_world: torch.Tensor, contacts: Optional[dict] = None) -> torch.Tensor:
         """The Panda's grasp test: both fingers push on the target (>= 0.5 N, within 85 deg
         of their closing direction), as ``Panda.is_grasping``.
 
         On CPU that test walks the scene's contact list in Python twice (once per finger),
-        which with ~15 resting objects costs more than the physics step. Here it is
-        skipped while the TCP is too far for the fingers to touch the target, and the two
-        fingers' forces come from one pass (``_finger_forces_cpu``), about 2x faster."""
+        which with ~15 resting objects costs more than the physics step. Here the fingers'
+        forces come from one pass that also serves the reward's furniture contacts
+        (``contacts``, from ``_contact_forces_cpu``), and without it the test is skipped
+        while the TCP is too far for the fingers to touch the target."""
         if self.gpu_sim_enabled:
             return self.agent.is_grasping(self.target)
+        not_grasping = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
         reach = self.built.target_radius + FINGER_REACH
         if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
-            return torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        l_force, r_force = self._finger_forces_cpu()
+            return not_grasping
+        if contacts is None:
+            contacts = self._contact_forces_cpu(furniture=False)
+        l_force, r_force = contacts["finger_forces"]
+        if not (bool(l_force.any()) and bool(r_force.any())):
+            return not_grasping
         agent = self.agent
         l_open = agent.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # direction that opens the finger
         r_open = -agent.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
@@ -584,24 +671,36 @@ class FetchBenchEnv(BaseEnv):
             flags.append((torch.linalg.norm(force, dim=1) >= 0.5) & (torch.rad2deg(angle) <= 85))
         return flags[0] & flags[1]
 
-    def _finger_forces_cpu(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Contact forces [1, 3] of the target on each finger, from one pass over the contacts."""
-        fingers = (self.agent.finger1_link._objs[0].entity, self.agent.finger2_link._objs[0].entity)
-        target = self.target._objs[0]
-        impulses = np.zeros((2, 3))
+    def _contact_forces_cpu(self, furniture: bool = True) -> dict:
+        """One pass over the CPU contact list: ``finger_forces``, the target's contact force
+        [1, 3] on each finger, and (``furniture``) ``robot_furniture_force`` [1], the
+        total force between robot links (not the base) and the furniture / robot table."""
+        fingers, target = self._finger_bodies, self.target._bodies[0]
+        robot, statics = self._robot_bodies, self._furniture_bodies
+        finger_impulse = np.zeros((2, 3))
+        furniture_impulse = 0.0
         for contact in self.scene.px.get_contacts():
-            e0, e1 = contact.bodies[0].entity, contact.bodies[1].entity
-            if e1 == target:
-                finger, sign = e0, 1.0  # impulses act on the first body
-            elif e0 == target:
-                finger, sign = e1, -1.0
-            else:
-                continue
-            for k in (0, 1):
-                if finger == fingers[k]:
-                    impulses[k] += sign * np.sum([point.impulse for point in contact.points], axis=0)
-        forces = torch.tensor(impulses / self.scene.px.timestep, dtype=torch.float32, device=self.device)
-        return forces[0:1], forces[1:2]
+            b0, b1 = contact.bodies
+            if b1 is target or b0 is target:
+                # Impulses act on the first body.
+                finger, sign = (b0, 1.0) if b1 is target else (b1, -1.0)
+                for k in (0, 1):
+                    if finger is fingers[k]:
+                        finger_impulse[k] += sign * np.sum([point.impulse for point in contact.points], axis=0)
+            elif furniture and ((b0 in robot and b1 in statics) or (b1 in robot and b0 in statics)):
+                furniture_impulse += float(np.linalg.norm(np.sum([p.impulse for p in contact.points], axis=0)))
+        dt = self.scene.px.timestep
+        forces = torch.tensor(finger_impulse / dt, dtype=torch.float32, device=self.device)
+        return dict(finger_forces=(forces[0:1], forces[1:2]),
+                    robot_furniture_force=torch.tensor([furniture_impulse / dt], dtype=torch.float32, device=self.device))
+
+    def _robot_furniture_force_gpu(self) -> torch.Tensor:
+        """[B] total force between robot links and furniture / robot table (GPU sim)."""
+        if self._furniture_query is None:
+            self._furniture_query = self.scene.px.gpu_create_contact_pair_impulse_query(self._furniture_pairs)
+        self.scene.px.gpu_query_contact_pair_impulses(self._furniture_query)
+        impulses = self._furniture_query.cuda_impulses.torch().reshape(self._furniture_query_shape)
+        return torch.linalg.norm(impulses, dim=-1).sum(dim=0) / self.scene.px.timestep
 
     def evaluate(self):
         b = self.built
@@ -620,10 +719,19 @@ class FetchBenchEnv(BaseEnv):
         else:
             lifted, retrieved = target_com_base[:, 2] > c["min_height"], target_com_base[:, 0] < c["max_x"]
         undisturbed = max_others_moved < c["max_others_moved"]
+        extra = {}
+        contacts = None
+        if self._reward_mode in ("dense", "normalized_dense"):
+            # The reward's furniture contacts, from the same pass as the grasp test on CPU.
+            if self.gpu_sim_enabled:
+                extra["robot_furniture_force"] = self._robot_furniture_force_gpu()
+            else:
+                contacts = self._contact_forces_cpu()
+                extra["robot_furniture_force"] = contacts["robot_furniture_force"]
         return dict(
             objects_pose=raw_pose,
             success=lifted & retrieved & undisturbed,
-            is_grasped=self._is_grasping(target_com_world),
+            is_grasped=self._is_grasping(target_com_world, contacts),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],
@@ -633,6 +741,7 @@ class FetchBenchEnv(BaseEnv):
             is_retrieved=retrieved,
             others_undisturbed=undisturbed,
             task_filtered=self._task_filtered.clone(),
+            **extra,
         )
 
     # ------------------------------------------------------------------ observations
@@ -679,23 +788,57 @@ class FetchBenchEnv(BaseEnv):
         return pointcloud.COMPACT_OBS_MODE if self._compact_pointcloud else self._obs_mode
 
     # ------------------------------------------------------------------ rewards
-    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """reach (tcp to target) + grasp + lift (first 5 cm) + 2 x retrieve (towards the
-        success region) - disturbance (others' largest move / 0.10 m); 6 on success."""
+    def target_surface_distance(self) -> torch.Tensor:
+        """[B] distance from the TCP to the nearest of the target's surface points (the TCP
+        taken into the target's frame: one point turned instead of 512)."""
+        pose = self.target.pose
+        R = quaternion_to_matrix(pose.q)  # [B, 3, 3]
+        tcp_local = ((self.agent.tcp.pose.p - pose.p)[:, None] @ R)[:, 0]  # R^T (tcp - p), as a row
+        return torch.linalg.norm(self.built.target_surface - tcp_local[:, None], dim=-1).min(dim=1).values
+
+    def reward_terms(self, info: dict) -> dict[str, torch.Tensor]:
+        """The dense reward's parts, each [B] in [0, 1] (docs/rl.md):
+
+        - ``reach``: 1 - tanh(5 x the TCP's distance to the target's surface beyond 2 cm); 1 once grasped;
+        - ``grasp``: both fingers push on the target (``is_grasped``);
+        - ``lift``: grasped, and the target's rise above its start over 5 cm (1 in the success region);
+        - ``carry``: grasped, and 1 - tanh(3 x the target's distance to 5 cm inside the
+          success region, in the base frame): out of the furniture toward the free space;
+        - ``hold``: grasped inside the success region (lifted and retrieved), and still:
+          1 - tanh(5 x the target's speed);
+        - ``disturb``: the other objects' largest move over the success threshold (0.10 m), clipped to 1;
+        - ``contact``: a robot link (not the base) pushes furniture or the robot table > 1 N.
+        """
         c = SUCCESS_CRITERIA[self.success_criteria]
-        tcp_to_target = torch.linalg.norm(self.target.pose.p - self.agent.tcp.pose.p, dim=1)
-        reach = 1 - torch.tanh(5 * tcp_to_target)
         grasped = info["is_grasped"].float()
-        lift = grasped * torch.clamp(info["target_lift"] / 0.05, 0.0, 1.0)
+        reach = torch.maximum(1 - torch.tanh(REACH_SCALE * torch.relu(self.target_surface_distance() - REACH_TOLERANCE)),
+                              grasped)
+        in_region = (info["is_lifted"] & info["is_retrieved"]).float()
+        # Out in the success region counts as off the support, also where the carry went
+        # down from a high shelf to below the target's start height.
+        lift = grasped * torch.maximum(torch.clamp(info["target_lift"] / LIFT_HEIGHT, 0.0, 1.0), in_region)
         com = info["target_com_base"]
-        shortfall = torch.stack([torch.relu(com[:, 0] - (c["max_x"] - 0.05)),
-                                 torch.relu((c["min_height"] + 0.05) - com[:, 2])], dim=1)
-        retrieve = grasped * (1 - torch.tanh(3 * torch.linalg.norm(shortfall, dim=1)))
+        shortfall = torch.stack([torch.relu(com[:, 0] - (c["max_x"] - CARRY_MARGIN)),
+                                 torch.relu((c["min_height"] + CARRY_MARGIN) - com[:, 2])], dim=1)
+        carry = grasped * (1 - torch.tanh(CARRY_SCALE * torch.linalg.norm(shortfall, dim=1)))
+        speed = torch.linalg.norm(self.target.linear_velocity, dim=1)
+        hold = grasped * in_region * (1 - torch.tanh(HOLD_SPEED_SCALE * speed))
         disturb = torch.clamp(info["max_others_moved"] / c["max_others_moved"], 0.0, 1.0)
-        reward = reach + grasped + lift + 2 * retrieve - disturb
+        force = info.get("robot_furniture_force")
+        contact = (force > CONTACT_FORCE).float() if force is not None else torch.zeros_like(grasped)
+        return dict(reach=reach, grasp=grasped, lift=lift, carry=carry, hold=hold, disturb=disturb, contact=contact)
+
+    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """The weighted stages (``REWARD_WEIGHTS``, at most 6) times the penalty factor
+        (1 - 0.5 disturb)(1 - 0.25 contact), in [0, 6]; 6 on success."""
+        terms = self.reward_terms(info)
+        stages = sum(weight * terms[name] for name, weight in REWARD_WEIGHTS.items())
+        factor = (1 - DISTURB_PENALTY * terms["disturb"]) * (1 - CONTACT_PENALTY * terms["contact"])
+        reward = stages * factor
         return torch.where(info["success"], torch.full_like(reward, DENSE_REWARD_MAX), reward)
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
+        """The dense reward over its maximum: in [0, 1]."""
         return self.compute_dense_reward(obs=obs, action=action, info=info) / DENSE_REWARD_MAX
 
 

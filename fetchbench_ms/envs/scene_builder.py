@@ -33,6 +33,9 @@ from ..tasks.spec import TaskSpec
 from .bodies import add_object_shapes, box_half_size
 
 PLACEHOLDER_HALF_SIZE = 0.01  # m
+#: Points sampled on the target's collision surface, for the reward's TCP-to-surface
+#: distance (a 10 cm object gets about one point per 1.5 cm^2).
+TARGET_SURFACE_POINTS = 512
 ROBOT_TABLE_RGBA = (0.35, 0.35, 0.38, 1.0)
 
 
@@ -57,6 +60,7 @@ class BuiltTasks:
     valid: torch.Tensor  # [B, S] bool: the slot holds a task object (not a placeholder)
     target_index: torch.Tensor  # [B] long
     target_radius: torch.Tensor  # [B] largest distance from the target's centre of mass to its surface
+    target_surface: torch.Tensor  # [B, P, 3] points on the target's collision surface, body frame
     camera_pose: dict[str, torch.Tensor]  # "left"/"right" -> [B, 7]
     base_pose: torch.Tensor  # [B, 7]
 
@@ -107,6 +111,8 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0, wit
         for i, t in enumerate(tasks)
     ]
 
+    target_surface = [_surface_points(per_slot[t.target_index][i], TARGET_SURFACE_POINTS) for i, t in enumerate(tasks)]
+
     camera_mounts, camera_pose = {}, {}
     for side in ("left", "right"):
         mounts = []
@@ -155,6 +161,7 @@ def build_tasks(env, tasks: list[TaskSpec], scene_specs, min_slots: int = 0, wit
         valid=torch.tensor(valid, device=device),
         target_index=torch.tensor([t.target_index for t in tasks], dtype=torch.long, device=device),
         target_radius=torch.tensor(target_radius, dtype=torch.float32, device=device),
+        target_surface=torch.tensor(np.stack(target_surface), dtype=torch.float32, device=device),
         camera_pose=camera_pose,
         base_pose=base_pose,
     )
@@ -174,6 +181,31 @@ def _collision_vertices(actor: Actor) -> np.ndarray:
         vertices = shape.get_vertices() * shape.scale
         points.append(vertices @ shape.local_pose.to_transformation_matrix()[:3, :3].T + shape.local_pose.p)
     return np.concatenate(points)
+
+
+def _surface_points(actor: Actor, n: int) -> np.ndarray:
+    """(n, 3) points on an actor's convex collision shapes, body frame: their vertices,
+    then area-weighted samples of their triangles (seeded by the shapes alone, so the
+    same object gives the same points)."""
+    body = actor._objs[0].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+    vertices, triangles = [], []
+    for shape in body.collision_shapes:
+        local = shape.get_vertices() * shape.scale
+        local = local @ shape.local_pose.to_transformation_matrix()[:3, :3].T + shape.local_pose.p
+        triangles.append(local[shape.get_triangles()])
+        vertices.append(local)
+    vertices, triangles = np.concatenate(vertices), np.concatenate(triangles)  # (V, 3), (T, 3, 3)
+    if len(vertices) >= n:
+        return vertices[np.linspace(0, len(vertices) - 1, n).astype(int)]
+    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
+    rng = np.random.default_rng(len(vertices))
+    picked = rng.choice(len(triangles), size=n - len(vertices), p=area / area.sum())
+    u, v = rng.random((2, len(picked), 1))
+    flip = (u + v) > 1  # fold the unit square onto the triangle
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    tri = triangles[picked]
+    samples = tri[:, 0] + u * (tri[:, 1] - tri[:, 0]) + v * (tri[:, 2] - tri[:, 0])
+    return np.concatenate([vertices, samples])
 
 
 def initialize_tasks(built: BuiltTasks, env_idx: torch.Tensor) -> None:

@@ -18,23 +18,38 @@ from __future__ import annotations
 import functools
 
 
-def _make_cpu_env(env_id: str, kwargs: dict):
+def _make_cpu_env(env_id: str, kwargs: dict, wrappers: tuple = (), wrapper_kwargs: dict | None = None):
     import gymnasium as gym
+    import torch
     from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
 
     import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0 in a spawned worker)
 
-    return CPUGymWrapper(gym.make(env_id, **kwargs))
+    # One scene per process: torch's own thread pool would only fight the other workers
+    # for the cores (a machine of N cores runs N workers).
+    torch.set_num_threads(1)
+    env = gym.make(env_id, **kwargs)
+    for wrapper in wrappers:
+        env = wrapper(env)
+    return CPUGymWrapper(env, **(wrapper_kwargs or {}))
 
 
-def make_vec_env(env_id: str, num_envs: int, context: str = "spawn", **kwargs):
+def make_vec_env(env_id: str, num_envs: int, context: str = "spawn", wrappers: tuple = (),
+                 record_metrics: bool = False, ignore_terminations: bool = False, autoreset_mode=None, **kwargs):
     """A ``gymnasium.vector.AsyncVectorEnv`` of ``num_envs`` CPU envs ``env_id`` made with
     ``kwargs`` (every env kwarg, e.g. ``obs_mode``, ``control_mode``, ``task_source``).
 
     Workers are separate processes started with ``context`` (``"spawn"`` by default:
     a fork of a process that has rendered can break SAPIEN's renderer); each imports
     the package, so the first reset takes a few seconds. ``num_envs`` and ``sim_backend``
-    are not env kwargs here: every worker simulates one scene on the CPU."""
+    are not env kwargs here: every worker simulates one scene on the CPU.
+
+    ``wrappers``: callables (picklable: classes or module-level functions) applied in
+    order to each worker's batched ManiSkill env before ``CPUGymWrapper``;
+    ``record_metrics`` / ``ignore_terminations``: ``CPUGymWrapper``'s (episode return,
+    length, success_once in ``info["episode"]``); ``autoreset_mode``: gymnasium's
+    (``gymnasium.vector.AutoresetMode.SAME_STEP`` resets a finished env in the same step
+    and hands over ``final_obs`` / ``final_info``, as ManiSkill's GPU vector env does)."""
     import gymnasium as gym
 
     from . import ENV_IDS
@@ -46,5 +61,7 @@ def make_vec_env(env_id: str, num_envs: int, context: str = "spawn", **kwargs):
     for key in ("num_envs", "sim_backend"):
         if key in kwargs:
             raise ValueError(f"make_vec_env runs one CPU env per worker process: leave {key!r} out of the env kwargs")
-    factory = functools.partial(_make_cpu_env, env_id, {**kwargs, "sim_backend": "physx_cpu"})
-    return gym.vector.AsyncVectorEnv([factory] * int(num_envs), context=context)
+    factory = functools.partial(_make_cpu_env, env_id, {**kwargs, "sim_backend": "physx_cpu"}, tuple(wrappers),
+                                dict(record_metrics=record_metrics, ignore_terminations=ignore_terminations))
+    extra = {} if autoreset_mode is None else {"autoreset_mode": autoreset_mode}
+    return gym.vector.AsyncVectorEnv([factory] * int(num_envs), context=context, **extra)

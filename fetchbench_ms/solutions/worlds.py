@@ -38,18 +38,22 @@ def object_poses_base(env) -> list[np.ndarray]:
 
 
 def mesh_world(env) -> CollisionWorld:
+    u = env.unwrapped
+    return task_mesh_world(u.tasks[0], np.linalg.inv(T_world_base(env)), object_poses_base(env))
+
+
+def task_mesh_world(task, T_base_world: np.ndarray, T_base_objects: list[np.ndarray]) -> CollisionWorld:
+    """The oracle world of ``task`` in the base frame, objects at ``T_base_objects`` (task
+    order): furniture parts, robot table, floor, each object's convex parts."""
     from ..tasks.objects import load_object
 
-    u = env.unwrapped
-    task = u.tasks[0]
-    T_base_world = np.linalg.inv(T_world_base(env))
     world = CollisionWorld()
     for obstacle_set in obstacle_sets_from_parts(task.scene().parts, T_base_world):
         world.add("scene", obstacle_set)
     T_table = T_base_world @ pose_matrix(task.robot_table_center, task.robot_base_quat_wxyz)
     T_floor = T_base_world @ pose_matrix([0.0, 0.0, -FLOOR_THICKNESS / 2])
     world.add("scene", box_set(np.stack([T_table, T_floor]), [task.robot_table_size, [20.0, 20.0, FLOOR_THICKNESS]]))
-    for k, (placement, T) in enumerate(zip(task.objects, object_poses_base(env))):
+    for k, (placement, T) in enumerate(zip(task.objects, T_base_objects)):
         group = "target" if k == task.target_index else f"object:{k}"
         world.add(group, convex_set_from_parts(load_object(placement.object_id).convex_parts, T))
     return world

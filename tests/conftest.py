@@ -87,3 +87,15 @@ def scene_cases(seeds=SEEDS):
         for seed in seeds:
             cases.append(pytest.param(lambda name=name, seed=seed: generate(name, seed), id=f"{name}-{seed}"))
     return cases
+
+
+@pytest.fixture(scope="module")
+def robot():
+    """The planners' Panda model (sphere model and batched kinematics), one torch thread as
+    the planners run in the eval workers."""
+    import torch
+
+    from fetchbench_ms.planning.robot import panda
+
+    torch.set_num_threads(1)
+    return panda()

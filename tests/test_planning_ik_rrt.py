@@ -8,15 +8,9 @@ from fetchbench_ms.planning.checker import Attachment, CollisionChecker
 from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
 from fetchbench_ms.planning.exact import ExactRobot
 from fetchbench_ms.planning.ik import POS_TOL, ROT_TOL, pose_errors, solve_ik
-from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
+from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT
 from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
 from fetchbench_ms.planning.timing import time_parametrize
-
-
-@pytest.fixture(scope="module")
-def robot():
-    torch.set_num_threads(1)
-    return panda()
 
 
 @pytest.fixture(scope="module")

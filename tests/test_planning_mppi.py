@@ -18,19 +18,13 @@ from fetchbench_ms.planning.collision_net import NetConfig, RobotSpheres, SceneC
 from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_boxes, shelf_worlds
 from fetchbench_ms.planning.ik import solve_ik
 from fetchbench_ms.planning.mppi import MppiConfig, plan_mppi
-from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+from fetchbench_ms.planning.robot import Q_DEFAULT
 from fetchbench_ms.planning.rrt import densify
 from fetchbench_ms.planning.world import CollisionWorld, PointCloudField
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "baselines" / "mppi_collision"))
 import labels as labelling  # noqa: E402
 import train as training  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def robot():
-    torch.set_num_threads(1)
-    return panda()
 
 
 @pytest.fixture(scope="module")

@@ -7,13 +7,8 @@ import torch
 import trimesh
 
 from fetchbench_ms.planning.exact import ExactRobot
-from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
+from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT
 from fetchbench_ms.planning.spheres import load_or_fit, sample_link_points
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return panda()
 
 
 def test_fk_matches_pytorch_kinematics(robot):

@@ -11,16 +11,10 @@ from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_boxes, shelf_wor
 from fetchbench_ms.planning.distance import GRID_EXACT_BAND, GRID_RESOLUTION, GRID_TRUNCATION, TorchRobot, TorchWorld
 from fetchbench_ms.planning.exact import ExactRobot
 from fetchbench_ms.planning.ik import solve_ik
-from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT, panda
+from fetchbench_ms.planning.robot import FINGER_OPEN, Q_DEFAULT
 from fetchbench_ms.planning.rrt import densify
 from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch, plan_trajopt_to_pose
 from fetchbench_ms.planning.world import CollisionWorld, ConvexSet, PointCloudField
-
-
-@pytest.fixture(scope="module")
-def robot():
-    torch.set_num_threads(1)
-    return panda()
 
 
 @pytest.fixture(scope="module")

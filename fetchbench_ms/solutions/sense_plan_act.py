@@ -14,7 +14,8 @@ release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-tra
 (``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect. ``cgn-ptd-rrt`` (the
 paper's CGN-RRTConnect) and ``cgn-mesh-rrt`` (CGN-Mesh-RRTConnect) take the top
 Contact-GraspNet predictions on the observed target instead (``SolveConfig.grasp_model``:
-``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``). ``cgn-ptd-mppi`` (the paper's CGN-Cabinet),
+``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``); ``cgn-ptd-trajopt`` (CGN-CuRobo)
+and ``cgn-mesh-trajopt`` (CGN-Mesh-CuRobo) plan those with the trajectory optimiser. ``cgn-ptd-mppi`` (the paper's CGN-Cabinet),
 ``ga-ptd-mppi`` and ``ga-mesh-mppi`` move by receding-horizon MPPI (``planning.mppi``), which
 executes while it plans; its collision cost is the learned scene-collision network on the
 observed cloud (``planning.collision_net``), or for ``ga-mesh-mppi`` the meshes' distances.
@@ -52,6 +53,8 @@ METHODS = {
     "ga-ptd-trajopt": dict(world="pointcloud", grasps="oracle", planner="trajopt"),
     "cgn-ptd-rrt": dict(world="pointcloud", grasps="cgn", planner="rrt"),
     "cgn-mesh-rrt": dict(world="mesh", grasps="cgn", planner="rrt"),
+    "cgn-ptd-trajopt": dict(world="pointcloud", grasps="cgn", planner="trajopt"),
+    "cgn-mesh-trajopt": dict(world="mesh", grasps="cgn", planner="trajopt"),
     # MPPI (planning.mppi): scene collision from the learned network on the observed cloud, or
     # (the mesh oracle) from the meshes' distance fields.
     "cgn-ptd-mppi": dict(world="pointcloud", grasps="cgn", planner="mppi", collision="network"),

@@ -9,7 +9,7 @@ import pytest
 
 from fetchbench_ms.cli import main
 from fetchbench_ms.evaluation import ResultsStore
-from fetchbench_ms.evaluation.metrics import summarize
+from fetchbench_ms.evaluation.metrics import summarize, wilson_interval
 from fetchbench_ms.evaluation.report import build_report, sample_failures
 
 PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval_plan", "held_at_end")
@@ -62,6 +62,20 @@ def test_summary_numbers(runs):
     assert [funnel[k] for k in ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval_plan")] == \
         [round(x / 6, 4) for x in (4, 3, 3, 3, 2)]
     assert funnel["success"] == round(2 / 6, 4)
+    assert s["all"]["median_cspace_length_successes"] == 4.0  # of tasks 0 and 1
+
+
+def test_first_try_rate_and_interval():
+    # With --retries a success on a later try counts in the success rate, not the first-try one.
+    retried = [{**record(i, "on_table", "Desk", 6, i < 3), "attempts": a} for i, a in enumerate((1, 1, 3, 5))]
+    s = summarize(retried)["all"]
+    assert s["success_rate"] == 0.75 and s["first_try_success_rate"] == 0.5
+    lo, hi = s["success_ci95"]
+    assert lo < 0.75 < hi and 0 <= lo and hi <= 1
+    assert wilson_interval(0, 10)[0] == 0.0 and wilson_interval(10, 10)[1] == 1.0
+    # The usual figure: 246 of 600 is 0.41 +- about 0.04.
+    lo, hi = wilson_interval(246, 600)
+    assert abs(lo - 0.371) < 0.002 and abs(hi - 0.450) < 0.002
 
 
 def test_report_tables_match_the_records(runs):

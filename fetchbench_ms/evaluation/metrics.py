@@ -7,6 +7,7 @@ Medians of computation time and C-space length are over tasks that ran (no error
 """
 from __future__ import annotations
 
+import math
 import statistics
 
 CATEGORIES = ("on_table", "on_shelf", "in_drawer", "in_basket")  # the paper's column order
@@ -22,6 +23,16 @@ def _median(values) -> float | None:
     return round(statistics.median(values), 3) if values else None
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float] | None:
+    """95% Wilson score interval of a success rate (sound at 0 and n, unlike the normal one)."""
+    if n == 0:
+        return None
+    p = successes / n
+    centre = p + z * z / (2 * n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return round((centre - half) / (1 + z * z / n), 4), round((centre + half) / (1 + z * z / n), 4)
+
+
 def failure_classes(records: list[dict]) -> list[str]:
     seen = {r["failure"] for r in records if r.get("failure")}
     return [f for f in FAILURE_ORDER if f in seen] + sorted(seen - set(FAILURE_ORDER))
@@ -30,13 +41,20 @@ def failure_classes(records: list[dict]) -> list[str]:
 def group_stats(records: list[dict]) -> dict:
     n = len(records)
     ran = [r for r in records if not r.get("error")]
+    successes = sum(bool(r["success"]) for r in records)
+    # With --retries N a task that succeeded on its first try is exactly what a single-try
+    # run gives (the first try draws the same random numbers), so one x5 run has both figures.
+    first_try = sum(bool(r["success"]) and (r.get("attempts") or 1) == 1 for r in records)
     return {
         "tasks": n,
-        "successes": sum(bool(r["success"]) for r in records),
-        "success_rate": round(sum(bool(r["success"]) for r in records) / n, 4) if n else None,
+        "successes": successes,
+        "success_rate": round(successes / n, 4) if n else None,
+        "success_ci95": wilson_interval(successes, n),
+        "first_try_success_rate": round(first_try / n, 4) if n else None,
         "errors": n - len(ran),
         "median_computation_time": _median(r.get("computation_time") for r in ran),
         "median_cspace_length": _median(r.get("cspace_length") for r in ran),
+        "median_cspace_length_successes": _median(r.get("cspace_length") for r in ran if r["success"]),
         "funnel": {key: round(sum(bool(_stage(r, key)) for r in records) / n, 4) if n else None
                    for key, _ in FUNNEL},
         "failures": {f: sum(r.get("failure") == f for r in records) for f in failure_classes(records)},

@@ -51,9 +51,11 @@ def test_the_farthest_point_order_check_accepts_greedy_orders_only():
     assert not pointops.is_farthest_point_sequence(clouds, swapped)
     assert not pointops.is_farthest_point_sequence(clouds, greedy + 1)  # not from index 0
     assert not pointops.is_farthest_point_sequence(clouds, torch.full_like(greedy, 400))  # out of range
-    # on the CPU the torch loop runs (the Triton kernel is for CUDA devices)
+    # on the CPU the NumPy loop runs (the Triton kernel is for CUDA devices): the same picks
     assert pointops.fps_backend(torch.device("cpu")) == "torch"
     assert torch.equal(pointops.farthest_point_sample(clouds, 50), greedy)
+    assert torch.equal(pointops.farthest_point_sample_numpy(clouds, 50, start=7),
+                       pointops.farthest_point_sample_loop(clouds, 50, start=7))
 
 
 def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):

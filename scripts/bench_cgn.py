@@ -13,7 +13,8 @@ target region (``assets/clouds/cgn_smoke_0003_region.npz``) repeated to the batc
 the median of ``--repeats`` calls after ``--warmup`` calls on CUDA (``--cpu-repeats``,
 ``--cpu-warmup`` on the CPU), per device; ``--threads`` sets torch's CPU threads. On
 CUDA each ``--fps`` choice is timed: the Triton farthest-point kernel (``auto``; the row
-says ``"fps": "torch"`` if it failed its check and the loop ran) and the torch loop.
+says ``"fps": "torch"`` if it failed its check and the loop ran) and the torch loop; the CPU
+row says ``"numpy"`` (its sampler).
 
 ``quality`` renders each task's clouds, predicts grasps on the target, turns the best
 ``--top`` into the object's frame and runs them through the grasp labeller
@@ -98,7 +99,7 @@ def cmd_speed(args) -> dict:
         if device.startswith("cuda") and not torch.cuda.is_available():
             raise SystemExit(f"--device {device}: CUDA is not available here (valid: cpu)")
         os.environ["FETCHBENCH_FPS"] = fps
-        backend = fps_backend(torch.device(device))
+        backend = fps_backend(torch.device(device)) if device.startswith("cuda") else "numpy"  # pointops: the CPU's loop
         model, weights = _timing_model(args.grasp_model, device)
         repeats = args.repeats if device.startswith("cuda") else args.cpu_repeats
         for batch in args.batch:

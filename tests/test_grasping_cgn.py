@@ -77,24 +77,35 @@ def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
     assert pointops._FPS_BACKENDS == {"cpu": "torch"}
 
 
-def test_ball_query_takes_the_first_points_within_the_radius_in_index_order():
+@pytest.mark.parametrize("query", ["ball_query", "_ball_query_full"])
+def test_ball_query_takes_the_first_points_within_the_radius_in_index_order(query, monkeypatch):
+    # The CPU reads the cloud in blocks of columns; a small block makes this cloud span several.
+    monkeypatch.setattr(pointops, "COLUMN_BLOCK", 128)
+    ball_query = pointops.ball_query if query == "ball_query" else (
+        lambda p, c, r, k: (lambda out: out[0] if isinstance(r, float) else out)(
+            pointops._ball_query_full(p, c, [r] if isinstance(r, float) else list(r), k)))
     rng = np.random.default_rng(1)
     pts = np.stack([random_cloud(rng, 500), random_cloud(rng, 500)])
-    centers = pts[:, :37]
-    radii, k = (0.03, 0.08), 16
-    got = pointops.ball_query(torch.tensor(pts), torch.tensor(centers), radii, k)
+    centers = np.concatenate([pts[:, :37], np.full((2, 1, 3), 0.25, np.float32)], 1)  # the last: few or no points
+    radii, k = (0.03, 0.08, 0.3), 16
+    got = ball_query(torch.tensor(pts), torch.tensor(centers), radii, k)
     for r, index in zip(radii, got):
-        assert index.shape == (2, 37, k)
+        assert index.shape == (2, 38, k)
         for b in range(2):
-            for m in range(37):
+            for m in range(38):
                 d2 = ((pts[b] - centers[b, m]) ** 2).sum(1)
                 within = np.flatnonzero(d2 <= r * r)[:k]
+                if len(within) == 0:
+                    within = np.array([d2.argmin()])
                 expected = np.concatenate([within, np.full(k - len(within), within[0])])
                 assert index[b, m].tolist() == expected.tolist()
     # a single radius gives one tensor; a centre away from every point gets its nearest point
-    lonely = pointops.ball_query(torch.tensor(pts[:1]), torch.tensor([[[5.0, 5.0, 5.0]]]), 0.01, 4)
+    lonely = ball_query(torch.tensor(pts[:1]), torch.tensor([[[5.0, 5.0, 5.0]]]), 0.01, 4)
     assert lonely.shape == (1, 1, 4)
     assert set(lonely[0, 0].tolist()) == {int(((pts[0] - 5.0) ** 2).sum(1).argmin())}
+    # k larger than the cloud: the rest repeats the first
+    few = ball_query(torch.tensor(pts[:1, :10]), torch.tensor(pts[:1, :2]), 1.0, 16)
+    assert few[0, 0].tolist() == list(range(10)) + [0] * 6
 
 
 def test_knn_interpolate_matches_inverse_distance_weighting():

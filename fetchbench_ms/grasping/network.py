@@ -85,9 +85,22 @@ class _PointConv(nn.Module):
         self.local_nn = shared_mlp(channels)
 
     def forward(self, features, points, centers, neighbours):
-        rel = gather(points, neighbours) - centers[:, :, None, :]  # [B, M, K, 3]
-        grouped = rel if features is None else torch.cat([gather(features, neighbours), rel], -1)
-        return apply_mlp(self.local_nn, grouped).amax(dim=2)
+        if features is None:
+            rel = gather(points, neighbours) - centers[:, :, None, :]  # [B, M, K, 3]
+            return apply_mlp(self.local_nn, rel).amax(dim=2)
+        # The first layer is linear in [x_j, p_j - p_i]: apply it once per point (W_x x_j + W_p p_j
+        # + b) and per centre (W_p p_i), then group. The same numbers as grouping first, with
+        # the widest matrix product done on N points instead of M x K neighbours (16x fewer at
+        # the second level): a third of the network's time on a CPU.
+        linear, *rest = self.local_nn[0]
+        C = features.shape[-1]
+        w_features, w_points = linear.weight[:, :C], linear.weight[:, C:]
+        per_point = torch.addmm(linear.bias, features.reshape(-1, C), w_features.t()).view(*features.shape[:2], -1)
+        per_point = per_point + points @ w_points.t()
+        first = gather(per_point, neighbours) - (centers @ w_points.t())[:, :, None, :]
+        for layer in rest:  # the first layer's ReLU and BatchNorm
+            first = apply_mlp(layer, first) if isinstance(layer, nn.BatchNorm1d) else layer(first)
+        return apply_mlp(self.local_nn[1:], first).amax(dim=2)
 
 
 class SetAbstractionScale(nn.Module):

@@ -23,8 +23,16 @@ changes). The scene clearance comes from
 - ``cost="distance"``: the checker's world as the torch distance fields of ``distance.py``
   (the point-cloud grid, or the oracle meshes): the ablation, no checkpoint needed.
 
-Near a goal (within ``snap_distance`` rad) a straight segment to it that the cost model
-calls free is taken: MPPI's noise would otherwise dither around a 0.01 rad tolerance.
+The goals come checked free by the caller's exact checker, but a cautious cost model (the
+network at its decision margin calls ~3 cm around surfaces a contact; a pre-grasp is 4 cm
+from its target, often near a board) may call them in contact: its rollouts into the goal
+then all "crash" and MPPI hovers outside until its replans run out. So around each goal
+(``goal_region`` rad) the cost model's clearance gets a credit, fading with the distance,
+of what it lacks at the goal; executed states that are free only on that credit must pass
+the exact checker. Near a goal (within ``snap_distance`` rad) a straight segment to it that
+the cost model calls free is taken: MPPI's noise would otherwise dither around a 0.01 rad
+tolerance; within ``exact_snap_distance`` a straight segment to any goal that the exact
+checker passes all along is taken (the final approach, validated as RRT's edges are).
 The result is the ``PlanResult`` of the other planners with ``path`` the executed
 waypoints and ``executed=True``: the robot is already there.
 """
@@ -70,6 +78,12 @@ class MppiConfig:
     speed_scale: float = 0.4  # of the velocity limits, as the executor's
     goal_tolerance: float = 0.01  # rad, max joint error
     snap_distance: float = 0.3  # rad: a free straight segment to the goal from this near is taken
+    # rad (joint-space norm): around a goal the cost model's clearance is raised, fading out
+    # linearly over this distance, by as much as it lacks at the goal itself (the goal comes
+    # checked free by the caller's exact checker; a network that doubts it would otherwise
+    # fence the goal off). States executed on that credit are checked by the exact checker.
+    goal_region: float = 0.5
+    exact_snap_distance: float = 0.8  # rad: a straight segment to a goal the exact checker passes is taken
     cost: str = "network"  # network | distance
     safety: float = 0.01  # m of clearance the collision cost asks for
     eta: float = 0.03  # m: activation distance of the smooth collision cost
@@ -190,6 +204,31 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         return scene.robot.fk.forward(torch.cat([x, finger.expand(len(x), 2)], 1))["panda_hand_tcp"][:, :3, 3]
 
     goal_tcp = tcp(goals)
+    # What each goal's clearance lacks of the collision cost's activation distance: the
+    # credit given around it (``goal_region``; 0 for a goal the cost model calls roomy).
+    goal_deficit = (cfg.safety + cfg.eta - scene.clearance(goals)).clamp(min=0)
+
+    def credit(x: torch.Tensor) -> torch.Tensor:
+        """(N,) clearance credit of configurations (N, 7) near a goal the cost model doubts."""
+        if cfg.goal_region <= 0:
+            return torch.zeros(len(x), **dd)
+        fade = (1 - torch.cdist(x, goals) / cfg.goal_region).clamp(min=0)
+        return (goal_deficit[None] * fade).amax(dim=1)
+
+    def executable(dense: np.ndarray, floor: float, self_limit: float) -> bool:
+        """Whether the robot may move through configurations ``dense`` (N, 7): clearance (with
+        the goal credit) above ``floor`` and self cost no higher than ``self_limit`` everywhere, and
+        the states that are above ``floor`` only on the credit valid for the exact checker."""
+        nonlocal n_checked
+        x = torch.as_tensor(dense, **dd)
+        n_checked += len(x)
+        raw, extra = scene.clearance(x), credit(x)
+        if not bool((raw + extra > floor).all()):
+            return False
+        if not bool((scene.self_cost(x, cfg.self_tolerance) <= self_limit + 1e-6).all()):
+            return False
+        lean = ((extra > 0) & (raw <= floor)).cpu().numpy()
+        return not lean.any() or bool(checker.valid(dense[lean]).all())
 
     def goal_distance(x: torch.Tensor) -> torch.Tensor:
         """(N,) distance of configurations (N, 7) to the nearest goal: joint space (rad) plus
@@ -239,7 +278,7 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         states = _rollout(q_now, steps, lo, hi)  # (R, H, 7)
         R_ = len(steps)
         flat = states.reshape(-1, 7)
-        clear = scene.clearance(flat).reshape(R_, H)
+        clear = (scene.clearance(flat) + credit(flat)).reshape(R_, H)
         hit = (clear < floor).float()
         crashed = torch.cummax(hit, dim=1).values  # a contact stays for the rest of the rollout
         coll = cfg.w_collision * collision_cost(clear - cfg.safety, cfg.eta) + cfg.w_contact * crashed
@@ -266,22 +305,31 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         # A start the cost model calls in contact (the robot at rest on a support, a goal
         # that the planner's checker accepted but the network doubts) may be left, never
         # entered deeper: moves are allowed down to a little below the start's clearance.
-        c_start = float(scene.clearance(q_now[None])[0])
+        c_start = float((scene.clearance(q_now[None]) + credit(q_now[None]))[0])
         self_start = float(scene.self_cost(q_now[None], cfg.self_tolerance)[0])
         floor = 0.0 if c_start >= 0 else c_start - FLOOR_SLACK
         # Near the goal: the straight segment, if the cost model calls all of it free (or no
-        # deeper than its ends: the goal comes checked by the caller's checker).
+        # deeper than its ends: the goal comes checked by the caller's checker). Farther
+        # (``exact_snap_distance``): a segment to any goal that the caller's exact checker
+        # passes all along (the final approach, validated as the other planners' edges are).
         path = None
         if float(np.abs(q - goals_np[g]).max()) <= cfg.snap_distance:
-            segment = densify(np.stack([q, goals_np[g]]), 0.02)
-            seg_t = torch.as_tensor(segment, **dd)
-            n_checked += len(segment)
-            seg_clear = scene.clearance(seg_t)
-            seg_self = scene.self_cost(seg_t, cfg.self_tolerance)
-            c_goal = float(seg_clear[-1])
+            segment = densify(np.stack([q, goals_np[g]]), cfg.check_resolution)
+            end = torch.as_tensor(goals_np[g:g + 1], **dd)
+            c_goal = float((scene.clearance(end) + credit(end))[0])
             seg_floor = floor if c_goal >= 0 else min(floor, c_goal - FLOOR_SLACK)
-            if bool((seg_clear > seg_floor).all()) and bool((seg_self <= max(self_start, float(seg_self[-1])) + 1e-6).all()):
+            self_goal = float(scene.self_cost(end, cfg.self_tolerance)[0])
+            if executable(segment, seg_floor, max(self_start, self_goal)):
                 path = segment[[0, -1]]
+        reach = np.abs(goals_np - q).max(axis=1)
+        for k in np.argsort(reach, kind="stable") if path is None else ():
+            if reach[k] > cfg.exact_snap_distance:
+                break
+            segment = densify(np.stack([q, goals_np[k]]), cfg.check_resolution)
+            n_checked += len(segment)
+            if bool(checker.valid(segment).all()):
+                path = segment[[0, -1]]
+                break
         if path is None:
             mean = straight(q_now) if mean is None else mean
             for _ in range(cfg.iterations):
@@ -299,12 +347,8 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
             def free_first(steps: torch.Tensor) -> bool:
                 """The first second of a sequence, checked densely (``check_resolution``)."""
                 states = _rollout(q_now, steps[None, :replan_steps], lo, hi)[0]
-                dense = torch.as_tensor(densify(np.concatenate([q[None], states.double().cpu().numpy()]),
-                                                cfg.check_resolution), **dd)
-                nonlocal n_checked
-                n_checked += len(dense)
-                return bool((scene.clearance(dense) > floor).all()) and bool(
-                    (scene.self_cost(dense, cfg.self_tolerance) <= self_start + 1e-6).all())
+                dense = densify(np.concatenate([q[None], states.double().cpu().numpy()]), cfg.check_resolution)
+                return executable(dense, floor, self_start)
 
             # Execute the mean's first second if it is free, else that of the best free
             # rollout (the cheapest few are tried).

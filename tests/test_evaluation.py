@@ -62,7 +62,9 @@ def test_faults_are_isolated(tiny_suite, tmp_path, monkeypatch):
     faults = {"tiny/0000": "raise", "tiny/0001": "hang", "tiny/0002": "crash"}
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", json.dumps({str(task_seed(k)): v for k, v in faults.items()}))
     start = time.monotonic()
-    records = evaluate("evaluation_faults:faulty", tmp_path, suite=str(tiny_suite), workers=2, task_timeout=12,
+    # The limit must leave a loaded 2-core machine time to start a worker's env and judge a
+    # task (12 s timed out the healthy task under load), and still cut the hanging one.
+    records = evaluate("evaluation_faults:faulty", tmp_path, suite=str(tiny_suite), workers=2, task_timeout=30,
                        progress=False)
     assert time.monotonic() - start < 120
     by_id = {r["task_id"]: r for r in records}
@@ -225,7 +227,7 @@ def test_ray_backend_isolates_faults(tiny_suite, tmp_path, monkeypatch):
     faults = {"tiny/0000": "raise", "tiny/0001": "hang", "tiny/0002": "crash"}
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", json.dumps({str(task_seed(k)): v for k, v in faults.items()}))
     records = evaluate("evaluation_faults:faulty", tmp_path, suite=str(tiny_suite), workers=2, backend="ray",
-                       task_timeout=15, progress=False)
+                       task_timeout=30, progress=False)  # see test_faults_are_isolated
     kinds = {r["task_id"]: (r.get("error") or {}).get("kind") for r in records}
     assert kinds == {"tiny/0000": "exception", "tiny/0001": "timeout", "tiny/0002": "crash", "tiny/0003": None}
     assert "injected failure" in records[0]["error"]["traceback"]

@@ -13,15 +13,23 @@ separately by ``scripts/bench_cgn.py quality`` (docs/grasping.md), and not used 
 anything.
 
 Data (made once per run folder, cached in ``<run>/data.npz``; the hash of its arrays goes
-into the checkpoint): synthetic single-view clouds of 1-3 objects on a table. Each scene
-places the objects in random stable poses and yaws, samples their convex parts' surfaces
-and a table patch; each of its ``--views-per-scene`` views keeps what a pinhole camera
-(320x240, 70 deg horizontal FOV, 0.6-1.2 m away, 20-70 deg elevation, random azimuth)
-sees first along each pixel ray (a z-buffer "render"), in a world frame with z up. Labels
-come from the objects' physics-verified grasps (fetchbench_ms.grasps): each grasp's two
-finger contacts (TCP +- width/2 along the closing axis); a cloud point within 5 mm of a
-contact is positive and carries that grasp in CGN's frame (baseline from that contact to
-the other finger, approach, width). Only the positive points' labels are stored.
+into the checkpoint): synthetic clouds of 1-3 objects on a table, made the way the network's
+input is made at inference. Each scene places the objects in random stable poses and yaws
+and samples their convex parts' surfaces and a table patch densely (1.5 mm); each of its
+``--views-per-scene`` views fuses what two pinhole cameras (320x240, 70 deg horizontal FOV,
+0.6-1.2 m away, 20-70 deg elevation, random azimuths) see first along each pixel ray (a
+z-buffer "render"), world frame, z up, then crops the cube about one seen object and draws
+20k points from it with ``predict.region_index`` (inference's own crop), and mean-centres
+them. (The first run's views, a whole 0.7 m table seen by one camera, 3x sparser, 5 % object
+points, were far from what the network sees at inference: the pretrained logits reached
++-1e4 on them and the first steps were spent on that.) Labels come from the objects'
+physics-verified grasps (fetchbench_ms.grasps) that are collision-free in the scene
+(``collision_free``: the open hand above the table and out of the other objects; verified on
+the object alone, most of them put the palm through the table): each grasp's two finger
+contacts (TCP +- width/2 along the closing axis); a cloud point within 5 mm of a contact is
+positive and carries that grasp in CGN's frame (baseline from that contact to the other
+finger, approach into the object, width the finger gap: the original's convention,
+docs/grasping.md "Labels"). Only the positive points' labels are stored.
 
 Losses (the original's): confidence BCE over the 512 hardest of the 2048 contact points;
 ADD-S on gripper control points (min over the two finger-symmetric labels) for positive
@@ -31,7 +39,7 @@ points, weighted by the predicted confidence; width L1 for positive points.
     # weights; --train-seconds fixes --steps from the measured step time at the start, each
     # call stops at --time-limit with a checkpoint and the same command resumes it (the run
     # folder must survive between calls); the last call validates and exports
-    python baselines/contact_graspnet/train.py --run /tmp/cgn-ours --workers 4 --train-seconds 600 \
+    python baselines/contact_graspnet/train.py --run /tmp/cgn-ours-v3 --workers 14 --train-seconds 900 \
         --time-limit 540 --export --export-dir $OUT
     # a CPU smoke run: tiny network, few points
     python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --val-views 2 --steps 5
@@ -84,6 +92,10 @@ class Args:
     lr_final: float = 1e-6  # cosine decay to this after a linear warm-up
     warmup_steps: int = 50
     init: str = "pretrained"  # "scratch" or "pretrained" (fine-tune the cgn-pytorch weights)
+    # fine-tuning keeps the pretrained BatchNorm running statistics (those layers stay in eval
+    # mode; their scales and shifts still learn): statistics re-estimated on our views halve
+    # the pretrained model's pose agreement with no weight changed (docs/grasping.md)
+    freeze_bn: bool = True
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
     log_every: int = 50
     ckpt_every: int = 200
@@ -100,8 +112,8 @@ class Args:
 # Flags that change what is trained (the retraining command names them all); the others
 # (run folder, device, workers, time limits, export) change only where and how fast.
 TRAINING_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
-                  "steps", "batch_size", "lr", "lr_final", "warmup_steps", "init", "conf_topk", "adds_weight",
-                  "width_weight", "positive_radius", "tiny")
+                  "steps", "batch_size", "lr", "lr_final", "warmup_steps", "init", "freeze_bn", "conf_topk",
+                  "adds_weight", "width_weight", "positive_radius", "tiny")
 DATA_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
               "positive_radius")
 # --tiny: fewer centres and narrow layers, for CPU tests (seconds per step, not minutes)
@@ -222,7 +234,7 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
     from fetchbench_ms.grasps.sampler import ConvexUnion
     from fetchbench_ms.tasks.objects import load_object
 
-    clouds, owners, contacts, labels, widths = [], [], [], [], []
+    clouds, owners, contacts, labels, widths, hands = [], [], [], [], [], []
     placed, poses, parts = [], [], []
     for k, object_id in enumerate(object_ids):
         asset = load_object(object_id)
@@ -259,13 +271,16 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
             contacts.append(tcp + sign * 0.5 * w[:, None] * y)
             labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
             widths.append(w)
+            hands.append(T_world_hand)
     count = int((2 * TABLE_HALF) ** 2 / SURFACE_SPACING**2)
     table = np.c_[rng.uniform(-TABLE_HALF, TABLE_HALF, (count, 2)), np.zeros(count)]
     contacts = np.concatenate(contacts)
     if len(contacts) == 0:  # no grasp survives the scene: nothing positive (a point far away)
-        contacts, labels, widths = np.full((1, 3), 1e3), [np.eye(4)[None]], [np.zeros(1)]
+        contacts, labels, widths, hands = np.full((1, 3), 1e3), [np.eye(4)[None]], [np.zeros(1)], [np.eye(4)[None]]
+    # hands: the annotated panda_hand pose (world) each contact's label was made from
     return {"points": np.concatenate(clouds + [table]), "owner": np.concatenate(owners + [np.full(len(table), -1)]),
-            "contacts": contacts, "labels": np.concatenate(labels), "widths": np.concatenate(widths)}
+            "contacts": contacts, "labels": np.concatenate(labels), "widths": np.concatenate(widths),
+            "hands": np.concatenate(hands), "T_world_object": np.stack(poses), "object_ids": list(object_ids)}
 
 
 def render_view(scene: dict, rng: np.random.Generator, num_points: int, radius: float) -> dict:
@@ -505,6 +520,16 @@ def _atomic_save(obj, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def train_mode(model: torch.nn.Module, freeze_bn: bool) -> None:
+    """``model.train()``, but with every BatchNorm in eval mode (its running statistics kept
+    and used) when ``freeze_bn``."""
+    model.train()
+    if freeze_bn:
+        for module in model.modules():
+            if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
+                module.eval()
+
+
 def main(args: Args) -> dict:
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
@@ -532,6 +557,7 @@ def main(args: Args) -> dict:
         from fetchbench_ms.grasping.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
+    freeze_bn = args.freeze_bn and args.init == "pretrained" and not args.tiny
     log(f"farthest-point sampling on {args.device}: {fps_backend(torch.device(args.device))}")
     train, val, data_hash = load_or_build_data(args, run, log)
     data_seconds = time.perf_counter() - t_start
@@ -554,7 +580,7 @@ def main(args: Args) -> dict:
         if saved["data_sha256"] != data_hash:
             raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]}, now {data_hash[:12]}): "
                              "use a new --run folder for other data flags")
-        changed = [k for k in TRAINING_FLAGS if k != "steps" and saved["args"][k] != getattr(args, k)]
+        changed = [k for k in TRAINING_FLAGS if k != "steps" and saved["args"].get(k) != getattr(args, k)]
         if changed:
             raise ValueError(f"{ckpt} was trained with other {', '.join('--' + k.replace('_', '-') for k in changed)}: "
                              "resume with the same flags, or use a new --run folder")
@@ -588,7 +614,7 @@ def main(args: Args) -> dict:
             out = model(batch["points"], index)
             for k, v in {**losses(out, batch, index, args), **pose_agreement(out, batch)}.items():
                 sums[k] = sums.get(k, 0.0) + float(v) * len(batch["points"])
-        model.train()
+        train_mode(model, freeze_bn)
         return {k: round(v / count, 5) for k, v in sums.items()}
 
     def sync() -> None:
@@ -598,7 +624,7 @@ def main(args: Args) -> dict:
     if step == 0 and plan["val_init"] is None:
         plan["val_init"] = validate()
         log(f"validation at init ({args.init}; held-out train-split objects): {plan['val_init']}")
-    model.train()
+    train_mode(model, freeze_bn)
     log(f"training from step {step} to {'auto' if plan['steps'] is None else plan['steps']} on {args.device} "
         f"({sum(p.numel() for p in model.parameters())} parameters, {len(train['points'])} views, data {data_hash[:12]})")
     history = []

@@ -94,18 +94,26 @@ class CloudInput:
     is_target: np.ndarray  # (num_points,) bool
 
 
-def target_region(scene: np.ndarray, target: np.ndarray, num_points: int, rng: np.random.Generator) -> CloudInput:
-    """The points of ``scene`` and ``target`` ((N, 3), base frame) in a cube about the target,
-    ``num_points`` of them drawn with ``rng`` (with replacement when fewer)."""
+def region_index(points: np.ndarray, is_target: np.ndarray, num_points: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices into ``points`` ((N, 3)) of the network's input: the points in a cube about the
+    ``is_target`` points (side twice their largest extent, clipped to ``REGION_SIZE``),
+    ``num_points`` of them drawn with ``rng`` (with replacement when fewer). The trainer crops
+    its synthetic views with this too, so training and inference see the same regions."""
+    target = points[is_target]
     if len(target) == 0:
         raise ValueError("the target has no points in the cloud: Contact-GraspNet has nothing to grasp")
     lo, hi = np.percentile(target, 2, axis=0), np.percentile(target, 98, axis=0)  # robust to stray pixels
     center, size = (lo + hi) / 2, float(np.clip(2 * np.max(hi - lo), *REGION_SIZE))
+    inside = np.flatnonzero(np.all(np.abs(points - center) <= size / 2, axis=1))
+    return inside[rng.choice(len(inside), size=num_points, replace=len(inside) < num_points)]
+
+
+def target_region(scene: np.ndarray, target: np.ndarray, num_points: int, rng: np.random.Generator) -> CloudInput:
+    """The points of ``scene`` and ``target`` ((N, 3), base frame) in a cube about the target,
+    ``num_points`` of them drawn with ``rng`` (``region_index``)."""
     points = np.concatenate([target, scene]).astype(np.float32)
     is_target = np.arange(len(points)) < len(target)
-    inside = np.all(np.abs(points - center) <= size / 2, axis=1)
-    points, is_target = points[inside], is_target[inside]
-    pick = rng.choice(len(points), size=num_points, replace=len(points) < num_points)
+    pick = region_index(points, is_target, num_points, rng)
     return CloudInput(points[pick], is_target[pick])
 
 

@@ -42,8 +42,9 @@ def group_stats(records: list[dict]) -> dict:
     n = len(records)
     ran = [r for r in records if not r.get("error")]
     successes = sum(bool(r["success"]) for r in records)
-    # With --retries N a task that succeeded on its first try is exactly what a single-try
-    # run gives (the first try draws the same random numbers), so one x5 run has both figures.
+    # With --retries N a task that succeeded on its first try is what a single-try run gives
+    # (the first try draws the same random numbers; only a planner's time limit can cut a plan
+    # differently), so one x5 run has both figures.
     first_try = sum(bool(r["success"]) and (r.get("attempts") or 1) == 1 for r in records)
     return {
         "tasks": n,

@@ -31,6 +31,10 @@ def method_label(manifest: dict) -> str:
     return label
 
 
+def _value(v: float | None, unit: str) -> str:
+    return "-" if v is None else f"{v:.2f} {unit}"
+
+
 def row(run_dir: Path) -> str:
     store = ResultsStore(run_dir)
     if not store.manifest_path.exists():
@@ -41,11 +45,10 @@ def row(run_dir: Path) -> str:
     a = s["all"]
     lo, hi = a["success_ci95"]
     cats = [f"{c['success_rate']:.3f} ({c['tasks']})" if (c := s["by_category"].get(k)) else "-" for k in CATEGORIES]
-    fmt = lambda v, unit: "-" if v is None else f"{v:.2f} {unit}"  # noqa: E731
     failures = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["failures"].items() if v) or "-"
     return (f"| {method_label(store.manifest())} | {a['tasks']} | **{a['success_rate']:.3f}** ({lo:.3f}-{hi:.3f}) | "
             f"{a['first_try_success_rate']:.3f} | " + " | ".join(cats)
-            + f" | {fmt(a['median_computation_time'], 's')} | {fmt(a['median_cspace_length_successes'], 'rad')} | {failures} |")
+            + f" | {_value(a['median_computation_time'], 's')} | {_value(a['median_cspace_length_successes'], 'rad')} | {failures} |")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -92,14 +92,13 @@ class _PointConv(nn.Module):
         # + b) and per centre (W_p p_i), then group. The same numbers as grouping first, with
         # the widest matrix product done on N points instead of M x K neighbours (16x fewer at
         # the second level): a third of the network's time on a CPU.
-        linear, *rest = self.local_nn[0]
+        linear = self.local_nn[0][0]
         C = features.shape[-1]
         w_features, w_points = linear.weight[:, :C], linear.weight[:, C:]
         per_point = torch.addmm(linear.bias, features.reshape(-1, C), w_features.t()).view(*features.shape[:2], -1)
         per_point = per_point + points @ w_points.t()
         first = gather(per_point, neighbours) - (centers @ w_points.t())[:, :, None, :]
-        for layer in rest:  # the first layer's ReLU and BatchNorm
-            first = apply_mlp(layer, first) if isinstance(layer, nn.BatchNorm1d) else layer(first)
+        first = apply_mlp(self.local_nn[0][1:], first)  # the first layer's ReLU and BatchNorm
         return apply_mlp(self.local_nn[1:], first).amax(dim=2)
 
 

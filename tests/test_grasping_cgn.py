@@ -77,10 +77,13 @@ def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
     assert pointops._FPS_BACKENDS == {"cpu": "torch"}
 
 
-@pytest.mark.parametrize("query", ["ball_query", "_ball_query_full"])
+@pytest.mark.parametrize("query", ["ball_query", "_ball_query_full", "_ball_query_full_by_coordinate"])
 def test_ball_query_takes_the_first_points_within_the_radius_in_index_order(query, monkeypatch):
     # The CPU reads the cloud in blocks of columns; a small block makes this cloud span several.
     monkeypatch.setattr(pointops, "COLUMN_BLOCK", 128)
+    if query.endswith("_by_coordinate"):  # what a GPU computes its distances with
+        monkeypatch.setattr(pointops, "_squared_distances", pointops._squared_distances_by_coordinate)
+        query = "_ball_query_full"
     ball_query = pointops.ball_query if query == "ball_query" else (
         lambda p, c, r, k: (lambda out: out[0] if isinstance(r, float) else out)(
             pointops._ball_query_full(p, c, [r] if isinstance(r, float) else list(r), k)))
@@ -108,7 +111,10 @@ def test_ball_query_takes_the_first_points_within_the_radius_in_index_order(quer
     assert few[0, 0].tolist() == list(range(10)) + [0] * 6
 
 
-def test_knn_interpolate_matches_inverse_distance_weighting():
+@pytest.mark.parametrize("distances", ["cpu", "by_coordinate"])
+def test_knn_interpolate_matches_inverse_distance_weighting(distances, monkeypatch):
+    if distances == "by_coordinate":  # what a GPU computes its distances with
+        monkeypatch.setattr(pointops, "_squared_distances", pointops._squared_distances_by_coordinate)
     rng = np.random.default_rng(2)
     src, dst = random_cloud(rng, 60)[None], random_cloud(rng, 25)[None]
     feats = rng.standard_normal((1, 60, 5)).astype(np.float32)

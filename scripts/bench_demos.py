@@ -1,6 +1,7 @@
 """Benchmark of the Fetch dataset's generator and of its conversion by ManiSkill's replay tool.
 
-    python scripts/bench_demos.py --suite train --tasks 200 --procs 16 --convert 200 --out build/bench-demos
+    python scripts/bench_demos.py --suite train --tasks 200 --procs 16 --convert 200 --obs-modes state pointcloud \
+        --out build/bench-demos
 
 Runs the expert on the suite's first ``--tasks`` tasks (``fetchbench demos run -n TASKS``
 without --only-count-success: every task tried once, up to --per-task trajectories each),
@@ -22,12 +23,14 @@ import sys
 import time
 from pathlib import Path
 
+from fetchbench_ms.utils.io import atomic_write_text
+
 PAPER_TRAJECTORIES = 27_500
-CONVERSIONS = (  # (label, replay tool flags)
-    ("env states, -o state", ["--use-env-states", "-o", "state"]),
-    ("pd_joint_pos actions, -o state", ["-o", "state"]),
-    ("-c pd_joint_delta_pos, -o state", ["-c", "pd_joint_delta_pos", "-o", "state"]),
-    ("-c pd_ee_delta_pose, -o state", ["-c", "pd_ee_delta_pose", "-o", "state"]),
+CONVERSIONS = (  # (label, replay tool flags); each is run in every --obs-modes mode
+    ("env states", ["--use-env-states"]),
+    ("pd_joint_pos actions", []),
+    ("-c pd_joint_delta_pos", ["-c", "pd_joint_delta_pos"]),
+    ("-c pd_ee_delta_pose", ["-c", "pd_ee_delta_pose"]),
 )
 
 
@@ -52,16 +55,28 @@ def main(argv=None) -> int:
     ap.add_argument("--procs", type=int, default=2)
     ap.add_argument("--per-task", type=int, default=5)
     ap.add_argument("--convert", type=int, default=0, help="replay this many trajectories in each conversion")
-    ap.add_argument("--extra-conversions", nargs="*", default=[], metavar="OBS_MODE",
-                    help="also convert to pd_joint_delta_pos with these obs modes (e.g. pointcloud)")
+    ap.add_argument("--obs-modes", nargs="+", default=["state"], metavar="OBS_MODE",
+                    help="observation modes each conversion is run in (e.g. state pointcloud)")
+    ap.add_argument("--traj-name", default=None,
+                    help="name of the demo file (default SUITE-TASKS); a run with more --tasks and the same "
+                         "name continues the finished tasks")
+    ap.add_argument("--convert-only", action="store_true",
+                    help="convert the existing TRAJ-NAME file without running the expert")
     ap.add_argument("--out", default="build/bench-demos")
     args = ap.parse_args(argv)
 
     from fetchbench_ms.demos.generate import TIMING_FILE, done_parts, parts_dir
     from fetchbench_ms.demos.stats import demo_stats, format_stats
 
-    name = f"{args.suite}-{args.tasks}"
+    name = args.traj_name or f"{args.suite}-{args.tasks}"
     parts = parts_dir(args.out, args.env_id, name)
+    path = parts.parent / f"{name}.h5"
+    result_path = Path(args.out) / f"bench-{name}{'-convert' if args.convert_only else ''}.json"
+    if args.convert_only:
+        # only the conversions, on a finished file (another run may still be adding to its parts)
+        result = {"traj_path": str(path)}
+        convert(path, args, result, result_path)
+        return 0
     before = set(done_parts(parts))
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "fetchbench_ms", "demos", "run", "-e", args.env_id, "--task-suite", args.suite,
@@ -77,7 +92,6 @@ def main(argv=None) -> int:
                 record = json.loads(line)
                 timing[record["seed"]] = record
     new = [timing[seed] for seed in done if seed not in before and seed in timing]
-    path = parts.parent / f"{name}.h5"
     stats = demo_stats(path)
     tried = [done[s] for s in sorted(done)][: args.tasks]
     trajectories = sum(s["successes"] for s in tried)
@@ -102,18 +116,29 @@ def main(argv=None) -> int:
                       frames_per_core_hour=round(sum(s["frames"] for s in new) / busy * 3600),
                       projected_hours_27_5k_on_16_cores=round(PAPER_TRAJECTORIES / (per_core_hour * 16), 2))
     print(format_stats(stats))
-    conversions = list(CONVERSIONS) + [(f"-c pd_joint_delta_pos, -o {m}", ["-c", "pd_joint_delta_pos", "-o", m])
-                                       for m in args.extra_conversions]
-    if args.convert:
-        result["conversions"] = {}
-        for label, flags in conversions:
-            ok, n, seconds = replay(path, flags, args.convert, args.procs)
-            result["conversions"][label] = {"success": ok, "replayed": n, "rate": round(ok / max(1, n), 4),
-                                            "seconds": round(seconds, 1)}
-    Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / f"bench-{name}.json").write_text(json.dumps(result, indent=1))
-    print(json.dumps(result, indent=1))
+    write_result(result, result_path)
+    convert(path, args, result, result_path)
     return 0
+
+
+def write_result(result: dict, result_path: Path) -> None:
+    result_path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(result_path, json.dumps(result, indent=1))
+    print(json.dumps(result, indent=1), flush=True)
+
+
+def convert(path: Path, args, result: dict, result_path: Path) -> None:
+    """Each conversion in each obs mode on the first --convert trajectories; the result file is
+    rewritten after every one, so a run cut short keeps what it measured."""
+    if not args.convert:
+        return
+    result.setdefault("conversions", {})
+    for obs_mode in args.obs_modes:
+        for label, flags in CONVERSIONS:
+            ok, n, seconds = replay(path, [*flags, "-o", obs_mode], args.convert, args.procs)
+            result["conversions"][f"{label}, -o {obs_mode}"] = {
+                "success": ok, "replayed": n, "rate": round(ok / max(1, n), 4), "seconds": round(seconds, 1)}
+            write_result(result, result_path)
 
 
 if __name__ == "__main__":

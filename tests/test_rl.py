@@ -15,7 +15,8 @@ import torch
 
 import fetchbench_ms  # noqa: F401
 from fetchbench_ms.demos.returns import demo_rollout, load_demos, make_env
-from fetchbench_ms.envs.curriculum import CURRICULA, Curriculum, resolve_curriculum
+from fetchbench_ms.envs.curriculum import (ADVANCE_STEP, CURRICULA, MIN_TARGET_DISTANCE, Curriculum,
+                                           resolve_curriculum)
 from fetchbench_ms.envs.fetchbench import DENSE_REWARD_MAX
 from fetchbench_ms.tasks.suite import load_suite
 from mani_skill.utils.structs.pose import Pose
@@ -122,8 +123,16 @@ def test_curriculum_validation_names_the_valid_choices():
         gym.make("FetchBench-v0", curriculum="table-near", task_source="sampled", render_backend="none")
 
 
+def _floor_distance(task) -> float:
+    """Base to target in the floor plane (m)."""
+    return float(np.linalg.norm(np.subtract(task.target.position[:2], task.robot_base_position[:2])))
+
+
 def test_curriculum_makes_tasks_easier_and_is_idempotent():
-    task = next(t for t in load_suite("train").tasks.values() if t.target_label == "on_table")
+    # The first on-table task whose target is far enough for the base to advance at all
+    # (the curriculum stops MIN_TARGET_DISTANCE short of the target; closer ones stay put).
+    on_table = [t for t in load_suite("train").tasks.values() if t.target_label == "on_table"]
+    task = next(t for t in on_table if _floor_distance(t) > MIN_TARGET_DISTANCE + ADVANCE_STEP)
     curriculum = Curriculum(num_objects=3, base_advance=0.15)
     easy = curriculum.apply(task)
     assert len(easy.objects) == 3 and easy.target.object_id == task.target.object_id
@@ -136,9 +145,16 @@ def test_curriculum_makes_tasks_easier_and_is_idempotent():
     after = np.linalg.norm(np.subtract(easy.target.position[:2], easy.robot_base_position[:2]))
     advance = easy.extra["curriculum_info"]["base_advance"]
     assert 0 < advance <= 0.15 and after == pytest.approx(before - advance, abs=1e-5)
+    assert after >= MIN_TARGET_DISTANCE - 1e-5
     table_shift = np.subtract(easy.robot_table_center, task.robot_table_center)
     np.testing.assert_allclose(table_shift, np.subtract(easy.robot_base_position, task.robot_base_position), atol=1e-5)
     assert curriculum.apply(easy) is easy
+    # A target already within MIN_TARGET_DISTANCE: objects cut, the robot not moved.
+    near = next(t for t in on_table if _floor_distance(t) <= MIN_TARGET_DISTANCE)
+    easy_near = curriculum.apply(near)
+    assert len(easy_near.objects) == 3 and easy_near.extra["curriculum_info"]["base_advance"] == 0.0
+    assert easy_near.robot_base_position == near.robot_base_position
+    assert easy_near.robot_table_center == near.robot_table_center
 
 
 def test_curriculum_env_serves_on_table_tasks_with_fewer_objects():

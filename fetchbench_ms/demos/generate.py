@@ -240,7 +240,10 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
                     pending.append(pool.apply_async(_run_task_star, ((job, parts, seed, ids[seed - start_seed]),)))
                 if not pending:
                     break
-                pending[0].wait()
+                # wait for any task, not the oldest: one long task (eight failed tries) must not
+                # keep the other workers idle once the queue behind it has drained
+                while not any(p.ready() for p in pending):
+                    time.sleep(0.05)
                 done_now = [p for p in pending if p.ready()]
                 pending = [p for p in pending if not p.ready()]
                 for p in done_now:

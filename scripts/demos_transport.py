@@ -66,7 +66,7 @@ def pack(source: Path, out: Path) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **arrays)
-    tmp = out.with_name(f".{out.name}.tmp")
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")  # per process: two runs never share one
     tmp.write_bytes(buffer.getvalue())
     meta["fetchbench_transport"] = {"source": source.name, "source_sha256": sha256_file(source),
                                     "left_out": KEPT_ENV_STATES,
@@ -82,7 +82,7 @@ def unpack(packed: Path, out: Path) -> dict:
         raise SystemExit(f"{packed.with_suffix('.json')} is not a transport copy (no fetchbench_transport key)")
     episodes = meta["episodes"]
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp")
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")  # per process: two runs never share one
     with np.load(packed) as z, h5py.File(tmp, "w", track_order=True) as f:
         groups = [f.create_group(f"traj_{e['episode_id']}", track_order=True) for e in episodes]
         for key in sorted(k for k in z.files if k.endswith("|data")):

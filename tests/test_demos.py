@@ -205,3 +205,36 @@ def test_shipped_sample_replays(tmp_path):
     for suffix in (".h5", ".json"):
         shutil.copy(SAMPLE.with_suffix(suffix), tmp_path / f"sample{suffix}")
     assert "3/3" in _replay(tmp_path / "sample.h5", "--use-env-states", "-o", "state", "--count", "3")
+
+
+def test_transport_copy_keeps_what_conversion_needs(tmp_path):
+    """scripts/demos_transport.py (moving demos off the GPU machine, docs/gpu-machine.md):
+    pack -> unpack keeps every array but the env states' middle rows, and the unpacked file
+    converts to pd_joint_delta_pos and replays to success with ManiSkill's replay tool."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"
+
+    def transport(*args):
+        out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr[-2000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    packed = transport("pack", SAMPLE, tmp_path / "sample.npz")
+    assert packed["bytes"] < packed["source_bytes"] / 5
+    unpacked_path = tmp_path / "unpacked" / "sample.h5"
+    transport("unpack", tmp_path / "sample.npz", unpacked_path)
+    meta = json.loads(unpacked_path.with_suffix(".json").read_text())
+    assert meta["fetchbench_transport"]["source"] == SAMPLE.name
+    assert meta["episodes"] == json.loads(SAMPLE.with_suffix(".json").read_text())["episodes"]
+    with h5py.File(SAMPLE) as a, h5py.File(unpacked_path) as b:
+        assert set(a) == set(b)
+        for name in a:
+            for key in ("actions", "stage", "stage_end", "success", "terminated", "truncated"):
+                np.testing.assert_array_equal(a[name][key][()], b[name][key][()])
+                assert a[name][key].dtype == b[name][key].dtype
+            panda_a, panda_b = a[name]["env_states/articulations/panda"], b[name]["env_states/articulations/panda"]
+            np.testing.assert_array_equal(panda_b[()], panda_a[()][[0, -1]])
+    # a transport copy is refused as a source of another one
+    bad = subprocess.run([sys.executable, str(script), "pack", unpacked_path, tmp_path / "again.npz"],
+                         capture_output=True, text=True)
+    assert bad.returncode != 0 and "already a transport copy" in bad.stderr
+    assert "2/2" in _replay(unpacked_path, "-c", "pd_joint_delta_pos", "-o", "state", "--count", "2")

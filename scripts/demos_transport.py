@@ -16,7 +16,8 @@ machine does with the demos: ManiSkill's replay tool converting to another contr
 ``reset_kwargs`` and replays the actions, and reads env states only with
 ``--use-env-states`` / ``--use-first-env-state``; the imitation converter pairs a converted
 demo with its source by the last env state's joints. It is not a dataset for
-``--use-env-states`` (the replay tool would run out of states); its JSON says so under
+``--use-env-states`` (the replay tool would run out of states), except on the first
+``--full-states N`` trajectories, which keep every row; its JSON says so under
 ``fetchbench_transport`` (with the source file's name and sha256). Files are written beside
 their final name and renamed.
 """
@@ -33,20 +34,22 @@ import numpy as np
 
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
-KEPT_ENV_STATES = "env_states rows 1 .. T-1 left out (kept: the first and the last)"
+KEPT_ENV_STATES = "env_states rows 1 .. T-1 left out (kept: the first and the last), except in the first full_env_states trajectories"
 
 
-def _leaves(group: h5py.Group, prefix: str = ""):
+def _leaves(group: h5py.Group, prefix: str = "", full_states: bool = False):
     for key, item in group.items():
         path = f"{prefix}{key}"
         if isinstance(item, h5py.Group):
-            yield from _leaves(item, path + "/")
+            yield from _leaves(item, path + "/", full_states)
         else:
             data = item[()]
-            yield path, (data[[0, -1]] if path.startswith("env_states/") else data)
+            yield path, (data[[0, -1]] if path.startswith("env_states/") and not full_states else data)
 
 
-def pack(source: Path, out: Path) -> dict:
+def pack(source: Path, out: Path, full_states: int = 0) -> dict:
+    """``full_states``: the first N trajectories keep every env-state row (so the replay
+    tool's ``--use-env-states`` works on them: ``--count N``)."""
     meta_path = source.with_suffix(".json")
     if not source.is_file() or not meta_path.is_file():
         raise SystemExit(f"no demos at {source} (+ .json)")
@@ -56,7 +59,7 @@ def pack(source: Path, out: Path) -> dict:
     by_path: dict[str, list] = {}  # leaf path -> [(episode index, array)]
     with h5py.File(source, "r") as f:
         for k, episode in enumerate(meta["episodes"]):
-            for path, data in _leaves(f[f"traj_{episode['episode_id']}"]):
+            for path, data in _leaves(f[f"traj_{episode['episode_id']}"], full_states=k < full_states):
                 by_path.setdefault(path, []).append((k, data))
     arrays = {}
     for path, items in sorted(by_path.items()):
@@ -70,7 +73,9 @@ def pack(source: Path, out: Path) -> dict:
     tmp.write_bytes(buffer.getvalue())
     meta["fetchbench_transport"] = {"source": source.name, "source_sha256": sha256_file(source),
                                     "left_out": KEPT_ENV_STATES,
-                                    "use": "controller conversion with the replay tool (-c ...); not --use-env-states"}
+                                    "full_env_states": min(full_states, len(meta["episodes"])),
+                                    "use": "controller conversion with the replay tool (-c ...); --use-env-states "
+                                           "only on the first full_env_states trajectories (--count)"}
     os.replace(tmp, out)
     atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=2))
     return {"episodes": len(meta["episodes"]), "source_bytes": source.stat().st_size, "bytes": out.stat().st_size}
@@ -105,11 +110,13 @@ def main(argv=None) -> int:
     p = sub.add_parser("pack", help="SRC.h5 -> DST.npz + DST.json")
     p.add_argument("source", type=Path)
     p.add_argument("out", type=Path)
+    p.add_argument("--full-states", type=int, default=0, metavar="N",
+                   help="keep every env-state row of the first N trajectories (for --use-env-states)")
     u = sub.add_parser("unpack", help="DST.npz -> OUT.h5 + OUT.json")
     u.add_argument("packed", type=Path)
     u.add_argument("out", type=Path)
     args = ap.parse_args(argv)
-    result = pack(args.source, args.out) if args.command == "pack" else unpack(args.packed, args.out)
+    result = pack(args.source, args.out, args.full_states) if args.command == "pack" else unpack(args.packed, args.out)
     print(json.dumps(result))
     return 0
 

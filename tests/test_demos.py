@@ -238,3 +238,21 @@ def test_transport_copy_keeps_what_conversion_needs(tmp_path):
                          capture_output=True, text=True)
     assert bad.returncode != 0 and "already a transport copy" in bad.stderr
     assert "2/2" in _replay(unpacked_path, "-c", "pd_joint_delta_pos", "-o", "state", "--count", "2")
+
+
+def test_transport_copy_with_full_states_replays_from_env_states(tmp_path):
+    """``pack --full-states N``: the first N trajectories keep every env-state row, so the
+    replay tool's --use-env-states works on them (the dataset's conversion figures are
+    measured on a second machine from such a copy); the others keep the first and last."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"
+    for args in (("pack", SAMPLE, tmp_path / "full.npz", "--full-states", "1"),
+                 ("unpack", tmp_path / "full.npz", tmp_path / "u" / "full.h5")):
+        out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr[-2000:]
+    unpacked = tmp_path / "u" / "full.h5"
+    assert json.loads(unpacked.with_suffix(".json").read_text())["fetchbench_transport"]["full_env_states"] == 1
+    with h5py.File(SAMPLE) as a, h5py.File(unpacked) as b:
+        for k, name in enumerate(a):
+            panda_a, panda_b = a[name]["env_states/articulations/panda"][()], b[name]["env_states/articulations/panda"][()]
+            np.testing.assert_array_equal(panda_b, panda_a if k == 0 else panda_a[[0, -1]])
+    assert "1/1" in _replay(unpacked, "--use-env-states", "-o", "state", "--count", "1")

@@ -34,11 +34,18 @@ CONVERSIONS = (  # (label, replay tool flags); each is run in every --obs-modes 
 )
 
 
-def replay(path: Path, flags: list[str], count: int, procs: int) -> tuple[int, int, float]:
+#: Observation modes whose converted file is not written: raw ``pointcloud`` is ~5 MB a step
+#: (docs/envs.md), ~200 GB for 200 trajectories, more than a machine's disk. They are replayed
+#: without ``--save-traj``: the same replay, every step's observation rendered, success counted;
+#: ``compact_pointcloud`` (what the imitation converter writes) is the one saved with clouds.
+UNSAVED_OBS_MODES = ("pointcloud", "rgbd", "rgb", "depth")
+
+
+def replay(path: Path, flags: list[str], count: int, procs: int, save: bool = True) -> tuple[int, int, float]:
     """(successes, replayed, seconds) of one conversion."""
     t0 = time.perf_counter()
     out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(path),
-                          "--save-traj", "--count", str(count), "--num-envs", str(procs), *flags],
+                          *(["--save-traj"] if save else []), "--count", str(count), "--num-envs", str(procs), *flags],
                          capture_output=True, text=True)
     text = (out.stdout + out.stderr).replace("\r", "\n")
     m = re.findall(r"Replayed (\d+) episodes, (\d+)/\d+=", text)
@@ -135,9 +142,11 @@ def convert(path: Path, args, result: dict, result_path: Path) -> None:
     result.setdefault("conversions", {})
     for obs_mode in args.obs_modes:
         for label, flags in CONVERSIONS:
-            ok, n, seconds = replay(path, [*flags, "-o", obs_mode], args.convert, args.procs)
+            save = obs_mode not in UNSAVED_OBS_MODES
+            ok, n, seconds = replay(path, [*flags, "-o", obs_mode], args.convert, args.procs, save)
             result["conversions"][f"{label}, -o {obs_mode}"] = {
-                "success": ok, "replayed": n, "rate": round(ok / max(1, n), 4), "seconds": round(seconds, 1)}
+                "success": ok, "replayed": n, "rate": round(ok / max(1, n), 4), "seconds": round(seconds, 1),
+                "saved": save}
             write_result(result, result_path)
 
 

@@ -126,6 +126,31 @@ def test_merge_cuts_at_n(demos):
     merge(record_dir, ENV_ID, "trajectory", 3)  # leave the fixture as it was
 
 
+def test_start_seed_runs_task_k_under_seed_k(demos, tmp_path, capsys):
+    """``--start-seed K`` continues a run from 0: episode seed K is task K of the suite, with
+    the same bytes as the run from 0 made for it (the dataset is made in pieces on several
+    holds of the GPU machine and must be what one run would have made)."""
+    done0 = done_parts(parts_dir(demos.parents[2], ENV_ID, "trajectory"))
+    k = max(done0)  # the fixture's last task, k >= 1
+    assert k >= 1
+    args = ["demos", "run", "-e", ENV_ID, "--task-suite", SUITE, "-n", "1", "--start-seed", str(k),
+            "--record-dir", str(tmp_path), "--traj-name", "trajectory", "--per-task", "2", "--no-progress"]
+    assert main(args) == 0
+    done = done_parts(parts_dir(tmp_path, ENV_ID, "trajectory"))
+    assert set(done) == {k}
+    assert done[k]["task_id"] == done0[k]["task_id"] == suite_task_ids(ENV_ID, SUITE)[k]
+    name = f"task_{k:06d}.h5"
+    with h5py.File(parts_dir(tmp_path, ENV_ID, "trajectory") / name) as a, \
+            h5py.File(parts_dir(demos.parents[2], ENV_ID, "trajectory") / name) as b:
+        assert list(a) == list(b)
+        for traj in a:
+            np.testing.assert_array_equal(a[traj]["actions"][()], b[traj]["actions"][()])
+    n_tasks = len(suite_task_ids(ENV_ID, SUITE))
+    bad = [*args[:8], "--start-seed", str(n_tasks), *args[10:]]  # one past the last task
+    assert main(bad) == 2
+    assert f"valid: 0 .. {n_tasks - 1}" in capsys.readouterr().err
+
+
 def test_bad_input_names_valid_choices(tmp_path, capsys):
     assert main(["demos", "run", "-e", "FetchBench-Nope-v0", "--record-dir", str(tmp_path), "--no-progress"]) == 2
     assert "valid: FetchBench-v0" in capsys.readouterr().err

@@ -201,6 +201,13 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     if num_traj < 1 or num_procs < 1:
         raise ValueError(f"num_traj and num_procs must be positive (got {num_traj}, {num_procs})")
     ids = suite_task_ids(job.env_id, job.task_suite)
+    # Episode seed i is task i of the suite's list, whatever --start-seed is: a run from
+    # --start-seed K continues one from 0 with the tasks it did not reach, and the same
+    # command regenerates any part of the dataset. (Before 2026-11-24 a run from K gave seed
+    # K + i to task i: the same tasks again under other seeds.)
+    if not 0 <= start_seed < len(ids):
+        raise ValueError(f"start_seed {start_seed} is outside the {len(ids)} tasks of suite {job.task_suite!r} "
+                         f"that {job.env_id} admits (valid: 0 .. {len(ids) - 1})")
     parts = parts_dir(record_dir, job.env_id, name)
     parts.mkdir(parents=True, exist_ok=True)
     job_file = parts / "job.json"
@@ -213,7 +220,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     def enough(done: dict) -> int | None:
         """The number of leading tasks that make the run (None: not yet)."""
         total = 0
-        for k, seed in enumerate(range(start_seed, start_seed + len(ids))):
+        for k, seed in enumerate(range(start_seed, len(ids))):
             if seed not in done:
                 return None
             total += done[seed]["successes"] if only_count_success else 1
@@ -227,7 +234,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
         return sum(s["successes"] if only_count_success else 1 for s in done.values())
 
     bar.update(min(num_traj, count(finished)))
-    seeds = (s for s in range(start_seed, start_seed + len(ids)) if s not in finished)
+    seeds = (s for s in range(start_seed, len(ids)) if s not in finished)
     if enough(finished) is None:
         pool = _pool(backend, num_procs)
         try:
@@ -237,7 +244,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
                     seed = next(seeds, None)
                     if seed is None:
                         break
-                    pending.append(pool.apply_async(_run_task_star, ((job, parts, seed, ids[seed - start_seed]),)))
+                    pending.append(pool.apply_async(_run_task_star, ((job, parts, seed, ids[seed]),)))
                 if not pending:
                     break
                 # wait for any task, not the oldest: one long task (eight failed tries) must not

@@ -12,6 +12,8 @@ the sizes and every chunk's hash and frames (the trainers record its hash).
     # the GPU machine (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
     python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
         --out data/imit --count 5000 --chunk 128 --num-envs 16 --device cuda --time-limit 540
+    # one shard per hold when the whole does not fit one (docs/imitation.md): demos 1,536 .. 3,071
+    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-s1 --start 1536 --count 1536 ...
     # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
     python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
         --out /tmp/imit-sample --count 2 --first-steps 12 --sizes 128,64,32
@@ -90,7 +92,10 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--traj-path", required=True, help="the demos' h5 (ManiSkill trajectory format + stage labels)")
     p.add_argument("--out", required=True, help="folder of the training files (re-running resumes)")
-    p.add_argument("--count", type=int, default=None, help="the first N demos (default: all)")
+    p.add_argument("--count", type=int, default=None, help="N demos from --start (default: all)")
+    p.add_argument("--start", type=int, default=0,
+                   help="first demo (a multiple of --chunk): one shard of a dataset too large for one machine's "
+                        "hold; its chunks keep their numbers in the whole dataset")
     p.add_argument("--chunk", type=int, default=128, help="demos per replay call / training file")
     p.add_argument("--num-envs", type=int, default=1, help="replay processes (one core each)")
     p.add_argument("--sizes", default=",".join(str(v) for v in POLICY_SIZES.values()),
@@ -114,10 +119,14 @@ def main(argv=None) -> int:
         log_file.flush()
 
     meta = json.loads(source.with_suffix(".json").read_text())
-    episodes = meta["episodes"][: args.count]
+    if args.start < 0 or args.start % args.chunk or args.start >= len(meta["episodes"]):
+        raise SystemExit(f"--start must be a multiple of --chunk ({args.chunk}) below the {len(meta['episodes'])} "
+                         f"demos of {source}, got {args.start}")
+    stop = None if args.count is None else args.start + args.count
+    episodes = meta["episodes"][args.start:stop]
     source_sha = sha256_file(source)
     settings = {"source": str(source.resolve()), "source_sha256": source_sha, "sizes": sizes,
-                "chunk": args.chunk, "count": len(episodes), "first_steps": args.first_steps}
+                "chunk": args.chunk, "start": args.start, "count": len(episodes), "first_steps": args.first_steps}
     manifest_path = out / "manifest.json"
     if manifest_path.is_file():
         old = json.loads(manifest_path.read_text())["settings"]
@@ -128,7 +137,7 @@ def main(argv=None) -> int:
     chunks = [episodes[i:i + args.chunk] for i in range(0, len(episodes), args.chunk)]
     t_start, longest = time.perf_counter(), 0.0
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
-    for k, chunk in enumerate(chunks):
+    for k, chunk in enumerate(chunks, start=args.start // args.chunk):
         target = out / f"chunk_{k:05d}.imit.h5"
         if target.is_file():
             continue

@@ -151,6 +151,37 @@ def test_start_seed_runs_task_k_under_seed_k(demos, tmp_path, capsys):
     assert f"valid: 0 .. {n_tasks - 1}" in capsys.readouterr().err
 
 
+def test_runs_of_consecutive_task_ranges_merge_into_one_dataset(demos, tmp_path, capsys):
+    """``fetchbench demos merge``: runs over tasks 0..k-1 and k.. (two holds) make the file one
+    run over all of them makes; a gap or an overlap of tasks is refused."""
+    import shutil
+
+    parts = parts_dir(demos.parents[2], ENV_ID, "trajectory")
+    k = max(done_parts(parts))
+    for name in ("first", "second", "whole"):
+        shutil.copytree(parts, parts_dir(tmp_path, ENV_ID, name))
+    first = merge(tmp_path, ENV_ID, "first", k, only_count_success=False)  # tasks 0 .. k-1
+    second = merge(tmp_path, ENV_ID, "second", 10**9, only_count_success=False, start_seed=k)
+    whole = merge(tmp_path, ENV_ID, "whole", 10**9, only_count_success=False)
+    out = tmp_path / "dataset" / "train.h5"
+    assert main(["demos", "merge", str(second), str(first), "-o", str(out)]) == 0
+    meta, meta_whole = (json.loads(p.with_suffix(".json").read_text()) for p in (out, whole))
+    assert meta["fetchbench"]["tasks"] == meta_whole["fetchbench"]["tasks"] == k + 1
+    assert [e["task_id"] for e in meta["episodes"]] == [e["task_id"] for e in meta_whole["episodes"]]
+    with h5py.File(out) as a, h5py.File(whole) as b:
+        assert list(a) == list(b)
+        for traj in a:
+            np.testing.assert_array_equal(a[traj]["actions"][()], b[traj]["actions"][()])
+    assert main(["demos", "merge", str(first), str(first), "-o", str(tmp_path / "x.h5")]) == 2
+    assert "back to back" in capsys.readouterr().err
+    gap = json.loads(second.with_suffix(".json").read_text())
+    gap["fetchbench"]["first_seed"] = k + 1
+    second.with_suffix(".json").write_text(json.dumps(gap))
+    assert main(["demos", "merge", str(first), str(second), "-o", str(tmp_path / "x.h5")]) == 2
+    assert "back to back" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()
+
+
 def test_bad_input_names_valid_choices(tmp_path, capsys):
     assert main(["demos", "run", "-e", "FetchBench-Nope-v0", "--record-dir", str(tmp_path), "--no-progress"]) == 2
     assert "valid: FetchBench-v0" in capsys.readouterr().err

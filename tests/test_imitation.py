@@ -129,6 +129,35 @@ def test_trainer_resumes_after_time_limit(sample_data, tmp_path):
     assert "resumed at step 1" in log and "done: 6 steps" in log
 
 
+def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
+    """A dataset too large for one hold is trained shard by shard: the converter's --start
+    numbers a shard's chunks as in the whole, --until-step stops a call, and --new-data
+    resumes the checkpoint on the next shard (refused without it); the export records each
+    shard's data hash and the step it began at."""
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    shard = tmp_path / "shard1"
+    assert convert.main(["--traj-path", str(SAMPLE), "--out", str(shard), "--start", "2", "--count", "2",
+                         "--chunk", "2", "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
+    assert [p.name for p in shard.glob("chunk_*.imit.h5")] == ["chunk_00001.imit.h5"]
+    with pytest.raises(SystemExit, match="multiple of --chunk"):
+        convert.main(["--traj-path", str(SAMPLE), "--out", str(tmp_path / "bad"), "--start", "1", "--chunk", "2"])
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    export = tmp_path / "mlp.pt"
+    args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=8, until_step=4, export=True,
+                       export_path=str(export), **TINY, **TRAINER_KW["mlp"])
+    first = module.main(args)
+    assert first["stopped"] and first["step"] == 4 and not export.exists()
+    args.data, args.until_step = str(shard), 0
+    with pytest.raises(ValueError, match="--new-data"):
+        module.main(args)
+    args.new_data = True
+    second = module.main(args)
+    assert second["step"] == 8 and not second["stopped"]
+    _, meta = load_model(export)
+    hashes = [d["data_sha256"] for d in meta["data_history"]]
+    assert [d["from_step"] for d in meta["data_history"]] == [0, 4] and hashes[0] != hashes[1] == meta["data_sha256"]
+
+
 # ----------------------------------------------------------------------------- deployment
 def test_regrasp_state_machine_scripted():
     cfg = ReGraspConfig(close_steps=3, reopen_steps=2, settle_steps=1, min_approach_steps=2, min_retrieve_steps=3,

@@ -55,6 +55,11 @@ class TrainArgs:
     eval_tasks: int = 32  # the first N tasks of the val suite
     eval_workers: int = 16
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
+    until_step: int = 0  # > 0: checkpoint and stop at this step (re-run to resume; the LR schedule spans --steps)
+    # Resume the run's checkpoint on other data: the next shard of a dataset too large for
+    # one machine's hold (scripts/convert_demos_for_imitation.py --start). Each data hash and
+    # the step it began at are recorded (checkpoint, export JSON).
+    new_data: bool = False
     log_every: int = 100
     ckpt_every: int = 1000
     export: bool = False  # write the shipped checkpoint (--export-path) and its JSON when done
@@ -184,15 +189,21 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     step, history, ckpt = 0, {"val_loss": [], "val_success": []}, run / "checkpoint.pt"
     if ckpt.is_file():
         saved = torch.load(ckpt, map_location=args.device, weights_only=False)
-        if saved["data_sha256"] != dhash:
+        if saved["data_sha256"] != dhash and not args.new_data:
             raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]} vs {dhash[:12]}): "
-                             "use another --run")
+                             "use another --run, or --new-data to go on with this data (the next shard)")
         model.load_state_dict(saved["model"])
         optimizer.load_state_dict(saved["optimizer"])
         generator.set_state(saved["generator"].cpu())  # (map_location moved it)
         step, history = saved["step"], saved["history"]
-        log(f"resumed at step {step}")
+        history.setdefault("data", [{"data_sha256": saved["data_sha256"], "from_step": 0}])
+        if saved["data_sha256"] != dhash:
+            history["data"].append({"data_sha256": dhash, "from_step": step})
+            log(f"resumed at step {step} on new data {dhash[:12]} (was {saved['data_sha256'][:12]})")
+        else:
+            log(f"resumed at step {step}")
     else:
+        history["data"] = [{"data_sha256": dhash, "from_step": 0}]
         log(f"{kind}: {n_params / 1e6:.2f} M parameters; {command}")
 
     def save() -> None:
@@ -241,6 +252,11 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     last: dict = {}
     t_log, stopped = time.perf_counter(), False
     while step < args.steps:
+        if args.until_step and step >= args.until_step:
+            save()
+            log(f"until step {args.until_step}: checkpoint at step {step}; resume with a later --until-step (or none)")
+            stopped = True
+            break
         for group in optimizer.param_groups:
             group["lr"] = lr_at(step, args)
         pick = torch.randint(len(frames.train_index), (args.batch_size,), device=args.device, generator=generator)
@@ -270,6 +286,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             log(f"time limit: checkpoint at step {step}; run the same command again to resume")
             stopped = True
             break
+
     if not stopped:
         save()
         # The final evaluation, also when a call was cut off during it (re-running finishes it).
@@ -289,7 +306,8 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: in
 
     path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
     path.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"kind": kind, "step": step, "data_sha256": dhash, "command": command,
+    meta = {"kind": kind, "step": step, "data_sha256": dhash, "data_history": history.get("data", []),
+            "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}
     size = save_checkpoint(path, model, meta)

@@ -1,4 +1,4 @@
-"""`fetchbench demos run|stats|show`: the Fetch dataset's generator and tools.
+"""`fetchbench demos run|merge|stats|show`: the Fetch dataset's generator and tools.
 
 ``fetchbench demos run`` takes the flags of ManiSkill's motion-planning generator
 (``python -m mani_skill.examples.motionplanning.panda.run``), plus ``--task-suite``,
@@ -66,6 +66,16 @@ def _stats(args) -> int:
     return 0
 
 
+def _merge(args) -> int:
+    from .generate import merge_runs
+    from .stats import demo_stats, format_stats
+
+    out = merge_runs(args.paths, args.out)
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    print(format_stats(demo_stats(out)))
+    return 0
+
+
 def _show(args) -> int:
     from .stats import render_trajectory, resolve
 
@@ -80,6 +90,10 @@ def add_commands(subparsers) -> None:
     r = sub.add_parser("run", help="make expert trajectories in ManiSkill's format (resumable)")
     add_run_arguments(r)
     r.set_defaults(func=run)
+    m = sub.add_parser("merge", help="one dataset from runs over consecutive task ranges (--start-seed)")
+    m.add_argument("paths", nargs="+", help="the runs' merged .h5 files (any order; back to back in tasks)")
+    m.add_argument("-o", "--out", required=True, help="the dataset's .h5 (its .json beside it)")
+    m.set_defaults(func=_merge)
     s = sub.add_parser("stats", help="trajectories, frames, by category and scene type; histograms as a PNG")
     s.add_argument("path", help="a trajectory .h5 (or .json), or a folder holding one")
     s.add_argument("--png", default=None, help="write length and C-space-length histograms here")

@@ -286,7 +286,6 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             log(f"time limit: checkpoint at step {step}; run the same command again to resume")
             stopped = True
             break
-
     if not stopped:
         save()
         # The final evaluation, also when a call was cut off during it (re-running finishes it).

@@ -290,7 +290,6 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
     ``num_traj`` trajectories, with ManiSkill's ``merge_trajectories`` (written beside and
     renamed: a reader never sees half a file)."""
     import h5py
-    from mani_skill.trajectory.merge_trajectory import merge_trajectories
     from mani_skill.utils.io_utils import dump_json, load_json
 
     parts = parts_dir(record_dir, env_id, name)
@@ -304,14 +303,7 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
         seed += 1
     out = parts.parent / f"{name}.h5"
     tmp = parts.parent / f".{name}.merging.h5"
-    from mani_skill.utils.logging_utils import logger
-
-    level = logger.level
-    logger.setLevel("ERROR")  # each part's own summary differs: merge_trajectories would warn for every part
-    try:
-        merge_trajectories(str(tmp), [str(p) for p in chosen]) if chosen else _empty(tmp)
-    finally:
-        logger.setLevel(level)
+    _merge_quietly(tmp, chosen) if chosen else _empty(tmp)
     data = load_json(str(tmp).replace(".h5", ".json"))
     keep = min(len(data["episodes"]), num_traj) if only_count_success else len(data["episodes"])
     if keep < len(data["episodes"]):
@@ -330,24 +322,34 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
     return out
 
 
+def _merge_quietly(tmp: Path, files: list) -> None:
+    """ManiSkill's ``merge_trajectories`` of ``files`` into ``tmp`` (+ .json). The inputs' own
+    ``fetchbench`` summaries differ, about which it would warn once per file."""
+    from mani_skill.trajectory.merge_trajectory import merge_trajectories
+    from mani_skill.utils.logging_utils import logger
+
+    level = logger.level
+    logger.setLevel("ERROR")
+    try:
+        merge_trajectories(str(tmp), [str(p) for p in files])
+    finally:
+        logger.setLevel(level)
+
+
 def merge_runs(paths: list, out) -> Path:
     """One dataset from runs over consecutive task ranges (``--start-seed``, e.g. one per
     hold of a GPU machine): ``<out>.h5`` + ``.json``, with ManiSkill's ``merge_trajectories``
     (episode ids renumbered in order), as one run over all their tasks would have made it.
     Refused, with the reason, when the runs are not back to back (a gap or an overlap of
-    tasks), came from other env ids / settings, or are transport copies missing env states."""
-    import h5py
-    from mani_skill.trajectory.merge_trajectory import merge_trajectories
+    tasks) or came from other env ids / settings. Transport copies stay marked as such."""
     from mani_skill.utils.io_utils import dump_json, load_json
-    from mani_skill.utils.logging_utils import logger
 
-    paths = [Path(p) for p in paths]
-    metas = [load_json(str(p.with_suffix(".json"))) for p in paths]
-    runs = []
-    for p, m in zip(paths, metas):
-        if "fetchbench" not in m or "first_seed" not in m["fetchbench"]:
+    runs = []  # (first seed, tasks, path, meta), in task order
+    for p in map(Path, paths):
+        meta = load_json(str(p.with_suffix(".json")))
+        if "first_seed" not in meta.get("fetchbench", {}):
             raise ValueError(f"{p} is not a merged generator run (no fetchbench.first_seed in its JSON)")
-        runs.append((m["fetchbench"]["first_seed"], m["fetchbench"]["tasks"], p, m))
+        runs.append((meta["fetchbench"]["first_seed"], meta["fetchbench"]["tasks"], p, meta))
     runs.sort(key=lambda r: r[0])
     for (seed_a, tasks_a, path_a, meta_a), (seed_b, _, path_b, meta_b) in zip(runs, runs[1:]):
         if seed_a + tasks_a != seed_b:
@@ -356,26 +358,17 @@ def merge_runs(paths: list, out) -> Path:
         if meta_a["env_info"] != meta_b["env_info"]:
             raise ValueError(f"{path_a} and {path_b} come from other envs or settings: "
                              f"{meta_a['env_info']} != {meta_b['env_info']}")
-    transport = [str(p) for _, _, p, m in runs if "fetchbench_transport" in m]
     out = Path(out).with_suffix(".h5")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.merging.h5")
-    level = logger.level
-    logger.setLevel("ERROR")  # the runs' own fetchbench summaries differ: it would warn for each
-    try:
-        merge_trajectories(str(tmp), [str(r[2]) for r in runs])
-    finally:
-        logger.setLevel(level)
+    _merge_quietly(tmp, [path for _, _, path, _ in runs])
     data = load_json(str(tmp.with_suffix(".json")))
-    first, last = runs[0], runs[-1]
-    data["fetchbench"] = {"tasks": last[0] + last[1] - first[0], "first_seed": first[0],
-                          "trajectories": len(data["episodes"]), "runs": [str(r[2]) for r in runs]}
+    (first_seed, _, _, _), (last_seed, last_tasks, _, _) = runs[0], runs[-1]
+    data["fetchbench"] = {"tasks": last_seed + last_tasks - first_seed, "first_seed": first_seed,
+                          "trajectories": len(data["episodes"]), "runs": [str(path) for _, _, path, _ in runs]}
+    transport = [meta["fetchbench_transport"] for _, _, _, meta in runs if "fetchbench_transport" in meta]
     if transport:
-        data["fetchbench_transport"] = {"sources": transport, "left_out": first[3].get("fetchbench_transport", {}).get(
-            "left_out", "env_states' middle rows"), "use": "controller conversion with the replay tool (-c ...)"}
-    with h5py.File(tmp, "r") as f:
-        if len(f) != len(data["episodes"]):
-            raise RuntimeError(f"merged {len(f)} trajectories, the JSON lists {len(data['episodes'])}")
+        data["fetchbench_transport"] = {**transport[0], "source": [t["source"] for t in transport]}
     dump_json(str(tmp.with_suffix(".json")), data, indent=2)
     os.replace(tmp, out)
     os.replace(tmp.with_suffix(".json"), out.with_suffix(".json"))

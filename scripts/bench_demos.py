@@ -26,12 +26,12 @@ from pathlib import Path
 from fetchbench_ms.utils.io import atomic_write_text
 
 PAPER_TRAJECTORIES = 27_500
-CONVERSIONS = (  # (label, replay tool flags); each is run in every --obs-modes mode
-    ("env states", ["--use-env-states"]),
-    ("pd_joint_pos actions", []),
-    ("-c pd_joint_delta_pos", ["-c", "pd_joint_delta_pos"]),
-    ("-c pd_ee_delta_pose", ["-c", "pd_ee_delta_pose"]),
-)
+CONVERSIONS = {  # --conversions name: (label, replay tool flags); each is run in every --obs-modes mode
+    "env-states": ("env states", ["--use-env-states"]),
+    "pd_joint_pos": ("pd_joint_pos actions", []),
+    "pd_joint_delta_pos": ("-c pd_joint_delta_pos", ["-c", "pd_joint_delta_pos"]),
+    "pd_ee_delta_pose": ("-c pd_ee_delta_pose", ["-c", "pd_ee_delta_pose"]),
+}
 
 
 #: Observation modes whose converted file is not written: raw ``pointcloud`` is ~5 MB a step
@@ -67,6 +67,8 @@ def main(argv=None) -> int:
     ap.add_argument("--traj-name", default=None,
                     help="name of the demo file (default SUITE-TASKS); a run with more --tasks and the same "
                          "name continues the finished tasks")
+    ap.add_argument("--conversions", nargs="+", default=list(CONVERSIONS), choices=list(CONVERSIONS),
+                    metavar="NAME", help=f"which conversions to run (default all: {' '.join(CONVERSIONS)})")
     ap.add_argument("--convert-only", action="store_true",
                     help="convert the existing TRAJ-NAME file without running the expert")
     ap.add_argument("--out", default="build/bench-demos")
@@ -141,7 +143,7 @@ def convert(path: Path, args, result: dict, result_path: Path) -> None:
         return
     result.setdefault("conversions", {})
     for obs_mode in args.obs_modes:
-        for label, flags in CONVERSIONS:
+        for label, flags in (CONVERSIONS[name] for name in args.conversions):
             save = obs_mode not in UNSAVED_OBS_MODES
             ok, n, seconds = replay(path, [*flags, "-o", obs_mode], args.convert, args.procs, save)
             result["conversions"][f"{label}, -o {obs_mode}"] = {

@@ -90,6 +90,57 @@ def test_source_steps_pairs_clipped_steps():
     assert source_steps(converted[:4], source) is None  # too few steps
 
 
+def test_source_steps_with_joints_follow_maniskills_rule():
+    """With the converted joints, a step is doubled exactly when ManiSkill doubled it: a
+    normalised delta above 1 + 1e-3. A delta in (1, 1.001] is clipped to an action of 1 but
+    gets no second step, which the actions alone misread."""
+    source = np.zeros((3, 8), np.float32)
+    source[:, :7] = [[0.10005, 0, 0, 0, 0, 0, 0], [0.35, 0, 0, 0, 0, 0, 0], [0.36, 0, 0, 0, 0, 0, 0]]
+    qpos = np.zeros((5, 9), np.float32)  # the joints before each converted step (+ the last)
+    qpos[1:, 0] = [0.1, 0.2, 0.3, 0.36]
+    converted = np.zeros((4, 8), np.float32)
+    converted[:, 0] = [1.0, 1.0, 0.5, 0.6]  # delta 1.0005 -> 1, no second step; 2.5 -> 1, then 0.5; 0.6
+    assert source_steps(converted, source, qpos).tolist() == [0, 1, 1, 2]
+    assert source_steps(converted, source).tolist() == [0, 0, 1, 2]  # the actions alone: misaligned
+    assert source_steps(converted[:3], source, qpos[:4]) is None  # too few steps
+
+
+def test_a_failed_replay_leaves_nothing_in_the_next_trajectory(tmp_path):
+    """ManiSkill's replay tool keeps a failed replay's steps in its recorder; a later demo of
+    the same task (no scene rebuild) would be saved after them. fetchbench_ms.replay_trajectory
+    drops them: the saved trajectory is the second demo's own, step for step."""
+    import json
+
+    import h5py
+
+    from fetchbench_ms import replay_trajectory
+
+    meta = json.loads(SAMPLE.with_suffix(".json").read_text())
+    episodes = meta["episodes"]
+    pair = next((a, b) for a, b in zip(episodes, episodes[1:]) if a["reset_kwargs"] == b["reset_kwargs"])
+    cut = 40  # the first demo stops short of its grasp: its replay fails
+    path = tmp_path / "pair.h5"
+    with h5py.File(SAMPLE, "r") as src, h5py.File(path, "w") as dst:
+        for episode in pair:
+            name = f"traj_{episode['episode_id']}"
+            src.copy(src[name], dst, name=name)
+        first = dst[f"traj_{pair[0]['episode_id']}"]
+        actions = first["actions"][:cut]
+        del first["actions"]
+        first.create_dataset("actions", data=actions)
+    episodes_out = [{**pair[0], "elapsed_steps": cut}, pair[1]]
+    path.with_suffix(".json").write_text(json.dumps({**meta, "episodes": episodes_out}))
+    replay_trajectory.main(["--traj-path", str(path), "-c", "pd_joint_delta_pos", "-o", "state_dict", "--save-traj"])
+    out = tmp_path / "pair.state_dict.pd_joint_delta_pos.physx_cpu.h5"
+    with h5py.File(out, "r") as f, h5py.File(SAMPLE, "r") as src:
+        assert list(f.keys()) == ["traj_0"]  # the failed replay is not saved
+        converted = f["traj_0"]
+        source_actions = src[f"traj_{pair[1]['episode_id']}"]["actions"][:]
+        index = source_steps(converted["actions"][:], source_actions, converted["obs"]["agent"]["qpos"][:])
+        assert index is not None and index[-1] == len(source_actions) - 1
+        assert converted["obs"]["agent"]["qpos"].shape[0] == len(index) + 1
+
+
 def _full_loss(module, model, data_dir: Path, args) -> float:
     common = _import(ROOT / "baselines/imitation/common.py", "common")
     frames = common.Frames(load_training_files(data_dir, sizes=SIZES), "cpu", args)

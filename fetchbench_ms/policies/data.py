@@ -146,22 +146,46 @@ def _episode_key(episode: dict) -> str:
     return json.dumps(episode.get("reset_kwargs", {}), sort_keys=True)
 
 
-def source_steps(converted_actions: np.ndarray, source_actions: np.ndarray) -> np.ndarray | None:
+#: rad: the ``pd_joint_delta_pos`` arm action's range (a normalised action of 1 is 0.1 rad).
+DELTA_POS_LIMIT = 0.1
+#: ManiSkill's ``from_pd_joint_pos`` takes a second step when a normalised delta exceeds this.
+_CLIP_THRESHOLD = 1 + 1e-3
+
+
+def source_steps(converted_actions: np.ndarray, source_actions: np.ndarray,
+                 converted_qpos: np.ndarray | None = None) -> np.ndarray | None:
     """The source step of each converted step, or None if they do not line up.
 
     ManiSkill's conversion from ``pd_joint_pos`` (``from_pd_joint_pos``) takes one
-    ``pd_joint_delta_pos`` step per source step, or two when the delta to the source's target
-    had to be clipped to +-0.1 rad (the PD-tracked arm lags its targets): a clipped step
-    (an arm action at +-1) and the one after it belong to one source step. The gripper action
+    ``pd_joint_delta_pos`` step per source step, or two when the normalised delta from the
+    arm's joints to the source's target exceeds 1 + 1e-3 (the PD-tracked arm lags its
+    targets): it clips, steps, and steps again. With ``converted_qpos`` (the converted
+    trajectory's joints, the observation before each step) that rule is applied as ManiSkill
+    applies it. Without them a step whose arm action is at +-1 is taken as clipped, which
+    misreads a delta in (1, 1.001]: clipped to 1 but given no second step. The gripper action
     is copied, so it must agree step for step."""
-    clipped = np.abs(converted_actions[:, :ARM_DOF]).max(axis=1) >= 1.0
-    counts, k = [], 0
-    while k < len(converted_actions):
-        n = 2 if clipped[k] and k + 1 < len(converted_actions) else 1
-        counts.append(n)
-        k += n
-    if len(counts) != len(source_actions):
-        return None
+    n = len(converted_actions)
+    counts = []
+    if converted_qpos is not None:
+        k = 0
+        for target in np.asarray(source_actions, np.float32)[:, :ARM_DOF]:
+            if k >= n:
+                return None
+            # float32 as in the controller (joint positions and targets are float32 there)
+            delta = (target - np.asarray(converted_qpos[k, :ARM_DOF], np.float32)) / np.float32(DELTA_POS_LIMIT)
+            counts.append(2 if np.abs(delta).max() > _CLIP_THRESHOLD else 1)
+            k += counts[-1]
+        if k != n:
+            return None
+    else:
+        clipped = np.abs(converted_actions[:, :ARM_DOF]).max(axis=1) >= 1.0
+        k = 0
+        while k < n:
+            step = 2 if clipped[k] and k + 1 < n else 1
+            counts.append(step)
+            k += step
+        if len(counts) != len(source_actions):
+            return None
     index = np.repeat(np.arange(len(counts)), counts)
     if np.abs(converted_actions[:, ARM_DOF] - source_actions[index, ARM_DOF]).max() > 1e-6:
         return None
@@ -180,13 +204,14 @@ def match_converted_episodes(source_json: dict, converted_json: dict, source_h5,
     for converted in converted_json["episodes"]:
         c_traj = converted_h5[f"traj_{converted['episode_id']}"]
         c_actions = c_traj["actions"][:]
-        c_final = c_traj["obs"]["agent"]["qpos"][-1, :ARM_DOF]
+        c_qpos = c_traj["obs"]["agent"]["qpos"][:]
+        c_final = c_qpos[-1, :ARM_DOF]
         for j in range(k, len(sources)):
             source = sources[j]
             if _episode_key(source) != _episode_key(converted):
                 continue
             s_traj = source_h5[f"traj_{source['episode_id']}"]
-            index = source_steps(c_actions, s_traj["actions"][:])
+            index = source_steps(c_actions, s_traj["actions"][:], c_qpos)
             if index is None:
                 continue
             # ManiSkill's articulation state: root pose (7), root velocities (6), qpos, qvel.

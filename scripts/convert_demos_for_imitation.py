@@ -88,6 +88,24 @@ def replay(chunk_h5: Path, num_envs: int, allow_failure: bool, log) -> Path:
     return converted
 
 
+def chunk_record(path: Path) -> dict:
+    with h5py.File(path, "r") as f:
+        frames = int(len(f["qpos"])) if "qpos" in f else 0
+        demos = len(json.loads(f.attrs["episodes"]))
+    return {"file": path.name, "sha256": sha256_file(path), "demos": demos, "frames": frames,
+            "bytes": path.stat().st_size}
+
+
+def write_manifest(path: Path, settings: dict, records: dict, n_chunks: int) -> dict:
+    chunks = [records[name] for name in sorted(records)]
+    frames, nbytes = sum(r["frames"] for r in chunks), sum(r["bytes"] for r in chunks)
+    totals = {"demos": sum(r["demos"] for r in chunks), "frames": frames, "bytes": nbytes,
+              "bytes_per_frame": round(nbytes / max(frames, 1), 1)}
+    atomic_write_text(path, json.dumps({"settings": settings, "complete": len(chunks) == n_chunks,
+                                        "chunks": chunks, "totals": totals}, indent=1))
+    return totals
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--traj-path", required=True, help="the demos' h5 (ManiSkill trajectory format + stage labels)")
@@ -133,8 +151,11 @@ def main(argv=None) -> int:
         differ = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v and k != "source"}
         if differ:
             raise SystemExit(f"{out} holds a conversion with other settings {differ} (old, new): use another --out")
-    atomic_write_text(manifest_path, json.dumps({"settings": settings, "complete": False, "chunks": []}, indent=1))
     chunks = [episodes[i:i + args.chunk] for i in range(0, len(episodes), args.chunk)]
+    # The manifest is rewritten after every chunk, so trainers reading the folder while the
+    # conversion goes on (docs/imitation.md, "Shards") see which chunks are finished.
+    records = {path.name: chunk_record(path) for path in sorted(out.glob("chunk_*.imit.h5"))}
+    write_manifest(manifest_path, settings, records, len(chunks))
     t_start, longest = time.perf_counter(), 0.0
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
     for k, chunk in enumerate(chunks, start=args.start // args.chunk):
@@ -162,25 +183,13 @@ def main(argv=None) -> int:
             f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
             f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), subsampled in {time.perf_counter() - t:.0f} s")
         shutil.rmtree(work)
+        records[target.name] = chunk_record(target)
+        write_manifest(manifest_path, settings, records, len(chunks))
         longest = max(longest, time.perf_counter() - t_chunk)
-    done = sorted(out.glob("chunk_*.imit.h5"))
-    records = []
-    for path in done:
-        with h5py.File(path, "r") as f:
-            frames = int(len(f["qpos"])) if "qpos" in f else 0
-            demos = len(json.loads(f.attrs["episodes"]))
-        records.append({"file": path.name, "sha256": sha256_file(path), "demos": demos, "frames": frames,
-                        "bytes": path.stat().st_size})
-    complete = len(done) == len(chunks)
-    frames = sum(r["frames"] for r in records)
-    nbytes = sum(r["bytes"] for r in records)
-    atomic_write_text(manifest_path, json.dumps({
-        "settings": settings, "complete": complete, "chunks": records,
-        "totals": {"demos": sum(r["demos"] for r in records), "frames": frames, "bytes": nbytes,
-                   "bytes_per_frame": round(nbytes / max(frames, 1), 1)}}, indent=1))
+    totals = write_manifest(manifest_path, settings, records, len(chunks))
     shutil.rmtree(out / "work", ignore_errors=True)
-    log(f"{len(done)}/{len(chunks)} chunks done, {frames} frames, {nbytes / 1e9:.2f} GB"
-        + ("" if complete else " (incomplete: run again)"))
+    log(f"{len(records)}/{len(chunks)} chunks done, {totals['frames']} frames, {totals['bytes'] / 1e9:.2f} GB"
+        + ("" if len(records) == len(chunks) else " (incomplete: run again)"))
     return 0
 
 

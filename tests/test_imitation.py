@@ -5,7 +5,9 @@ The sample is regenerated with the train suite: nothing here depends on its traj
 their number (the first 2 demos' first steps are converted, whatever they are)."""
 from __future__ import annotations
 
+import hashlib
 import importlib
+import json
 import sys
 from pathlib import Path
 
@@ -109,8 +111,6 @@ def test_a_failed_replay_leaves_nothing_in_the_next_trajectory(tmp_path):
     """ManiSkill's replay tool keeps a failed replay's steps in its recorder; a later demo of
     the same task (no scene rebuild) would be saved after them. fetchbench_ms.replay_trajectory
     drops them: the saved trajectory is the second demo's own, step for step."""
-    import json
-
     import h5py
 
     from fetchbench_ms import replay_trajectory
@@ -197,7 +197,9 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=8, until_step=4, export=True,
                        export_path=str(export), **TINY, **TRAINER_KW["mlp"])
     first = module.main(args)
-    assert first["stopped"] and first["step"] == 4 and not export.exists()
+    # A stopped call exports what it has (a hold's share of a longer run) and says so.
+    _, meta = load_model(export)
+    assert first["stopped"] and first["step"] == 4 and meta["step"] == 4 and not meta["schedule_complete"]
     args.data, args.until_step = str(shard), 0
     with pytest.raises(ValueError, match="--new-data"):
         module.main(args)
@@ -207,6 +209,11 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     _, meta = load_model(export)
     hashes = [d["data_sha256"] for d in meta["data_history"]]
     assert [d["from_step"] for d in meta["data_history"]] == [0, 4] and hashes[0] != hashes[1] == meta["data_sha256"]
+    assert meta["schedule_complete"]
+    # The data hash is that of the files loaded, whose sha256s the converter's manifest lists.
+    manifest = json.loads((shard / "manifest.json").read_text())
+    listed = "".join(f"{c['file']} {c['sha256']}\n" for c in manifest["chunks"])
+    assert manifest["complete"] and hashlib.sha256(listed.encode()).hexdigest() == meta["data_sha256"]
 
 
 # ----------------------------------------------------------------------------- deployment

@@ -74,14 +74,13 @@ class TrainArgs:
 
 
 # ----------------------------------------------------------------------------- data
-def data_hash(data_dir: str) -> str:
-    """The dataset's hash: its manifest's (which lists every chunk's hash), else the files'."""
-    root = Path(data_dir)
-    manifest = root / "manifest.json" if root.is_dir() else None
-    if manifest is not None and manifest.is_file():
-        return sha256_file(manifest)
-    files = sorted(root.glob("*.imit.h5")) if root.is_dir() else [root]
-    return sha256_bytes("".join(sha256_file(p) for p in files).encode())
+def data_hash(files: list[str]) -> str:
+    """The hash of the training files a run loaded: of their names and sha256s. (Not the
+    folder's manifest: a conversion still writing its shard, read by the trainers of the same
+    hold, adds chunks between the loading and a look at the manifest.) The chunks' sha256s are
+    the ones in the converter's manifest.json."""
+    lines = "".join(f"{Path(f).name} {sha256_file(f)}\n" for f in sorted(files, key=lambda f: Path(f).name))
+    return sha256_bytes(lines.encode())
 
 
 def _is_val_task(task_id: str, fraction: float) -> bool:
@@ -147,12 +146,12 @@ class Frames:
 def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:
     raw = load_training_files(args.data, sizes=args.sizes())
     frames = Frames(raw, args.device, args)
-    log(f"data {args.data}: {len(raw['episodes'])} demos ({frames.demos['train']} train, {frames.demos['val']} val), "
+    log(f"data {args.data}: {len(raw['files'])} files, {len(raw['episodes'])} demos ({frames.demos['train']} train, {frames.demos['val']} val), "
         f"{len(raw['qpos'])} frames ({len(frames.train_index)} train / {len(frames.val_index)} val policy frames), "
         f"{raw['points'].nbytes / 1e9:.2f} GB of points")
     if len(frames.train_index) == 0:
         raise ValueError(f"no training frame in {args.data}")
-    return frames, data_hash(args.data)
+    return frames, data_hash(raw["files"])
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -181,6 +180,10 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
     t_start = time.perf_counter()
     frames, dhash = load_frames(args, log)
+    # TF32 matmuls: the PointNet's per-point layers are most of a step, and TF32's 10-bit
+    # mantissa is far below the noise of behaviour cloning's targets.
+    torch.backends.cuda.matmul.allow_tf32 = True
+    torch.backends.cudnn.allow_tf32 = True
     torch.manual_seed(args.seed)
     model = make_model().to(args.device)
     n_params = sum(p.numel() for p in model.parameters())
@@ -292,8 +295,10 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         if args.eval_every and args.eval_tasks and not any(r["step"] == step for r in history["val_success"]):
             evaluate_now()
         log(f"done: {step} steps")
-        if args.export:
-            export(model, kind, args, command, dhash, step, history, last, log)
+    if args.export:
+        # Also a run stopped by --time-limit / --until-step exports (a hold's shard of a longer
+        # run ships what it has); the JSON says whether the schedule was finished.
+        export(model, kind, args, command, dhash, step, history, last, log)
     return {"model": model, "step": step, "last": last, "history": history, "stopped": stopped}
 
 
@@ -305,7 +310,7 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: in
 
     path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
     path.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"kind": kind, "step": step, "data_sha256": dhash, "data_history": history.get("data", []),
+    meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash, "data_history": history.get("data", []),
             "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}

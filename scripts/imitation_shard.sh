@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# One GPU-machine hold of a sharded imitation run (docs/imitation.md, "Shards"). The training
+# files of the whole dataset (~15 GB) cannot leave the machine and their conversion takes
+# ~3 hours of it, so each hold converts the next demos while the three trainers learn from the
+# chunks finished so far:
+#   - scripts/convert_demos_for_imitation.py converts demos [START, START+COUNT) of TRAJ into
+#     ROOT/data (a chunk of 128 demos at a time; the manifest is rewritten after each);
+#   - meanwhile the trainers run in rounds of ROUND seconds, each round resuming
+#     ROOT/runs/<kind>/checkpoint.pt on whatever chunks are finished (--new-data; every data
+#     hash and the step it began at go into the checkpoint and the export's JSON) and exporting
+#     ROOT/export/imit_<kind>.pt (fp16) + .json at its end;
+#   - everything has stopped SECONDS after the start.
+# Restore ROOT/runs/<kind>/checkpoint.pt from the previous hold to go on with a run.
+#
+#   bash scripts/imitation_shard.sh ROOT TRAJ START COUNT SECONDS
+#
+# Environment: STEPS_MLP, STEPS_TRANSFORMER, STEPS_DIFFUSION (each run's schedule length;
+# defaults 30000 / 16000 / 16000), NUM_ENVS (replay processes, default 13: the trainers take
+# three cores), ROUND (seconds, default 300), DEVICE (default cuda), TRAIN_ARGS (more trainer
+# flags), PYTHON.
+set -euo pipefail
+ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
+TRAJ=${2:?TRAJ: the demos h5}
+START=${3:?START: the first demo, a multiple of 128}
+COUNT=${4:?COUNT: demos to convert}
+SECONDS_TOTAL=${5:?SECONDS: seconds this job may take}
+PY=${PYTHON:-python3}
+ROUND=${ROUND:-300}
+declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-16000} [diffusion]=${STEPS_DIFFUSION:-16000})
+deadline=$(( $(date +%s) + SECONDS_TOTAL ))
+mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
+say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
+
+say "converting demos $START..$((START + COUNT)) of $TRAJ; trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
+$PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
+    --chunk 128 --num-envs "${NUM_ENVS:-13}" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - 120)) \
+    >> "$ROOT/logs/convert.log" 2>&1 &
+converter=$!
+until compgen -G "$ROOT/data/chunk_*.imit.h5" > /dev/null; do
+    kill -0 $converter 2> /dev/null || { say "the converter stopped before its first chunk"; tail -20 "$ROOT/logs/convert.log"; exit 1; }
+    sleep 5
+done
+round=0
+while :; do
+    left=$(( deadline - $(date +%s) ))
+    (( left >= 150 )) || break
+    limit=$(( left - 60 < ROUND ? left - 60 : ROUND ))
+    round=$((round + 1))
+    say "round $round: $(ls "$ROOT"/data/chunk_*.imit.h5 | wc -l) chunks, ${limit} s"
+    pids=()
+    for kind in mlp transformer diffusion; do
+        $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "${STEPS[$kind]}" \
+            --time-limit "$limit" --new-data --eval-every 0 --export --export-path "$ROOT/export/imit_$kind.pt" \
+            --device "${DEVICE:-cuda}" ${TRAIN_ARGS:-} >> "$ROOT/logs/train_$kind.log" 2>&1 &
+        pids+=($!)
+    done
+    status=0
+    for pid in "${pids[@]}"; do wait "$pid" || status=$?; done
+    (( status == 0 )) || { say "a trainer failed (exit $status)"; tail -20 "$ROOT"/logs/train_*.log; exit 1; }
+    done_all=1
+    for kind in mlp transformer diffusion; do grep -q "done: ${STEPS[$kind]} steps" "$ROOT/logs/train_$kind.log" || done_all=0; done
+    (( done_all == 0 )) || { say "every schedule is finished"; break; }
+done
+wait $converter || say "the converter exited with $?"
+say "finished: $(grep -h 'chunks done' "$ROOT/logs/convert.log" | tail -1)"
+touch "$ROOT/done"

@@ -17,6 +17,7 @@ delta is sent as the target qpos + 0.1 rad x action, which is what ManiSkill's
 """
 from __future__ import annotations
 
+import functools
 import os
 import time
 from pathlib import Path
@@ -67,6 +68,20 @@ def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
             f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
             f"--export` (docs/imitation.md), or pass --policy-checkpoint PATH")
     return path
+
+
+@functools.lru_cache(maxsize=None)
+def _sha256(path: str) -> str:
+    from ..utils.io import sha256_file
+
+    return sha256_file(path)
+
+
+def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
+    """What a record says of the policy it ran: the checkpoint's path and its sha256 (the
+    shipped checkpoint's JSON names the val runs made with exactly these bytes)."""
+    path = resolve_checkpoint(method, checkpoint)
+    return {"checkpoint": str(path), "checkpoint_sha256": _sha256(str(path.resolve()))}
 
 
 def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, **kwargs) -> ImitationPolicy:
@@ -147,7 +162,7 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
         "regrasps": did["regrasps"],
         "policy_steps": did["steps"],
         "phase_log": did["phase_log"],
-        "checkpoint": str(resolve_checkpoint(method, checkpoint)),
+        **checkpoint_fields(method, checkpoint),
         "target_moved": round(float(info["target_moved"][0]), 4),
         "max_others_moved": round(float(info["max_others_moved"][0]), 4),
         "wall_time": round(time.perf_counter() - t, 2),
@@ -187,5 +202,5 @@ def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retri
     approach = hybrid_approach_method()
     record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
                    config=SolveConfig(retrieval=retrieval_by_policy(policy, seed)))
-    record.update(method=method, approach_method=approach, checkpoint=str(resolve_checkpoint(method, checkpoint)))
+    record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint))
     return record

@@ -15,9 +15,11 @@
 #   bash scripts/imitation_shard.sh ROOT TRAJ START COUNT SECONDS
 #
 # Environment: STEPS_MLP, STEPS_TRANSFORMER, STEPS_DIFFUSION (each run's schedule length;
-# defaults 30000 / 16000 / 16000), NUM_ENVS (replay processes, default 13: the trainers take
-# three cores), ROUND (seconds, default 300), DEVICE (default cuda), TRAIN_ARGS (more trainer
-# flags), PYTHON.
+# defaults 30000 / 16000 / 16000), NUM_ENVS (replay processes, default 13 beside the
+# trainers, 16 alone), ROUND (seconds, default 300), DEVICE (default cuda), TRAIN_ARGS (more
+# trainer flags), PYTHON, and TRAIN_SECONDS: when set, convert alone until SECONDS - TRAIN_SECONDS, then
+# train (on the H100 the renderer and the trainers share the GPU: a chunk took 385 s alone and
+# 565 s beside the trainers, docs/imitation.md "The first checkpoints").
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
@@ -25,7 +27,9 @@ START=${3:?START: the first demo, a multiple of 128}
 COUNT=${4:?COUNT: demos to convert}
 SECONDS_TOTAL=${5:?SECONDS: seconds this job may take}
 PY=${PYTHON:-python3}
-ROUND=${ROUND:-300}
+ROUND=${ROUND:-${TRAIN_SECONDS:-300}}
+# Replay processes: all 16 cores when converting alone, else 13 beside the three trainers.
+if [[ -n "${TRAIN_SECONDS:-}" ]]; then NUM_ENVS=${NUM_ENVS:-16}; else NUM_ENVS=${NUM_ENVS:-13}; fi
 declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-16000} [diffusion]=${STEPS_DIFFUSION:-16000})
 deadline=$(( $(date +%s) + SECONDS_TOTAL ))
 mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
@@ -33,13 +37,17 @@ say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
 
 say "converting demos $START..$((START + COUNT)) of $TRAJ; trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
 $PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
-    --chunk 128 --num-envs "${NUM_ENVS:-13}" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - 120)) \
+    --chunk 128 --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
     >> "$ROOT/logs/convert.log" 2>&1 &
 converter=$!
 until compgen -G "$ROOT/data/chunk_*.imit.h5" > /dev/null; do
     kill -0 $converter 2> /dev/null || { say "the converter stopped before its first chunk"; tail -20 "$ROOT/logs/convert.log"; exit 1; }
     sleep 5
 done
+if [[ -n "${TRAIN_SECONDS:-}" ]]; then
+    say "converting alone, then training for the last ${TRAIN_SECONDS} s"
+    wait $converter || say "the converter exited with $?"
+fi
 round=0
 while :; do
     left=$(( deadline - $(date +%s) ))
@@ -61,6 +69,6 @@ while :; do
     for kind in mlp transformer diffusion; do grep -q "done: ${STEPS[$kind]} steps" "$ROOT/logs/train_$kind.log" || done_all=0; done
     (( done_all == 0 )) || { say "every schedule is finished"; break; }
 done
-wait $converter || say "the converter exited with $?"
+[[ -n "${TRAIN_SECONDS:-}" ]] || wait $converter || say "the converter exited with $?"
 say "finished: $(grep -h 'chunks done' "$ROOT/logs/convert.log" | tail -1)"
 touch "$ROOT/done"

@@ -155,7 +155,7 @@ def main(argv=None) -> int:
     # The manifest is rewritten after every chunk, so trainers reading the folder while the
     # conversion goes on (docs/imitation.md, "Shards") see which chunks are finished.
     records = {path.name: chunk_record(path) for path in sorted(out.glob("chunk_*.imit.h5"))}
-    write_manifest(manifest_path, settings, records, len(chunks))
+    totals = write_manifest(manifest_path, settings, records, len(chunks))
     t_start, longest = time.perf_counter(), 0.0
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
     for k, chunk in enumerate(chunks, start=args.start // args.chunk):
@@ -184,9 +184,8 @@ def main(argv=None) -> int:
             f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), subsampled in {time.perf_counter() - t:.0f} s")
         shutil.rmtree(work)
         records[target.name] = chunk_record(target)
-        write_manifest(manifest_path, settings, records, len(chunks))
+        totals = write_manifest(manifest_path, settings, records, len(chunks))
         longest = max(longest, time.perf_counter() - t_chunk)
-    totals = write_manifest(manifest_path, settings, records, len(chunks))
     shutil.rmtree(out / "work", ignore_errors=True)
     log(f"{len(records)}/{len(chunks)} chunks done, {totals['frames']} frames, {totals['bytes'] / 1e9:.2f} GB"
         + ("" if len(records) == len(chunks) else " (incomplete: run again)"))

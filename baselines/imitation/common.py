@@ -146,7 +146,8 @@ class Frames:
 def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:
     raw = load_training_files(args.data, sizes=args.sizes())
     frames = Frames(raw, args.device, args)
-    log(f"data {args.data}: {len(raw['files'])} files, {len(raw['episodes'])} demos ({frames.demos['train']} train, {frames.demos['val']} val), "
+    log(f"data {args.data}: {len(raw['files'])} files, {len(raw['episodes'])} demos "
+        f"({frames.demos['train']} train, {frames.demos['val']} val), "
         f"{len(raw['qpos'])} frames ({len(frames.train_index)} train / {len(frames.val_index)} val policy frames), "
         f"{raw['points'].nbytes / 1e9:.2f} GB of points")
     if len(frames.train_index) == 0:
@@ -310,8 +311,8 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: in
 
     path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
     path.parent.mkdir(parents=True, exist_ok=True)
-    meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash, "data_history": history.get("data", []),
-            "command": command,
+    meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
+            "data_history": history.get("data", []), "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}
     size = save_checkpoint(path, model, meta)

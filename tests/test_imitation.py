@@ -374,6 +374,195 @@ def test_unknown_phase_and_kind_are_named():
     assert agent_mod.PHASES[0] == APPROACH
 
 
+# ----------------------------------------------------------------------------- policy stride
+def _tiny_model(kind: str):
+    from fetchbench_ms.policies.networks import (DiffusionConfig, DiffusionPolicy, EncoderConfig, MLPConfig, MLPPolicy,
+                                                 TransformerConfig, TransformerPolicy)
+
+    encoder = EncoderConfig(sizes=SIZES, point_dims=(16, 32), point_out=32)
+    if kind == "mlp":
+        return MLPPolicy(MLPConfig(encoder=encoder, hidden=32))
+    if kind == "transformer":
+        return TransformerPolicy(TransformerConfig(encoder=encoder, d_model=32, layers=1, heads=2))
+    return DiffusionPolicy(DiffusionConfig(encoder=encoder, unet_dims=(16, 32), pred_horizon=8, act_horizon=4,
+                                           train_steps=20, sample_steps=4))
+
+
+def _scripted_network(monkeypatch, terminations: dict | None = None, chunk: int = 1) -> list:
+    """The network replaced: its i-th call returns the arm actions 0.01 (i + 1) + 0.001 j for
+    the chunk's rows j and the termination ``terminations.get(i, 0.1)``. Returns the calls'
+    log: (termination only, history length)."""
+    calls = []
+
+    def act(self, batch, termination_only=False):
+        i = len(calls)
+        calls.append((termination_only, len(self.history)))
+        rows = 0.01 * (i + 1) + 0.001 * np.arange(chunk, dtype=np.float32)
+        return np.repeat(rows[None, :, None], 7, axis=2), np.array([(terminations or {}).get(i, 0.1)])
+
+    monkeypatch.setattr(ImitationPolicy, "_act", act)
+    return calls
+
+
+def _split_steps(policy: ImitationPolicy, gaps, rng) -> tuple[list, np.ndarray]:
+    """Drive ``policy`` through begin_step / act, the observation given only when asked for;
+    returns (asked, actions [n, 8])."""
+    asked, actions = [], []
+    for gap in gaps:
+        obs = _synthetic_obs(rng, gap / 2)
+        asked.append(policy.begin_step(obs["agent"]["qpos"][0]))
+        actions.append(policy.act(obs if asked[-1] else None)[0])
+    return asked, np.stack(actions)
+
+
+@pytest.mark.parametrize("kind", ["transformer", "diffusion"])
+def test_stride_one_split_steps_are_get_action(kind, monkeypatch):
+    """Stride 1 is the trained behaviour: begin_step + act, the observation given only when
+    asked for, act as get_action with every observation does (actions, network calls,
+    transitions), and every acting step is observed."""
+    calls = _scripted_network(monkeypatch, {2: 0.9, 9: 0.9}, chunk=4 if kind == "diffusion" else 1)
+    config = ReGraspConfig(close_steps=2, reopen_steps=2, settle_steps=1, min_approach_steps=1, min_retrieve_steps=3)
+    # approach x3, close x2, retrieve x4, reopen x2 (fingers met), approach x3, close x2, retrieve x7
+    gaps = [0.04] * 6 + [0.02] * 3 + [0.0] * 3 + [0.04] * 5 + [0.02] * 6
+
+    def episode(split: bool):
+        calls.clear()
+        policy = ImitationPolicy(_tiny_model(kind), regrasp=config)
+        policy.reset(episode_seed=0)
+        rng = np.random.default_rng(0)
+        if split:
+            asked, actions = _split_steps(policy, gaps, rng)
+        else:
+            asked, actions = None, np.concatenate([policy.get_action(_synthetic_obs(rng, g / 2)) for g in gaps])
+        return actions, policy.machine.log, list(calls), asked
+
+    actions, log, net, _ = episode(split=False)
+    split_actions, split_log, split_net, asked = episode(split=True)
+    assert np.array_equal(actions, split_actions) and log == split_log and net == split_net
+    assert [to for _, _, to in log] == [CLOSE, RETRIEVE, REOPEN, APPROACH, CLOSE, RETRIEVE]
+    closing_or_reopening = [3, 4, 9, 10, 14, 15]
+    assert len(net) == sum(asked) == len(gaps) - len(closing_or_reopening)
+    assert not any(asked[i] for i in closing_or_reopening)
+    if kind == "transformer":  # the network at every acting step
+        assert not any(only for only, _ in net)
+    else:  # a new chunk when the queue is empty, else a termination-only pass at every step
+        assert [only for only, _ in net][:7] == [False, True, True, False, True, True, True]
+
+
+def test_stride_repeats_the_arm_action_between_observations(monkeypatch):
+    """Stride 3: the network reads the 1st, 4th, 7th ... acting step of a phase and its arm
+    action is repeated in between, where no observation is asked for and no termination is
+    fed; close and reopen never ask; the history holds the observed steps only."""
+    calls = _scripted_network(monkeypatch, {2: 0.9})
+    fed = []
+    end_step = ReGraspStateMachine.end_step
+    monkeypatch.setattr(ReGraspStateMachine, "end_step", lambda self, p=None: fed.append(p) or end_step(self, p))
+    config = ReGraspConfig(close_steps=2, reopen_steps=2, settle_steps=1, min_approach_steps=1, min_retrieve_steps=50)
+    policy = ImitationPolicy(_tiny_model("transformer"), regrasp=config, stride=3)
+    policy.reset(episode_seed=0)
+    # approach x7 (the 3rd call terminates), close x2, retrieve x4, fingers met: reopen x2, approach x2
+    asked, actions = _split_steps(policy, [0.04] * 9 + [0.02] * 4 + [0.0] + [0.04] * 3, np.random.default_rng(0))
+    T, F = True, False
+    assert asked == [T, F, F, T, F, F, T, F, F, T, F, F, T, F, F, T, F]
+    assert [p is not None for p in fed] == asked  # termination only from an evaluated step
+    assert [to for _, _, to in policy.machine.log] == [CLOSE, RETRIEVE, REOPEN, APPROACH]
+    assert policy.machine.log[0] == (7, APPROACH, CLOSE)
+    assert len(calls) == 3 + 2 + 1  # ceil(7 / 3) approach, ceil(4 / 3) retrieval, 1 approach again
+    assert [h for _, h in calls] == [1, 2, 3, 1, 2, 1]  # a frame per observed step, afresh each phase
+    arm = [0.01] * 3 + [0.02] * 3 + [0.03] + [0.0] * 2 + [0.04] * 3 + [0.05] + [0.0] * 2 + [0.06] * 2
+    assert np.allclose(actions[:, :7], np.array(arm)[:, None], atol=1e-6), actions[:, 0]
+    assert (actions[:7, 7] == GRIPPER_OPEN).all() and (actions[7:13, 7] == GRIPPER_CLOSED).all()
+    assert (actions[13:, 7] == GRIPPER_OPEN).all()
+
+
+def test_diffusion_stride_runs_chunks_and_checks_termination_every_k_steps(monkeypatch):
+    """Stride 3, a diffusion policy: its chunks (4 actions) run as with stride 1; between
+    chunks the termination is checked every 3rd step only."""
+    calls = _scripted_network(monkeypatch, chunk=4)
+    policy = ImitationPolicy(_tiny_model("diffusion"), stride=3)
+    policy.reset(episode_seed=0)
+    asked, actions = _split_steps(policy, [0.04] * 9, np.random.default_rng(0))
+    T, F = True, False
+    assert asked == [T, F, F, T, T, F, F, T, T]
+    assert [only for only, _ in calls] == [False, True, False, True, False]
+    assert np.allclose(actions[:, 0], [0.01, 0.011, 0.012, 0.013, 0.03, 0.031, 0.032, 0.033, 0.05], atol=1e-6)
+
+
+def test_invalid_stride_and_misused_steps_are_named(monkeypatch):
+    from fetchbench_ms.evaluation.methods import resolve_method
+
+    model = _tiny_model("mlp")
+    for stride in (0, -2, 1.5, "2", True, None):
+        with pytest.raises(ValueError, match="integer >= 1"):
+            ImitationPolicy(model, stride=stride)
+    with pytest.raises(ValueError, match="integer >= 1"):  # before any task runs
+        resolve_method("e2e-mlp", policy_stride=0)
+    _scripted_network(monkeypatch)
+    policy = ImitationPolicy(model, stride=np.int64(2))
+    assert policy.stride == 2
+    qpos = np.r_[np.zeros(7), 0.04, 0.04]
+    with pytest.raises(RuntimeError, match="begin_step"):
+        policy.act()
+    assert policy.begin_step(qpos)
+    with pytest.raises(RuntimeError, match="twice"):
+        policy.begin_step(qpos)
+    with pytest.raises(ValueError, match="needs the observation"):
+        policy.act()
+    policy.act(_synthetic_obs(np.random.default_rng(0), 0.04))
+    assert not policy.begin_step(qpos)  # the repeated step: no observation
+    assert policy.act().shape == (1, 8)
+
+
+def test_policy_stride_reaches_the_episode(monkeypatch):
+    """--policy-stride K: the CLI, the runner's spec and the method hand K to the episode."""
+    from fetchbench_ms.cli import build_parser
+    from fetchbench_ms.evaluation.methods import RunnerSpec
+    from fetchbench_ms.policies import deploy
+
+    assert build_parser().parse_args(["eval", "--method", "e2e-mlp", "--policy-stride", "3"]).policy_stride == 3
+    assert build_parser().parse_args(["eval"]).policy_stride == 1
+    seen = {}
+    monkeypatch.setattr(deploy, "run_e2e", lambda env, seed, name, checkpoint, regrasp, stride: seen.update(e2e=stride))
+    monkeypatch.setattr(deploy, "run_hybrid", lambda *args: seen.update(hybrid=args[-1]))
+    RunnerSpec("e2e-mlp", policy_stride=3).make().method.run(None, 0)
+    RunnerSpec("cgn-imit-mlp", policy_stride=4).make().method.run(None, 0)
+    assert seen == {"e2e": 3, "hybrid": 4}
+
+
+def test_strided_episode_renders_fewer_observations(tmp_path):
+    """An e2e episode on a smoke task renders the cameras (the env's get_obs) only at the steps
+    the policy reads: every step with stride 1, every other one with stride 2; the records
+    say so."""
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.policies import deploy
+
+    model = _tiny_model("mlp")
+    with torch.no_grad():  # a termination that never fires: every step is an approach step
+        model.head.weight[-1].zero_()
+        model.head.bias[-1] = -20.0
+    path = tmp_path / "mlp.pt"
+    agent_mod.save_checkpoint(path, model, {})
+    env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud", control_mode="pd_joint_pos", task_suite="smoke")
+    try:
+        u = env.unwrapped
+        get_obs, rendered = u.get_obs, []
+        u.get_obs = lambda *args, **kwargs: rendered.append(1) or get_obs(*args, **kwargs)
+        records = {}
+        for stride in (1, 2):
+            env.reset(seed=0)
+            rendered.clear()
+            records[stride] = deploy.run_e2e(env, 0, "e2e-mlp", str(path), max_steps=7, stride=stride)
+            assert records[stride]["observations"] == len(rendered)
+            assert int(u.elapsed_steps[0]) == 7 and records[stride]["policy_steps"] == 7
+            assert records[stride]["policy_stride"] == stride and records[stride]["phase_log"] == []
+        assert records[1]["observations"] == 7 and records[2]["observations"] == 4  # steps 1, 3, 5, 7
+        assert records[2]["cspace_length"] > 0
+    finally:
+        env.close()
+
+
 # ----------------------------------------------------------------------------- shipped checkpoints
 @pytest.fixture(scope="module")
 def sample_frames_full_size(tmp_path_factory) -> Path:

@@ -20,7 +20,7 @@ def cmd_eval(args) -> int:
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
                        retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
-                       policy_checkpoint=args.policy_checkpoint)
+                       policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -49,6 +49,10 @@ def add_commands(subparsers) -> None:
                         "ours: assets/checkpoints/cgn_ours.pt)")
     p.add_argument("--policy-checkpoint", default=None,
                    help="e2e-* / twostage-* / cgn-imit-* methods: the policy checkpoint (default: assets/checkpoints/imit_KIND.pt)")
+    p.add_argument("--policy-stride", type=int, default=1, metavar="K",
+                   help="e2e-* / twostage-* / cgn-imit-* methods: the policy observes and acts every K control "
+                        "steps, repeating its arm action in between (1: every step, as trained; a diffusion "
+                        "policy runs its action chunks and checks termination every K steps)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

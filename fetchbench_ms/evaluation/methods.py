@@ -67,10 +67,12 @@ class Method:
 
 
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
-                   policy_checkpoint: Optional[str] = None) -> Method:
+                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
-    ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one)."""
+    ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
+    ``policy_stride``: their control steps per observation (``ImitationPolicy``)."""
     from ..policies import deploy
+    from ..policies.agent import check_stride
     from ..solutions.sense_plan_act import METHODS, needs_pointcloud, solve
 
     if name in METHODS:
@@ -90,16 +92,18 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
         return Method(name, obs_mode, run)
     if name in deploy.POLICY_METHODS:
         deploy.resolve_checkpoint(name, policy_checkpoint)  # missing: the error says how to train one
+        check_stride(policy_stride)  # invalid: an error before any task runs
         if name in deploy.HYBRID_METHODS:
             from ..grasping import load_model
 
             load_model(grasp_model)
 
             def run(env, seed):
-                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model)
+                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model, policy_stride)
         else:
             def run(env, seed):
-                return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS)
+                return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS,
+                                      stride=policy_stride)
 
         return Method(name, deploy.policy_obs_mode(name), run)
     if name == IDLE:
@@ -141,9 +145,11 @@ class RunnerSpec:
     video_dir: Optional[str] = None  # record a GIF of every failed task here
     grasp_model: str = "pretrained"  # cgn-* methods: Contact-GraspNet weight set
     policy_checkpoint: Optional[str] = None  # imitation methods: checkpoint (default: the shipped one)
+    policy_stride: int = 1  # imitation methods: control steps per observation
 
     def make(self) -> "TaskRunner":
-        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint)
+        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
+                          self.policy_stride)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -154,8 +160,8 @@ class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
-                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None):
-        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint)
+                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1):
+        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride)
         self.video_dir = video_dir
         self.envs: dict = {}
 

@@ -58,13 +58,15 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
              backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
              retries: int = 1, retry_errors: bool = False, videos: bool = False,
              progress: bool = True, grasp_model: str = "pretrained",
-             policy_checkpoint: Optional[str] = None) -> list[dict]:
+             policy_checkpoint: Optional[str] = None, policy_stride: int = 1) -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
     selection (old and new), in task order. ``grasp_model``: the weight set of ``cgn-*`` methods;
-    ``policy_checkpoint``: the imitation methods' checkpoint."""
+    ``policy_checkpoint``: the imitation methods' checkpoint; ``policy_stride``: their control
+    steps per observation."""
     from .metrics import summarize
 
-    resolve_method(method, retries, grasp_model, policy_checkpoint)  # unknown method: fail before anything is written
+    # unknown method: fail before anything is written
+    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:
@@ -83,6 +85,8 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         options["grasp_model"] = grasp_model
     if policy_checkpoint is not None:
         options["policy_checkpoint"] = str(Path(policy_checkpoint).resolve())
+    if policy_stride != 1:  # (stride-1 stores keep their options as they were)
+        options["policy_stride"] = policy_stride
     store.open_run({"method": method, "source": source, "source_sha256": source_sha,
                     "method_options": options, "selection": selection})
     done = {r["task_id"]: r for r in store.records()}
@@ -102,7 +106,7 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         bar.set_postfix(success=f"{successes}/{finished}")
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
-                      str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None)
+                      str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride)
     if todo:
         if backend == "local":
             from .local import run_local

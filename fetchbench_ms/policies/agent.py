@@ -16,9 +16,16 @@ network is told come from ``ReGraspStateMachine`` (the paper's end-to-end deploy
         +--- reopen_steps --- REOPEN <-- fingers fully closed (grasped nothing)
 
 ``regrasp=False`` is the paper's two-stage deployment (approach, then retrieve, no way back).
+
+``get_action`` is ``begin_step(qpos)`` (does this step read the observation?) then
+``act(obs)``: rendering the cameras' cloud costs far more than the network, so a deployment
+(``deploy.run_policy``) renders only when ``begin_step`` says so. ``stride`` k: the network
+reads an observation every k-th acting step and its arm action is repeated in between (a
+diffusion policy's chunks run as they are; its termination is checked every k-th step).
 """
 from __future__ import annotations
 
+import numbers
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -101,6 +108,13 @@ class ReGraspStateMachine:
             self._go(DONE)
 
 
+def check_stride(stride) -> int:
+    """A policy stride (control steps per observation): an integer >= 1."""
+    if isinstance(stride, bool) or not isinstance(stride, numbers.Integral) or stride < 1:
+        raise ValueError(f"the policy stride takes an integer >= 1 (control steps per observation), got {stride!r}")
+    return int(stride)
+
+
 def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: bool = True) -> int:
     """The model's weights (fp16 by default) and config, plus ``meta`` (training command,
     data hash, ...), written atomically; returns the file size."""
@@ -130,10 +144,15 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[to
 
 
 class ImitationPolicy:
-    """A trained policy with its observation history, action queue and state machine."""
+    """A trained policy with its observation history, action queue and state machine.
+
+    ``stride``: control steps per observation of an MLP / Transformer policy (its arm action
+    is repeated meanwhile), and per termination check of a diffusion one; 1 is how the
+    policies were trained (every step observed)."""
 
     def __init__(self, model: torch.nn.Module, meta: dict | None = None, device: str | torch.device = "cpu",
-                 regrasp: ReGraspConfig | None = None, seed: int = 0):
+                 regrasp: ReGraspConfig | None = None, seed: int = 0, stride: int = 1):
+        self.stride = check_stride(stride)
         self.model, self.meta, self.device = model.to(device).eval(), meta or {}, torch.device(device)
         self.regrasp_config = regrasp or ReGraspConfig()
         self.seed = seed
@@ -141,6 +160,7 @@ class ImitationPolicy:
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu", **kwargs) -> "ImitationPolicy":
+        """``kwargs``: ``regrasp``, ``seed``, ``stride`` (see the class)."""
         model, meta = load_model(path, device)
         return cls(model, meta, device, **kwargs)
 
@@ -157,6 +177,8 @@ class ImitationPolicy:
             int(self.seed if episode_seed is None else episode_seed) % 2**63)
         self.inference_time = 0.0
         self.steps = 0
+        self.since_observed = 0  # acting steps since the network last read an observation
+        self.needs_obs: bool | None = None  # this step's begin_step answer; None between steps
 
     @property
     def done(self) -> bool:
@@ -177,26 +199,57 @@ class ImitationPolicy:
     def get_action(self, obs: dict) -> np.ndarray:
         """The ``pd_joint_delta_pos`` action [1, 8] for a FetchBench observation (compact or raw
         point cloud, one sub-scene)."""
-        step_input = observation_input(obs, self.model.cfg.encoder.sizes, self.episode_seed, self.steps)
-        qpos = step_input.qpos[0]
-        phase = self.machine.begin_step(float(qpos[7] + qpos[8]))
+        self.begin_step(obs["agent"]["qpos"])
+        return self.act(obs)
+
+    def begin_step(self, qpos) -> bool:
+        """Start a control step from the robot's joints ([9], or [1, 9]): the finger gap moves
+        the state machine on. Returns whether ``act`` needs this step's observation (the
+        network runs: the arm is the network's and no action of it is queued, or a diffusion
+        policy's termination check is due); a caller renders the cameras only then."""
+        if self.needs_obs is not None:
+            raise RuntimeError("begin_step called twice: act() ends the control step begin_step began")
+        q = (qpos.detach().cpu().numpy() if isinstance(qpos, torch.Tensor) else np.asarray(qpos))
+        q = q.astype(np.float32).reshape(-1)
+        phase = self.machine.begin_step(float(q[7] + q[8]))
         if phase != self.last_phase:  # a new phase: its own history and action chunk
             self.history.clear()
             self.queue.clear()
             self.last_phase = phase
+        self.needs_obs = self.machine.acting and (
+            not self.queue or (self.model.kind == "diffusion" and self.since_observed >= self.stride))
+        return self.needs_obs
+
+    def act(self, obs: dict | None = None) -> np.ndarray:
+        """The action [1, 8] of the step ``begin_step`` began; ``obs`` (compact or raw point
+        cloud, one sub-scene) is read only when ``begin_step`` returned True, and needed then."""
+        if self.needs_obs is None:
+            raise RuntimeError("act() ends a control step: call begin_step(qpos) first")
+        if self.needs_obs and obs is None:
+            raise ValueError("the policy's network runs at this step (begin_step returned True): act(obs) needs "
+                             "the observation")
+        observe, self.needs_obs = self.needs_obs, None
         arm = np.zeros(ARM_DOF, np.float32)
         termination = None
-        if self.machine.acting:
+        if observe:
+            step_input = observation_input(obs, self.model.cfg.encoder.sizes, self.episode_seed, self.steps)
             self.history.append(step_input)
+            stage = PHASE_STAGE[self.machine.phase]
             t = time.perf_counter()
-            if not self.queue or self.model.kind != "diffusion":
-                actions, term = self._act(self._batch(step_input, PHASE_STAGE[phase]))
-                self.queue = deque(actions[0])
+            if not self.queue:
+                actions, term = self._act(self._batch(step_input, stage))
+                chunk = list(actions[0])
+                if self.model.kind != "diffusion":  # one action, repeated over the stride (action repeat)
+                    chunk = chunk[:1] * self.stride
+                self.queue = deque(chunk)
             else:  # an action chunk in progress: only the termination output is fresh
-                _, term = self._act(self._batch(step_input, PHASE_STAGE[phase]), termination_only=True)
+                _, term = self._act(self._batch(step_input, stage), termination_only=True)
             termination = float(term[0])
-            arm = np.asarray(self.queue.popleft(), np.float32)
+            self.since_observed = 0
             self.inference_time += time.perf_counter() - t
+        if self.machine.acting:
+            arm = np.asarray(self.queue.popleft(), np.float32)
+            self.since_observed += 1
         action = np.concatenate([np.clip(arm, -1, 1), [self.machine.gripper]]).astype(np.float32)
         self.machine.end_step(termination)
         self.steps += 1

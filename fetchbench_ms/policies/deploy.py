@@ -10,7 +10,8 @@
   gripper closing) and then the policy retrieves (``SolveConfig.retrieval``).
 
 Each loads its checkpoint from ``assets/checkpoints/imit_<method>.pt`` (``DEFAULT_CHECKPOINTS``)
-or from the one given (``fetchbench eval --policy-checkpoint PATH``). Policies speak
+or from the one given (``fetchbench eval --policy-checkpoint PATH``); its policy observes every
+control step, or every K-th with ``--policy-stride K`` (``ImitationPolicy``). Policies speak
 ``pd_joint_delta_pos``; the evaluation env drives ``pd_joint_pos`` (as the planners do), so a
 delta is sent as the target qpos + 0.1 rad x action, which is what ManiSkill's
 ``pd_joint_delta_pos`` controller (targets from the current qpos) does with it.
@@ -84,12 +85,14 @@ def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
     return {"checkpoint": str(path), "checkpoint_sha256": _sha256(str(path.resolve()))}
 
 
-def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, **kwargs) -> ImitationPolicy:
+def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, stride: int = 1,
+                **kwargs) -> ImitationPolicy:
+    """``stride``: control steps per observation (``ImitationPolicy``); ``kwargs``: its other options."""
     import torch
 
     path = resolve_checkpoint(method, checkpoint)
     device = device or os.environ.get("FETCHBENCH_POLICY_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
-    policy = ImitationPolicy.load(path, device, **kwargs)
+    policy = ImitationPolicy.load(path, device, stride=stride, **kwargs)
     expected = POLICY_METHODS[method]
     if policy.model.kind != expected:
         raise ValueError(f"{method} needs a {expected} checkpoint; {path} holds a {policy.model.kind} policy")
@@ -110,18 +113,32 @@ def env_action(env, action: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None) -> dict:
-    """Step ``env`` with ``policy`` until it is done or ``max_steps``; returns what it did."""
+def step_unobserved(env, action: np.ndarray) -> None:
+    """One control step without the observation ``env.step`` would render (the cameras' cloud
+    costs far more than the simulation): its simulation part, as the sense-plan-act executor
+    steps."""
     u = env.unwrapped
-    obs = u.get_obs(unflattened=True) if hasattr(u, "get_obs") else None
+    u._step_action(action)
+    u._elapsed_steps += 1
+
+
+def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None) -> dict:
+    """Step ``env`` with ``policy`` until it is done or ``max_steps``; returns what it did.
+    The observation is rendered only at the steps the policy reads it (``begin_step``);
+    ``on_step(action [8])`` steps the env instead of ``step_unobserved`` (the hybrids' executor)."""
+    u = env.unwrapped
     qpos_last = u.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
-    cspace, steps, grasped = 0.0, 0, False
+    cspace, steps, grasped, observations = 0.0, 0, False, 0
     for steps in range(1, max_steps + 1):
-        action = env_action(env, policy.get_action(obs))
+        obs = None
+        if policy.begin_step(qpos_last):
+            obs = u.get_obs(unflattened=True)
+            observations += 1
+        action = env_action(env, policy.act(obs))
         if on_step is not None:
-            obs = on_step(action[0])
+            on_step(action[0])
         else:
-            obs, *_ = env.step(action)
+            step_unobserved(env, action)
         qpos = u.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
         cspace += float(np.abs(qpos - qpos_last).sum())
         qpos_last = qpos
@@ -131,15 +148,15 @@ def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None) -> di
             break
     return {"steps": steps, "cspace_length": cspace, "inference_time": policy.inference_time, "grasped": grasped,
             "regrasps": policy.machine.regrasps, "phase_log": [list(t) for t in policy.machine.log],
-            "final_phase": policy.machine.phase}
+            "final_phase": policy.machine.phase, "observations": observations}
 
 
 def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_steps: int = MAX_POLICY_STEPS,
-            regrasp: bool = True) -> dict:
+            regrasp: bool = True, stride: int = 1) -> dict:
     """One end-to-end episode on an env already reset to its task; FetchBench's judge after."""
     from ..envs import settle_and_hold
 
-    policy = load_policy(method, checkpoint, regrasp=ReGraspConfig(regrasp=regrasp))
+    policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=regrasp))
     policy.reset(episode_seed=seed)
     t = time.perf_counter()
     did = run_policy(env, policy, max_steps)
@@ -161,6 +178,8 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
                    "grasped": did["grasped"], "retrieval_plan": did["final_phase"] == "done", "held_at_end": held},
         "regrasps": did["regrasps"],
         "policy_steps": did["steps"],
+        "policy_stride": policy.stride,
+        "observations": did["observations"],
         "phase_log": did["phase_log"],
         **checkpoint_fields(method, checkpoint),
         "target_moved": round(float(info["target_moved"][0]), 4),
@@ -169,9 +188,12 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
     }
 
 
-def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX_RETRIEVE_STEPS):
+def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX_RETRIEVE_STEPS,
+                        tally: dict | None = None):
     """A ``SolveConfig.retrieval`` callback: after the gripper closed, the policy retrieves
-    (steps through the solver's executor, so C-space length and step counts stay its)."""
+    (steps through the solver's executor, so C-space length and step counts stay its;
+    ``run_policy`` renders the observations the policy reads). ``tally``: the policy's
+    ``steps`` and ``observations`` are added to it, over every try."""
 
     def retrieve(env, state, executor) -> str | None:
         u = env.unwrapped
@@ -179,13 +201,15 @@ def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX
 
         def step(action):
             executor.step(action[:ARM_DOF], float(action[ARM_DOF]))
-            return u.get_obs(unflattened=True)
 
         t = time.perf_counter()
         did = run_policy(env, policy, max_steps, on_step=step)
+        if tally is not None:
+            for key in ("steps", "observations"):
+                tally[key] = tally.get(key, 0) + did[key]
         state.computation_time += did["inference_time"]
-        state.notes.append(f"policy retrieval: {did['steps']} steps, ended {did['final_phase']} "
-                           f"({time.perf_counter() - t:.1f} s)")
+        state.notes.append(f"policy retrieval: {did['steps']} steps ({did['observations']} observed), ended "
+                           f"{did['final_phase']} ({time.perf_counter() - t:.1f} s)")
         state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
         state.phases["retrieval_plan"] = did["final_phase"] == "done"
         return None if state.phases["grasped"] else "grasp_failure"
@@ -194,13 +218,15 @@ def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX
 
 
 def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retries: int = 1,
-               grasp_model: str = "pretrained") -> dict:
+               grasp_model: str = "pretrained", stride: int = 1) -> dict:
     """CGN + planner approach (``hybrid_approach_method()``), then the policy's retrieval."""
     from ..solutions.sense_plan_act import SolveConfig, solve
 
-    policy = load_policy(method, checkpoint, regrasp=ReGraspConfig(regrasp=False))
+    policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=False))
     approach = hybrid_approach_method()
+    tally = {"steps": 0, "observations": 0}
     record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
-                   config=SolveConfig(retrieval=retrieval_by_policy(policy, seed)))
-    record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint))
+                   config=SolveConfig(retrieval=retrieval_by_policy(policy, seed, tally=tally)))
+    record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint),
+                  policy_stride=policy.stride, policy_steps=tally["steps"], observations=tally["observations"])
     return record

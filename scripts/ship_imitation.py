@@ -10,12 +10,14 @@ retrains it, the converted data's manifest and the success on ``val`` tasks) and
 ``--hold`` is the hold's root as it came back: ``export/imit_<kind>.{pt,json}``,
 ``logs/train_<kind>.log``, ``data/manifest.json``. A val run is an eval folder
 (``fetchbench eval --suite val``) of one method; the checkpoint its records name must be the
-shipped one (by sha256), else it is refused.
+shipped one (by sha256), else it is refused. Without ``--hold`` the val runs are added to the
+checkpoints already shipped (a run of the same method and folder name is replaced):
+
+    python scripts/ship_imitation.py --val-runs build/h5/runs/e2e-mlp-val16-k3 ...
 """
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import shutil
 import sys
@@ -55,20 +57,49 @@ def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[di
                              f"imit_{kind}.pt ({exported[kind][:12]})")
         summary = summarize(records)["all"]
         tasks = sorted(r["task_id"] for r in records)
-        out[kind].append({"method": method, "run": run.name, "tasks": len(records), "first_task": tasks[0],
+        strides = sorted({int(r.get("policy_stride", 1)) for r in records})
+        out[kind].append({"method": method, "run": run.name, "policy_stride": strides[0] if len(strides) == 1 else strides,
+                          "tasks": len(records), "first_task": tasks[0],
                           "last_task": tasks[-1], "success_rate": summary["success_rate"],
                           "successes": sum(bool(r.get("success")) for r in records),
                           "checkpoint_checked_by": "sha256" if used == {exported[kind]} else "file name"})
     return out
 
 
+def add_val_runs(runs: list[Path]) -> int:
+    """Add val runs to the shipped checkpoints' JSON, checked against their bytes."""
+    shipped = {k: sha256_file(default_checkpoint(k)) for k in KINDS}
+    val = val_figures(runs, shipped)
+    for kind in KINDS:
+        if not val[kind]:
+            continue
+        path = default_checkpoint(kind).with_suffix(".json")
+        meta = json.loads(path.read_text())
+        if meta.get("checkpoint_sha256") != shipped[kind]:
+            raise SystemExit(f"{path} describes checkpoint {str(meta.get('checkpoint_sha256'))[:12]}, not the shipped "
+                             f"bytes ({shipped[kind][:12]}): ship the hold again with --hold")
+        new = {(v["method"], v["run"]) for v in val[kind]}
+        meta["validation_success"] = [v for v in meta.get("validation_success", [])
+                                      if (v["method"], v["run"]) not in new] + val[kind]
+        atomic_write_text(path, json.dumps(meta, indent=1))
+        print(f"{path}: val {[(v['method'], v['successes'], v['tasks']) for v in meta['validation_success']]}")
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--hold", required=True, help="the hold's folder: export/, logs/, data/manifest.json")
-    p.add_argument("--retrain", required=True, help="the one command that retrains the three (into the JSON)")
+    p.add_argument("--hold", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
+                                  "to the shipped checkpoints)")
+    p.add_argument("--retrain", help="the one command that retrains the three (into the JSON; with --hold)")
     p.add_argument("--val-runs", nargs="*", default=[], help="eval folders of val runs with these checkpoints")
     p.add_argument("--note", default="", help="a line on what limits these checkpoints (into the JSON)")
     args = p.parse_args(argv)
+    if args.hold is None:
+        if not args.val_runs:
+            p.error("give --hold (ship a hold's checkpoints) or --val-runs (add val runs to the shipped ones)")
+        return add_val_runs([Path(r) for r in args.val_runs])
+    if not args.retrain:
+        p.error("--hold needs --retrain (the one command that retrains the three)")
     hold = Path(args.hold)
     manifest = json.loads((hold / "data" / "manifest.json").read_text())
     exported = {k: sha256_file(hold / "export" / f"imit_{k}.pt") for k in KINDS}

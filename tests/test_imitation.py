@@ -629,3 +629,35 @@ def test_shipped_diffusion_checkpoint_reads_its_observation(sample_frames_full_s
     assert own < 0.2 and own < 0.95 * other
     actions, _ = model.act(obs, generator=torch.Generator().manual_seed(0))
     assert actions.shape == (len(index), model.cfg.act_horizon, 7) and actions.abs().max() <= 1.0
+
+
+def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypatch):
+    """``ship_imitation.py --val-runs`` adds a val run (with its policy stride) to the shipped
+    checkpoint's JSON only when its records name those exact bytes, and never takes test tasks."""
+    import shutil
+
+    ship = _import(ROOT / "scripts/ship_imitation.py", "ship_imitation")
+    for kind in ship.KINDS:
+        for suffix in (".pt", ".json"):
+            shutil.copyfile(ROOT / f"assets/checkpoints/imit_{kind}{suffix}", tmp_path / f"imit_{kind}{suffix}")
+    monkeypatch.setattr(ship, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
+    sha = ship.sha256_file(tmp_path / "imit_mlp.pt")
+
+    def run(name: str, task_prefix: str, checkpoint_sha: str) -> Path:
+        folder = tmp_path / name
+        folder.mkdir()
+        records = [{"task_id": f"{task_prefix}/000{i}", "method": "e2e-mlp", "success": i == 0, "failure": None,
+                    "category": "on_table", "scene_type": "Desk", "checkpoint": "imit_mlp.pt",
+                    "checkpoint_sha256": checkpoint_sha, "policy_stride": 3} for i in range(2)]
+        (folder / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+        return folder
+
+    assert ship.main(["--val-runs", str(run("e2e-mlp-val", "val", sha))]) == 0
+    entries = json.loads((tmp_path / "imit_mlp.json").read_text())["validation_success"]
+    added = [e for e in entries if e["run"] == "e2e-mlp-val"]
+    assert len(added) == 1 and added[0]["successes"] == 1 and added[0]["tasks"] == 2 and added[0]["policy_stride"] == 3
+    assert any(e["method"] == "cgn-imit-mlp" for e in entries)  # the earlier val runs stay
+    with pytest.raises(SystemExit, match="not the shipped"):
+        ship.main(["--val-runs", str(run("other-bytes", "val", "0" * 64))])
+    with pytest.raises(SystemExit, match="test tasks never choose"):
+        ship.main(["--val-runs", str(run("on-test", "test", sha))])

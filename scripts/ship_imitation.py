@@ -57,8 +57,8 @@ def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[di
                              f"imit_{kind}.pt ({exported[kind][:12]})")
         summary = summarize(records)["all"]
         tasks = sorted(r["task_id"] for r in records)
-        strides = sorted({int(r.get("policy_stride", 1)) for r in records})
-        out[kind].append({"method": method, "run": run.name, "policy_stride": strides[0] if len(strides) == 1 else strides,
+        # one stride per results folder (the store refuses to resume with another)
+        out[kind].append({"method": method, "run": run.name, "policy_stride": int(records[0].get("policy_stride", 1)),
                           "tasks": len(records), "first_task": tasks[0],
                           "last_task": tasks[-1], "success_rate": summary["success_rate"],
                           "successes": sum(bool(r.get("success")) for r in records),

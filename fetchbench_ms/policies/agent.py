@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, observation_input
+from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, _numpy, observation_input
 from .networks import build_policy, config_from_dict, config_to_dict
 
 APPROACH, CLOSE, RETRIEVE, REOPEN, DONE = "approach", "close", "retrieve", "reopen", "done"
@@ -209,8 +209,7 @@ class ImitationPolicy:
         policy's termination check is due); a caller renders the cameras only then."""
         if self.needs_obs is not None:
             raise RuntimeError("begin_step called twice: act() ends the control step begin_step began")
-        q = (qpos.detach().cpu().numpy() if isinstance(qpos, torch.Tensor) else np.asarray(qpos))
-        q = q.astype(np.float32).reshape(-1)
+        q = _numpy(qpos).astype(np.float32).reshape(-1)
         phase = self.machine.begin_step(float(q[7] + q[8]))
         if phase != self.last_phase:  # a new phase: its own history and action chunk
             self.history.clear()

@@ -9,6 +9,13 @@ farthest-point sampled per segment + joints + TCP + arm action + the source's st
 continues after ``--time-limit`` or a kill. ``OUT/manifest.json`` records the source's hash,
 the sizes and every chunk's hash and frames (the trainers record its hash).
 
+``--frame-stride K`` (K > 1) keeps every K-th converted step of each stage, its arm action the
+mean over the K steps it stands for (``policies.data.select_frames``), as the original
+FetchBench data kept every 6th frame and ``fetchbench eval --policy-stride K`` deploys: the
+replay tool then runs state-only (``-o state``, no rendering) and the kept frames alone are
+rendered from its recorded env states (``fetchbench_ms.render_env_states``, ``--num-envs``
+processes), so the costly rendering is a K-th (docs/imitation.md, "Frame stride").
+
     # the GPU machine (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
     python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
         --out data/imit --count 5000 --chunk 128 --num-envs 16 --device cuda --time-limit 540
@@ -17,6 +24,8 @@ the sizes and every chunk's hash and frames (the trainers record its hash).
     # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
     python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
         --out /tmp/imit-sample --count 2 --first-steps 12 --sizes 128,64,32
+    # every 3rd frame of each stage
+    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-k3 --frame-stride 3 ...
 """
 from __future__ import annotations
 
@@ -33,8 +42,6 @@ import h5py
 
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
-
-CONVERTED_SUFFIX = "compact_pointcloud.pd_joint_delta_pos.physx_cpu"
 
 
 def parse_sizes(text: str) -> dict:
@@ -73,18 +80,18 @@ def write_chunk_source(source_h5: Path, episodes: list[dict], env_info: dict, ou
     atomic_write_text(out_h5.with_suffix(".json"), json.dumps({"env_info": env_info, "episodes": episodes}))
 
 
-def replay(chunk_h5: Path, num_envs: int, allow_failure: bool, log) -> Path:
+def replay(chunk_h5: Path, num_envs: int, allow_failure: bool, obs_mode: str, log) -> Path:
     command = [sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(chunk_h5),
-               "-c", "pd_joint_delta_pos", "-o", "compact_pointcloud", "--save-traj", "--num-envs", str(num_envs)]
+               "-c", "pd_joint_delta_pos", "-o", obs_mode, "--save-traj", "--num-envs", str(num_envs)]
     if allow_failure:
         command.append("--allow-failure")
     t = time.perf_counter()
     result = subprocess.run(command, capture_output=True, text=True)
-    converted = chunk_h5.with_name(f"{chunk_h5.stem}.{CONVERTED_SUFFIX}.h5")
+    converted = chunk_h5.with_name(f"{chunk_h5.stem}.{obs_mode}.pd_joint_delta_pos.physx_cpu.h5")
     if result.returncode != 0 or not converted.is_file():
         raise RuntimeError(f"the replay tool failed on {chunk_h5} (exit {result.returncode}):\n"
                            f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
-    log(f"  replayed {chunk_h5.name} in {time.perf_counter() - t:.0f} s")
+    log(f"  replayed {chunk_h5.name} (-o {obs_mode}) in {time.perf_counter() - t:.0f} s")
     return converted
 
 
@@ -122,7 +129,13 @@ def main(argv=None) -> int:
     p.add_argument("--time-limit", type=float, default=0.0,
                    help="s; > 0: start no chunk that would end after this, judged by the slowest so far (re-run to resume)")
     p.add_argument("--first-steps", type=int, default=None, help="keep only each demo's first steps (tests)")
+    p.add_argument("--frame-stride", type=int, default=1,
+                   help="K: keep every K-th converted step of each stage, its arm action the mean over its K steps "
+                        "(a replay without rendering, then the kept frames rendered from its env states)")
     args = p.parse_args(argv)
+    if args.frame_stride < 1:
+        raise SystemExit(f"--frame-stride takes an integer >= 1 (converted steps per frame kept), "
+                         f"got {args.frame_stride}")
     sizes = parse_sizes(args.sizes)
     source = Path(args.traj_path)
     if not source.is_file() or not source.with_suffix(".json").is_file():
@@ -145,10 +158,14 @@ def main(argv=None) -> int:
     source_sha = sha256_file(source)
     settings = {"source": str(source.resolve()), "source_sha256": source_sha, "sizes": sizes,
                 "chunk": args.chunk, "start": args.start, "count": len(episodes), "first_steps": args.first_steps}
+    # Stride-1 conversions write no stride (their manifest stays as it was): absent means 1.
+    if args.frame_stride != 1:
+        settings["frame_stride"] = args.frame_stride
     manifest_path = out / "manifest.json"
     if manifest_path.is_file():
-        old = json.loads(manifest_path.read_text())["settings"]
-        differ = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v and k != "source"}
+        old = {"frame_stride": 1, **json.loads(manifest_path.read_text())["settings"]}
+        differ = {k: (old.get(k), v) for k, v in {"frame_stride": 1, **settings}.items()
+                  if old.get(k) != v and k != "source"}
         if differ:
             raise SystemExit(f"{out} holds a conversion with other settings {differ} (old, new): use another --out")
     chunks = [episodes[i:i + args.chunk] for i in range(0, len(episodes), args.chunk)]
@@ -172,16 +189,22 @@ def main(argv=None) -> int:
         work.mkdir(parents=True)
         chunk_h5 = work / "demos.h5"
         write_chunk_source(source, chunk, meta["env_info"], chunk_h5, args.first_steps)
-        converted = replay(chunk_h5, min(args.num_envs, len(chunk)), args.first_steps is not None, log)
+        workers = min(args.num_envs, len(chunk))
+        # Stride 1 renders every step in the replay; a larger stride replays without rendering
+        # and renders the kept frames from the recorded env states (convert_episodes).
+        obs_mode = "compact_pointcloud" if args.frame_stride == 1 else "state"
+        converted = replay(chunk_h5, workers, args.first_steps is not None, obs_mode, log)
         t = time.perf_counter()
-        data = convert_episodes(converted, chunk_h5, sizes, device=args.device, log=log)
+        data = convert_episodes(converted, chunk_h5, sizes, device=args.device, log=log,
+                                frame_stride=args.frame_stride, render_workers=workers)
         for e in data["episodes"]:
             e["source"] = source.name  # the chunk file is a temporary copy
         size = write_training_file(target, data)
         frames = int(len(data.get("qpos", [])))
         log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos, {frames} frames, {size / 1e6:.1f} MB "
             f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
-            f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), subsampled in {time.perf_counter() - t:.0f} s")
+            f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), points and labels in "
+            f"{time.perf_counter() - t:.0f} s; the chunk in {time.perf_counter() - t_chunk:.1f} s")
         shutil.rmtree(work)
         records[target.name] = chunk_record(target)
         totals = write_manifest(manifest_path, settings, records, len(chunks))

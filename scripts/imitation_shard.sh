@@ -17,9 +17,12 @@
 # Environment: STEPS_MLP, STEPS_TRANSFORMER, STEPS_DIFFUSION (each run's schedule length;
 # defaults 30000 / 16000 / 16000), NUM_ENVS (replay processes, default 13 beside the
 # trainers, 16 alone), ROUND (seconds, default 300), DEVICE (default cuda), TRAIN_ARGS (more
-# trainer flags), PYTHON, and TRAIN_SECONDS: when set, convert alone until SECONDS - TRAIN_SECONDS, then
+# trainer flags), PYTHON, TRAIN_SECONDS: when set, convert alone until SECONDS - TRAIN_SECONDS, then
 # train (on the H100 the renderer and the trainers share the GPU: a chunk took 385 s alone and
-# 565 s beside the trainers, docs/imitation.md "The first checkpoints").
+# 565 s beside the trainers, docs/imitation.md "The first checkpoints"), and FRAME_STRIDE: the
+# converter's --frame-stride K (default 1; K keeps every K-th step of each stage and renders
+# only those, docs/imitation.md "Frame stride"). Keep K for the whole run: the trainers refuse
+# a checkpoint trained at another K; its policies are deployed with --policy-stride K.
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
@@ -35,9 +38,10 @@ deadline=$(( $(date +%s) + SECONDS_TOTAL ))
 mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
 say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
 
-say "converting demos $START..$((START + COUNT)) of $TRAJ; trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
+say "converting demos $START..$((START + COUNT)) of $TRAJ (frame stride ${FRAME_STRIDE:-1}); trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
 $PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
     --chunk 128 --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
+    --frame-stride "${FRAME_STRIDE:-1}" \
     >> "$ROOT/logs/convert.log" 2>&1 &
 converter=$!
 until compgen -G "$ROOT/data/chunk_*.imit.h5" > /dev/null; do

@@ -9,6 +9,7 @@ import hashlib
 import importlib
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,8 @@ import torch
 from fetchbench_ms.policies import agent as agent_mod
 from fetchbench_ms.policies.agent import (APPROACH, CLOSE, DONE, GRIPPER_CLOSED, GRIPPER_OPEN, REOPEN, RETRIEVE,
                                           ImitationPolicy, ReGraspConfig, ReGraspStateMachine, load_model)
-from fetchbench_ms.policies.data import (load_training_files, observation_input, source_steps)
+from fetchbench_ms.policies.data import (load_training_files, observation_input, segment_slices, select_frames,
+                                         source_steps)
 from fetchbench_ms.envs.pointcloud import COMPACT_SIZES, LABEL_FURNITURE, LABEL_ROBOT, LABEL_TARGET
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -214,6 +216,164 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     manifest = json.loads((shard / "manifest.json").read_text())
     listed = "".join(f"{c['file']} {c['sha256']}\n" for c in manifest["chunks"])
     assert manifest["complete"] and hashlib.sha256(listed.encode()).hexdigest() == meta["data_sha256"]
+
+
+# ----------------------------------------------------------------------------- frame stride
+FRAME_STRIDE = 3
+
+
+@pytest.fixture(scope="module")
+def sample_data_k3(tmp_path_factory) -> Path:
+    """``sample_data``'s demos and steps converted with --frame-stride 3: a replay without
+    rendering, then the kept frames rendered from its env states."""
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    out = tmp_path_factory.mktemp("imit-data-k3")
+    assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
+                         "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32",
+                         "--frame-stride", str(FRAME_STRIDE)]) == 0
+    return out
+
+
+def test_select_frames_on_hand_made_labels():
+    """Every K-th step of each stage segment; a kept step's arm action is the mean over its
+    window (cut at the segment's end), its gripper action and stage are its own, and a
+    segment's last kept step ends the stage exactly when the segment's last step does."""
+    stage = np.array([0] * 7 + [1] * 3 + [2] * 5)
+    stage_end = np.zeros(15, bool)
+    stage_end[[3, 6, 14]] = True  # 3: inside a segment (no stage ends there); the close stage (9) is not marked
+    arm = 0.01 * np.arange(15)[:, None] + 0.001 * np.arange(7)[None]
+    gripper = np.r_[[1.0] * 8, [-1.0] * 7]  # changes inside the window [7, 10)
+    actions = np.c_[arm, gripper].astype(np.float32)
+    out = select_frames(stage, stage_end, actions, 3)
+    assert out["frame"].tolist() == [0, 3, 6, 7, 10, 13]
+    windows = [(0, 3), (3, 6), (6, 7), (7, 10), (10, 13), (13, 15)]
+    assert np.allclose(out["action"], [arm[a:b].mean(axis=0) for a, b in windows], atol=1e-6)
+    assert out["action"].dtype == np.float32 and out["action"].shape == (6, 7)
+    assert out["gripper"].tolist() == [1, 1, 1, 1, -1, -1]
+    assert out["stage"].tolist() == [0, 0, 0, 1, 2, 2] and out["stage"].dtype == np.int8
+    assert out["stage_end"].tolist() == [False, False, True, False, False, True]
+    # A stride longer than every segment: one frame a segment, its action the segment's mean.
+    out = select_frames(stage, stage_end, actions, 20)
+    assert out["frame"].tolist() == [0, 7, 10] and out["stage_end"].tolist() == [True, False, True]
+    assert np.allclose(out["action"], [arm[a:b].mean(axis=0) for a, b in [(0, 7), (7, 10), (10, 15)]], atol=1e-6)
+    # Stride 1: every step, its own action.
+    out = select_frames(stage, stage_end, actions, 1)
+    assert out["frame"].tolist() == list(range(15)) and np.array_equal(out["action"], actions[:, :7])
+    assert np.flatnonzero(out["stage_end"]).tolist() == [6, 14]
+
+
+def test_rendering_a_recorded_state_equals_rendering_in_the_replay():
+    """The clouds of --frame-stride K come from recorded env states set into an env
+    (``StateRenderer``), not from the replay's own steps. Rendered both ways at the same
+    steps of a demo, the camera clouds agree but for a handful of their 153,600 points (the
+    Panda's link poses after a state set are its kinematics', ~1e-8 m from the simulated
+    ones): the render after a state set is fresh and shows that state."""
+    import gymnasium as gym
+    import h5py
+    from mani_skill.utils.common import to_numpy
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.render_env_states import StateRenderer, render_env_kwargs
+
+    meta = json.loads(SAMPLE.with_suffix(".json").read_text())
+    env_id, env_kwargs, episode = meta["env_info"]["env_id"], meta["env_info"]["env_kwargs"], meta["episodes"][0]
+    with h5py.File(SAMPLE, "r") as f:
+        actions = f[f"traj_{episode['episode_id']}"]["actions"][:8]
+    replay = gym.make(env_id, **render_env_kwargs(env_kwargs))
+    renderer = StateRenderer(env_id, env_kwargs)
+    try:
+        replay.reset(**episode["reset_kwargs"])
+        renderer.env.reset(**episode["reset_kwargs"])
+        clouds = []
+        for t in range(len(actions) + 1):
+            if t:
+                replay.step(actions[t - 1])
+            if t % 4:
+                continue
+            stepped = replay.unwrapped.get_obs()["pointcloud"]
+            from_state = renderer.observation(replay.unwrapped.get_state_dict())["pointcloud"]
+            (xyz, label), (xyz_s, label_s) = [(to_numpy(c["xyz_base"])[0], to_numpy(c["fetch_label"])[0])
+                                              for c in (stepped, from_state)]
+            differs = np.abs(xyz - xyz_s).max(axis=1) > 1e-6
+            assert differs.sum() <= 30 and (label != label_s).sum() <= 5, (t, differs.sum(), (label != label_s).sum())
+            assert np.abs(xyz - xyz_s)[label == label_s].max() < 5e-3, t
+            clouds.append(xyz)
+        # The arm moved between the steps compared: a stale render would have shown.
+        assert (np.abs(clouds[-1] - clouds[0]).max(axis=1) > 1e-3).sum() > 1000
+    finally:
+        replay.close()
+        renderer.close()
+
+
+def test_strided_conversion_keeps_the_replays_frames(sample_data, sample_data_k3):
+    """--frame-stride 3 against the stride-1 conversion of the same demos and steps: its
+    frames are select_frames of the stride-1 frames (the steps, their joints and TCP, the
+    window-mean arm actions, gripper, stage and stage_end), and their points are the stride-1
+    points at those steps, to the bit in most segments (the rest are another draw of the
+    compact cloud from a render that differs in a few camera points, see the test above; a
+    wrong step, seed or task would leave none equal)."""
+    one, strided = load_training_files(sample_data, sizes=SIZES), load_training_files(sample_data_k3, sizes=SIZES)
+    assert one["frame_stride"] == 1 and strided["frame_stride"] == FRAME_STRIDE
+    manifest = json.loads((sample_data_k3 / "manifest.json").read_text())
+    assert manifest["settings"]["frame_stride"] == FRAME_STRIDE and manifest["complete"]
+    assert [e["episode_id"] for e in strided["episodes"]] == [e["episode_id"] for e in one["episodes"]]
+    segments = list(segment_slices(SIZES).values())
+    same = []
+    for e1, e3, s1, s3 in zip(one["episodes"], strided["episodes"], one["episode_start"], strided["episode_start"]):
+        assert e3["converted_length"] == e1["length"] and e3["source_length"] == e1["source_length"]
+        rows = np.arange(s1, s1 + e1["length"])
+        kept = select_frames(one["stage"][rows], one["stage_end"][rows],
+                             np.c_[one["action"][rows], one["gripper"][rows]], FRAME_STRIDE)
+        frames = s1 + kept.pop("frame")
+        assert e3["length"] == len(frames) == -(-e1["length"] // FRAME_STRIDE)  # one stage in the first steps
+        mine = np.arange(s3, s3 + e3["length"])
+        assert np.array_equal(strided["qpos"][mine], one["qpos"][frames])
+        assert np.array_equal(strided["tcp"][mine], one["tcp"][frames])
+        for key, value in kept.items():
+            assert np.array_equal(strided[key][mine], value), key
+        for f1, f3 in zip(frames, mine):
+            same.append([np.array_equal(one["points"][f1, s], strided["points"][f3, s])
+                         and np.array_equal(one["point_label"][f1, s], strided["point_label"][f3, s])
+                         for s in segments])
+    same = np.array(same)
+    print(f"segments equal to the bit: {same.sum()} of {same.size}")
+    assert same.mean() >= 0.6 and same.all(axis=1).any()
+    # The folder holds stride 3: another stride is refused before anything runs.
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    with pytest.raises(SystemExit, match="frame_stride"):
+        convert.main(["--traj-path", str(SAMPLE), "--out", str(sample_data_k3), "--count", "2", "--chunk", "2",
+                      "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"])
+
+
+def test_training_files_of_two_frame_strides_are_refused(sample_data, sample_data_k3, tmp_path):
+    import shutil
+
+    shutil.copyfile(sample_data / "chunk_00000.imit.h5", tmp_path / "chunk_00000.imit.h5")
+    shutil.copyfile(sample_data_k3 / "chunk_00000.imit.h5", tmp_path / "chunk_00001.imit.h5")
+    with pytest.raises(ValueError, match="--frame-stride 3.*every 1"):
+        load_training_files(tmp_path, sizes=SIZES)
+
+
+def test_trainer_records_the_frame_stride(sample_data, sample_data_k3, tmp_path):
+    """A trainer on stride-3 data records the stride in its checkpoint and export; the run
+    refuses data of another stride; the policy warns when deployed at another stride."""
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    export = tmp_path / "mlp.pt"
+    args = module.Args(data=str(sample_data_k3), run=str(tmp_path / "run"), steps=3, export=True,
+                       export_path=str(export), **TINY, **TRAINER_KW["mlp"])
+    assert module.main(args)["step"] == 3
+    assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["frame_stride"] == FRAME_STRIDE
+    assert json.loads(export.with_suffix(".json").read_text())["frame_stride"] == FRAME_STRIDE
+    _, meta = load_model(export)
+    assert meta["frame_stride"] == FRAME_STRIDE
+    args.data, args.new_data, args.steps = str(sample_data), True, 6
+    with pytest.raises(ValueError, match="frames every 3 converted steps"):
+        module.main(args)
+    with pytest.warns(UserWarning, match="trained on data of --frame-stride 3"):
+        ImitationPolicy.load(export)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ImitationPolicy.load(export, stride=FRAME_STRIDE)
 
 
 # ----------------------------------------------------------------------------- deployment

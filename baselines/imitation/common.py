@@ -121,6 +121,9 @@ class Frames:
         self.train_index = t(np.flatnonzero(policy_frame & ~frame_val))
         self.val_index = t(np.flatnonzero(policy_frame & frame_val))
         self.demos = {"train": int((~val_task).sum()), "val": int(val_task.sum())}
+        # Converted steps a frame stands for (--frame-stride): what a deployment's
+        # --policy-stride should be; the checkpoint and the export record it.
+        self.frame_stride = int(raw.get("frame_stride", 1))
 
     def observation(self, index: torch.Tensor, history: int = 1, jitter: float = 0.0,
                     generator: Optional[torch.Generator] = None) -> dict:
@@ -149,7 +152,7 @@ def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:
     log(f"data {args.data}: {len(raw['files'])} files, {len(raw['episodes'])} demos "
         f"({frames.demos['train']} train, {frames.demos['val']} val), "
         f"{len(raw['qpos'])} frames ({len(frames.train_index)} train / {len(frames.val_index)} val policy frames), "
-        f"{raw['points'].nbytes / 1e9:.2f} GB of points")
+        f"{raw['points'].nbytes / 1e9:.2f} GB of points; frames every {frames.frame_stride} converted steps")
     if len(frames.train_index) == 0:
         raise ValueError(f"no training frame in {args.data}")
     return frames, data_hash(raw["files"])
@@ -193,6 +196,11 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     step, history, ckpt = 0, {"val_loss": [], "val_success": []}, run / "checkpoint.pt"
     if ckpt.is_file():
         saved = torch.load(ckpt, map_location=args.device, weights_only=False)
+        saved_stride = saved.get("frame_stride", 1)  # (checkpoints before the frame stride: every step)
+        if saved_stride != frames.frame_stride:
+            raise ValueError(f"{ckpt} was trained on frames every {saved_stride} converted steps, {args.data} holds "
+                             f"frames every {frames.frame_stride} (--frame-stride): a run learns from one frame "
+                             "stride; use another --run")
         if saved["data_sha256"] != dhash and not args.new_data:
             raise ValueError(f"{ckpt} was trained on other data ({saved['data_sha256'][:12]} vs {dhash[:12]}): "
                              "use another --run, or --new-data to go on with this data (the next shard)")
@@ -212,7 +220,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
     def save() -> None:
         payload = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
-                   "step": step, "history": history, "args": dataclasses.asdict(args), "data_sha256": dhash}
+                   "step": step, "history": history, "args": dataclasses.asdict(args), "data_sha256": dhash,
+                   "frame_stride": frames.frame_stride}
         tmp = ckpt.with_name(ckpt.name + ".tmp")
         torch.save(payload, tmp)
         tmp.replace(ckpt)
@@ -299,19 +308,20 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     if args.export:
         # Also a run stopped by --time-limit / --until-step exports (a hold's shard of a longer
         # run ships what it has); the JSON says whether the schedule was finished.
-        export(model, kind, args, command, dhash, step, history, last, log)
+        export(model, kind, args, command, dhash, frames.frame_stride, step, history, last, log)
     return {"model": model, "step": step, "last": last, "history": history, "stopped": stopped}
 
 
-def export(model, kind: str, args: TrainArgs, command: str, dhash: str, step: int, history: dict, last: dict,
-           log) -> Path:
+def export(model, kind: str, args: TrainArgs, command: str, dhash: str, frame_stride: int, step: int, history: dict,
+           last: dict, log) -> Path:
     """``assets/checkpoints/imit_<kind>.pt`` (fp16) and ``.json`` beside it: the command, the
-    data hash, the steps and the validation figures."""
+    data hash and frame stride, the steps and the validation figures."""
     from fetchbench_ms.policies.deploy import default_checkpoint
 
     path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
+            "frame_stride": frame_stride,
             "data_history": history.get("data", []), "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numbers
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -147,13 +148,22 @@ class ImitationPolicy:
     """A trained policy with its observation history, action queue and state machine.
 
     ``stride``: control steps per observation of an MLP / Transformer policy (its arm action
-    is repeated meanwhile), and per termination check of a diffusion one; 1 is how the
-    policies were trained (every step observed)."""
+    is repeated meanwhile), and per termination check of a diffusion one; the checkpoint's
+    ``frame_stride`` (its data's, 1: every step observed) is how it was trained, and another
+    stride is warned of."""
 
     def __init__(self, model: torch.nn.Module, meta: dict | None = None, device: str | torch.device = "cpu",
                  regrasp: ReGraspConfig | None = None, seed: int = 0, stride: int = 1):
         self.stride = check_stride(stride)
         self.model, self.meta, self.device = model.to(device).eval(), meta or {}, torch.device(device)
+        trained = int(self.meta.get("frame_stride", 1))
+        # Steps an arm action lasts here: a diffusion policy's chunk actions last one step each
+        # at any stride; in training a frame's action stood for `trained` steps.
+        lasts = 1 if model.kind == "diffusion" else self.stride
+        if lasts != trained:
+            warnings.warn(f"this {model.kind} policy was trained on data of --frame-stride {trained} and its arm "
+                          f"actions last {lasts} control step(s) here (policy stride {self.stride}), against "
+                          f"{trained} in training: it acts at another time scale than it learned", stacklevel=2)
         self.regrasp_config = regrasp or ReGraspConfig()
         self.seed = seed
         self.reset()

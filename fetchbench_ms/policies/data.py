@@ -20,7 +20,9 @@ A training file (``*.imit.h5``) holds frames of whole trajectories back to back:
   (x 0.1 rad), ``gripper`` [F] float32 (its gripper action: 1 open, -1 closed);
 - ``stage`` [F] int8 (0 approach, 1 close, 2 retrieve) and ``stage_end`` [F] bool;
 - ``episode_start`` [E] int64, ``episode_length`` [E] int64, and the attribute ``episodes``:
-  JSON of each trajectory's source (file, episode id, task id, grasp id).
+  JSON of each trajectory's source (file, episode id, task id, grasp id);
+- the attribute ``frame_stride`` K when the frames are every K-th converted step of each
+  stage (``select_frames``; absent: every step, K = 1, as in every file written before it).
 
 The same functions turn a live observation into the policy's input (``PolicyInput``), so
 training and deployment see the same numbers.
@@ -28,14 +30,15 @@ training and deployment see the same numbers.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..envs.pointcloud import (COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET,
-                               compact_pointcloud_obs, compact_seed)
+from ..envs.pointcloud import (COMPACT_OBS_MODE, COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT,
+                               LABEL_TARGET, compact_pointcloud_obs, compact_seed)
 from ..grasping.pointops import farthest_point_sample
 
 #: Points per segment the policies read (scene, target, robot), farthest-point sampled
@@ -54,6 +57,8 @@ ARM_DELTA_SCALE = 0.1  # rad: ManiSkill's Panda pd_joint_delta_pos maps [-1, 1] 
 STAGE_APPROACH, STAGE_CLOSE, STAGE_RETRIEVE = 0, 1, 2
 POLICY_STAGES = (STAGE_APPROACH, STAGE_RETRIEVE)
 FORMAT_VERSION = 1
+#: ManiSkill's articulation state row: root pose (7), root velocities (6), qpos, qvel.
+STATE_QPOS_START = 13
 
 
 def segment_slices(sizes: dict) -> dict:
@@ -192,6 +197,23 @@ def source_steps(converted_actions: np.ndarray, source_actions: np.ndarray,
     return index
 
 
+def state_qpos(env_states) -> np.ndarray:
+    """[T, 9] the Panda's joints in recorded env states (``env_states`` group of a trajectory)."""
+    panda = env_states["articulations"]["panda"]
+    dof = (panda.shape[1] - STATE_QPOS_START) // 2
+    return panda[:, STATE_QPOS_START:STATE_QPOS_START + dof]
+
+
+def converted_qpos(traj) -> np.ndarray:
+    """[n + 1, 9] a converted trajectory's joints before each step (and after the last): its
+    observations' ``agent/qpos``, or, for a state-only replay (``-o state``: one flat vector an
+    observation), its env states' rows, which hold the same joints at the same times."""
+    obs = traj.get("obs")
+    if hasattr(obs, "keys") and "agent" in obs:
+        return obs["agent"]["qpos"][:]
+    return state_qpos(traj["env_states"])
+
+
 def match_converted_episodes(source_json: dict, converted_json: dict, source_h5, converted_h5,
                              tolerance: float = 0.15) -> list[tuple[dict, dict, np.ndarray]]:
     """Triples (source episode, converted episode, source step of each converted step). The
@@ -204,7 +226,7 @@ def match_converted_episodes(source_json: dict, converted_json: dict, source_h5,
     for converted in converted_json["episodes"]:
         c_traj = converted_h5[f"traj_{converted['episode_id']}"]
         c_actions = c_traj["actions"][:]
-        c_qpos = c_traj["obs"]["agent"]["qpos"][:]
+        c_qpos = converted_qpos(c_traj)
         c_final = c_qpos[-1, :ARM_DOF]
         for j in range(k, len(sources)):
             source = sources[j]
@@ -214,8 +236,7 @@ def match_converted_episodes(source_json: dict, converted_json: dict, source_h5,
             index = source_steps(c_actions, s_traj["actions"][:], c_qpos)
             if index is None:
                 continue
-            # ManiSkill's articulation state: root pose (7), root velocities (6), qpos, qvel.
-            s_qpos = s_traj["env_states"]["articulations"]["panda"][-1, 13:13 + ARM_DOF]
+            s_qpos = state_qpos(s_traj["env_states"])[-1, :ARM_DOF]
             if np.abs(s_qpos - c_final).max() <= tolerance:
                 out.append((source, converted, index))
                 k = j + 1
@@ -223,24 +244,71 @@ def match_converted_episodes(source_json: dict, converted_json: dict, source_h5,
     return out
 
 
+def select_frames(stage, stage_end, actions, stride: int) -> dict:
+    """Every ``stride``-th step of each stage segment (a maximal run of one ``stage``) of one
+    converted demo: the steps kept (``frame``, [M]) and their labels. A kept step t stands for
+    its window [t, t + stride), cut at the segment's end: its arm action (``action`` [M, 7]
+    float32) is the mean of the window's arm actions, its gripper action (``gripper`` [M]),
+    ``stage`` [M] are step t's, and ``stage_end`` [M] is set on a segment's last kept step
+    when the segment's last step has it. ``actions`` [n, 8]: the converted actions."""
+    stage, stage_end = np.asarray(stage), np.asarray(stage_end, bool)
+    n = len(stage)
+    starts = np.flatnonzero(np.r_[True, stage[1:] != stage[:-1]])
+    ends = np.r_[starts[1:], n]
+    frame = np.concatenate([np.arange(start, end, stride) for start, end in zip(starts, ends)])
+    # The windows tile the demo: each ends where the next kept step begins (a segment's last
+    # one at the segment's end, so it may be shorter than the stride).
+    window = np.diff(np.r_[frame, n])
+    # The policy acts every K steps and its arm action is repeated in between (deployment's
+    # ImitationPolicy(stride=K)). A delta action moves the joints by its value at each step, so
+    # the window's mean, repeated over the window, moves the arm as far as the expert's steps
+    # did; the gripper is a command held from step t, not a motion, so step t's is kept.
+    arm = np.add.reduceat(np.asarray(actions, np.float64)[:, :ARM_DOF], frame, axis=0) / window[:, None]
+    segment = np.searchsorted(starts, frame, side="right") - 1
+    last_of_segment = np.r_[segment[1:] != segment[:-1], True]
+    return {"frame": frame, "action": arm.astype(np.float32),
+            "gripper": np.asarray(actions, np.float32)[frame, ARM_DOF],
+            "stage": stage[frame].astype(np.int8), "stage_end": last_of_segment & stage_end[ends[segment] - 1]}
+
+
+@dataclass
+class _KeptFrames:
+    """The frames kept of one converted demo, before their points."""
+
+    traj: object  # the demo's group in the converted file
+    episode: dict  # its entry in the converted file's JSON (reset kwargs, episode seed)
+    frame: np.ndarray  # [M] the converted steps kept
+    labels: dict  # their action, gripper, stage, stage_end
+    qpos: np.ndarray  # [M, 9] float32
+
+
 def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes: dict = POLICY_SIZES,
-                     device: str = "cpu", log=print) -> dict:
-    """Frames of every converted trajectory (the replay tool's ``compact_pointcloud`` /
-    ``pd_joint_delta_pos`` output) that matches a source demo, in the training format's
-    arrays (see the module docstring), with the source's stage labels."""
+                     device: str = "cpu", log=print, frame_stride: int = 1, render_workers: int = 1) -> dict:
+    """Frames of every converted trajectory (the replay tool's ``pd_joint_delta_pos`` output)
+    that matches a source demo, in the training format's arrays (see the module docstring),
+    with the source's stage labels.
+
+    The points come from the file's ``compact_pointcloud`` observations, or, for a state-only
+    replay (``-o state``), are rendered from its recorded env states at the frames kept only
+    (``fetchbench_ms.render_env_states``, ``render_workers`` processes). ``frame_stride`` K > 1
+    keeps every K-th step of each stage (``select_frames``); 1 keeps every step."""
     import h5py
+    from mani_skill.trajectory.utils import index_dict
+
+    from ..render_env_states import RenderJob, render_compact_clouds
 
     converted_path, source_path = Path(converted_path), Path(source_path)
     source_json = json.loads(source_path.with_suffix(".json").read_text())
     converted_json = json.loads(converted_path.with_suffix(".json").read_text())
-    control = converted_json["env_info"]["env_kwargs"].get("control_mode")
-    obs_mode = converted_json["env_info"]["env_kwargs"].get("obs_mode")
-    if control != "pd_joint_delta_pos" or obs_mode != "compact_pointcloud":
+    env_kwargs = converted_json["env_info"]["env_kwargs"]
+    control, obs_mode = env_kwargs.get("control_mode"), env_kwargs.get("obs_mode")
+    if control != "pd_joint_delta_pos" or obs_mode not in (COMPACT_OBS_MODE, "state"):
         raise ValueError(f"{converted_path}: converted with control_mode={control!r}, obs_mode={obs_mode!r}; the "
-                         "policies need -c pd_joint_delta_pos -o compact_pointcloud")
+                         "policies need -c pd_joint_delta_pos -o compact_pointcloud (or -o state: the clouds are "
+                         "then rendered from its env states)")
     parts: dict[str, list] = {k: [] for k in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage",
                                                 "stage_end")}
-    episodes = []
+    episodes, kept = [], []
     with h5py.File(source_path, "r") as source_h5, h5py.File(converted_path, "r") as converted_h5:
         pairs = match_converted_episodes(source_json, converted_json, source_h5, converted_h5)
         for source, converted, index in pairs:
@@ -248,34 +316,55 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
             s_traj = source_h5[f"traj_{source['episode_id']}"]
             actions = c_traj["actions"][:]
             n = len(actions)
-            xyz = c_traj["obs"]["pointcloud"]["xyz"][:n]
-            label = c_traj["obs"]["pointcloud"]["seg"][:n]
-            points, point_label = subsample_compact(xyz, label, sizes, device=device)
-            qpos = c_traj["obs"]["agent"]["qpos"][:n].astype(np.float32)
-            parts["points"].append(points)
-            parts["point_label"].append(point_label)
-            parts["qpos"].append(qpos)
-            parts["tcp"].append(tcp_features(qpos))
-            parts["action"].append(actions[:, :ARM_DOF].astype(np.float32))
-            parts["gripper"].append(actions[:, ARM_DOF].astype(np.float32))
             # A source step converted into two steps: its stage on both, its end flag on the second.
             last_of_step = np.r_[index[1:] != index[:-1], True]
-            parts["stage"].append(s_traj["stage"][:][index].astype(np.int8))
-            parts["stage_end"].append(s_traj["stage_end"][:][index].astype(bool) & last_of_step)
-            episodes.append({"source": source_path.name, "episode_id": int(source["episode_id"]),
-                             "task_id": source.get("task_id"), "grasp_id": source.get("grasp_id"),
-                             "length": n, "source_length": int(len(s_traj["actions"]))})
+            stage = s_traj["stage"][:][index].astype(np.int8)
+            stage_end = s_traj["stage_end"][:][index].astype(bool) & last_of_step
+            if frame_stride == 1:
+                labels = {"frame": np.arange(n), "action": actions[:, :ARM_DOF].astype(np.float32),
+                          "gripper": actions[:, ARM_DOF].astype(np.float32), "stage": stage, "stage_end": stage_end}
+            else:
+                labels = select_frames(stage, stage_end, actions, frame_stride)
+            frame = labels.pop("frame")
+            kept.append(_KeptFrames(c_traj, converted, frame, labels, converted_qpos(c_traj)[frame].astype(np.float32)))
+            episode = {"source": source_path.name, "episode_id": int(source["episode_id"]),
+                       "task_id": source.get("task_id"), "grasp_id": source.get("grasp_id"),
+                       "length": len(frame), "source_length": int(len(s_traj["actions"]))}
+            if frame_stride != 1:
+                episode["converted_length"] = n
+            episodes.append(episode)
+        if obs_mode == COMPACT_OBS_MODE:
+            clouds = ((d.traj["obs"]["pointcloud"]["xyz"][:][d.frame], d.traj["obs"]["pointcloud"]["seg"][:][d.frame])
+                      for d in kept)
+        else:
+            jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
+                              index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
+            clouds = render_compact_clouds(converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers)
+        t = time.perf_counter()
+        for demo, (xyz, label) in zip(kept, clouds):
+            points, point_label = subsample_compact(xyz, label, sizes, device=device)
+            parts["points"].append(points)
+            parts["point_label"].append(point_label)
+            parts["qpos"].append(demo.qpos)
+            parts["tcp"].append(tcp_features(demo.qpos))
+            for key, value in demo.labels.items():
+                parts[key].append(value)
+        if obs_mode != COMPACT_OBS_MODE and kept:
+            frames = sum(len(d.frame) for d in kept)
+            log(f"  rendered {frames} frames of {len(kept)} demos from their env states "
+                f"({render_workers} processes) and subsampled them in {time.perf_counter() - t:.0f} s")
     dropped = len(converted_json["episodes"]) - len(pairs)
     if dropped:
         log(f"{converted_path.name}: {dropped} converted trajectories matched no source demo (left out)")
     if not episodes:
-        return {"episodes": [], "sizes": dict(sizes)}
+        return {"episodes": [], "sizes": dict(sizes), "frame_stride": frame_stride}
     out = {k: np.concatenate(v) for k, v in parts.items()}
     lengths = np.array([e["length"] for e in episodes], np.int64)
     out["episode_length"] = lengths
     out["episode_start"] = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     out["episodes"] = episodes
     out["sizes"] = dict(sizes)
+    out["frame_stride"] = frame_stride
     return out
 
 
@@ -292,6 +381,8 @@ def write_training_file(path: str | Path, data: dict) -> int:
         f.attrs["format_version"] = FORMAT_VERSION
         f.attrs["sizes"] = json.dumps(data["sizes"])
         f.attrs["episodes"] = json.dumps(data["episodes"])
+        if data.get("frame_stride", 1) != 1:  # (stride-1 files stay as they were: no attribute)
+            f.attrs["frame_stride"] = int(data["frame_stride"])
         for key in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage", "stage_end",
                     "episode_start", "episode_length"):
             if key in data:
@@ -315,7 +406,7 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
         raise FileNotFoundError(f"no training files (*.imit.h5) in {paths}; make them with "
                                 "scripts/convert_demos_for_imitation.py")
     parts = {k: [] for k in ARRAYS}
-    episodes, lengths, file_sizes = [], [], None
+    episodes, lengths, file_sizes, file_stride = [], [], None, None
     for path in files:
         with h5py.File(path, "r") as f:
             if int(f.attrs.get("format_version", -1)) != FORMAT_VERSION:
@@ -325,6 +416,13 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
             if file_sizes is not None and these != file_sizes:
                 raise ValueError(f"{path}: point sizes {these} differ from the other files' {file_sizes}")
             file_sizes = these
+            # A frame of one stride stands for another span of control steps, with another
+            # action (select_frames): frames of two strides are not one training set.
+            stride = int(f.attrs.get("frame_stride", 1))
+            if file_stride is not None and stride != file_stride:
+                raise ValueError(f"{path}: frames every {stride} converted steps (--frame-stride {stride}), the "
+                                 f"other files' every {file_stride}: train on files of one frame stride")
+            file_stride = stride
             if "points" not in f:  # a chunk none of whose trajectories replayed
                 continue
             for k in ARRAYS:
@@ -341,5 +439,6 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
     out["episode_start"] = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
     out["episodes"] = episodes
     out["sizes"] = file_sizes
+    out["frame_stride"] = file_stride
     out["files"] = [str(p) for p in files]
     return out

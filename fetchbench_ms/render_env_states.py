@@ -1,0 +1,113 @@
+"""Compact point clouds of recorded env states, rendered without physics.
+
+``scripts/convert_demos_for_imitation.py --frame-stride K`` replays its demos state-only
+(``-o state``: ManiSkill's recorder still stores every step's env state) and renders the
+frames it keeps only: per trajectory, the env is reset as the replay reset it (the same task),
+and for each kept step its recorded env state is set and the cameras render it.
+
+``get_obs`` after ``set_state_dict`` is a fresh observation: ManiSkill's
+``_get_obs_sensor_data`` moves the renderer's bodies to the simulation's poses
+(``scene.update_render``) and captures the cameras at every call. The compact cloud's voxel
+draw is seeded by the episode seed and the env's step count (``envs.pointcloud.compact_seed``),
+which a state set leaves at 0; so the env renders the raw ``pointcloud`` and the cloud is made
+compact here with the seed of the step it shows, as the env makes it when it has stepped there.
+
+The clouds are those a replay renders at the same steps, but not to the bit: after a state set
+the Panda's link poses come from its kinematics, ~1e-8 m from the poses the simulation's step
+left, and that moves a handful of a frame's 153,600 camera points (by ~1 mm, or an edge pixel
+onto another surface; measured on the demo sample, tests/test_imitation.py). Where such a
+point changes a segment's number of occupied voxels, the compact cloud's draw of that segment
+is another draw of the same surfaces: on the sample's first steps, 7 of 39 segments of the
+kept frames (the robot's mostly); the others are the replay's to the bit.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+from dataclasses import dataclass
+from typing import Iterator
+
+import numpy as np
+
+from .envs.pointcloud import compact_pointcloud_obs, compact_seed
+
+
+@dataclass
+class RenderJob:
+    """The steps of one recorded trajectory whose clouds are wanted."""
+
+    reset_kwargs: dict  # as the trajectory's JSON records them (seed, options: the task)
+    episode_seed: int
+    steps: np.ndarray  # [F] step numbers t (obs[t] of a trajectory is taken at env_states[t])
+    states: dict  # those steps' env states: ManiSkill's nested dict of [F, ...] arrays
+
+
+def render_env_kwargs(env_kwargs: dict) -> dict:
+    """The recorded env kwargs with the raw point-cloud obs mode; a recording made without a
+    renderer (``render_backend="none"``) gets ManiSkill's default one, as the replay tool gives it."""
+    kwargs = {k: v for k, v in env_kwargs.items() if k != "render_backend" or v not in (None, "none")}
+    kwargs["obs_mode"] = "pointcloud"
+    return kwargs
+
+
+class StateRenderer:
+    """One env of ``env_id`` that renders recorded env states into compact clouds."""
+
+    def __init__(self, env_id: str, env_kwargs: dict):
+        import gymnasium as gym
+
+        import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0, also in a spawned worker)
+
+        self.env = gym.make(env_id, **render_env_kwargs(env_kwargs))
+
+    def observation(self, state: dict) -> dict:
+        """The env's raw point-cloud observation of one env state (ManiSkill's nested dict of
+        [1, ...] arrays) of the task the env was last reset to."""
+        env = self.env.unwrapped
+        env.set_state_dict(state)
+        return env.get_obs()
+
+    def render(self, job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
+        """(xyz [F, M, 3] float16, seg [F, M] uint8): the compact cloud of each of the job's steps."""
+        from mani_skill.trajectory.utils import index_dict
+        from mani_skill.utils import common
+
+        self.env.reset(**job.reset_kwargs)
+        xyz, seg = [], []
+        for i, step in enumerate(job.steps):
+            obs = self.observation(index_dict(job.states, slice(i, i + 1)))
+            cloud = compact_pointcloud_obs(obs, [compact_seed(job.episode_seed, int(step))])["pointcloud"]
+            xyz.append(common.to_numpy(cloud["xyz"])[0])
+            seg.append(common.to_numpy(cloud["seg"])[0])
+        return np.stack(xyz), np.stack(seg)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+_worker_renderer: StateRenderer | None = None  # a worker process's env
+
+
+def _start_worker(env_id: str, env_kwargs: dict) -> None:
+    global _worker_renderer
+    _worker_renderer = StateRenderer(env_id, env_kwargs)
+
+
+def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
+    return _worker_renderer.render(job)
+
+
+def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob],
+                          workers: int = 1) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The clouds of every job (``StateRenderer.render``), job by job in order, from ``workers``
+    processes with an env each (a job to whichever is free), or from this process for 1."""
+    if workers <= 1 or len(jobs) <= 1:
+        renderer = StateRenderer(env_id, env_kwargs)
+        try:
+            for job in jobs:
+                yield renderer.render(job)
+        finally:
+            renderer.close()
+        return
+    # Spawned, as ManiSkill's replay tool starts its workers (warp does not survive a fork).
+    with mp.get_context("spawn").Pool(min(workers, len(jobs)), _start_worker, (env_id, env_kwargs)) as pool:
+        yield from pool.imap(_render_in_worker, jobs)

@@ -648,6 +648,23 @@ def test_diffusion_stride_runs_chunks_and_checks_termination_every_k_steps(monke
     assert np.allclose(actions[:, 0], [0.01, 0.011, 0.012, 0.013, 0.03, 0.031, 0.032, 0.033, 0.05], atol=1e-6)
 
 
+def test_diffusion_trained_on_strided_frames_repeats_each_chunk_action(monkeypatch):
+    """A diffusion checkpoint of --frame-stride 3 data: each of its chunk's actions stood for
+    3 control steps in training, so each lasts 3 steps here (a chunk of 4: 12 steps); at
+    policy stride 3 the termination is checked every 3rd step, and no warning is given."""
+    calls = _scripted_network(monkeypatch, chunk=4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        policy = ImitationPolicy(_tiny_model("diffusion"), meta={"frame_stride": 3}, stride=3)
+    policy.reset(episode_seed=0)
+    asked, actions = _split_steps(policy, [0.04] * 13, np.random.default_rng(0))
+    T, F = True, False
+    assert asked == [T, F, F, T, F, F, T, F, F, T, F, F, T]
+    assert [only for only, _ in calls] == [False, True, True, True, False]
+    assert np.allclose(actions[:12, 0], np.repeat([0.01, 0.011, 0.012, 0.013], 3), atol=1e-6)
+    assert np.isclose(actions[12, 0], 0.05, atol=1e-6)
+
+
 def test_invalid_stride_and_misused_steps_are_named(monkeypatch):
     from fetchbench_ms.evaluation.methods import resolve_method
 

@@ -21,7 +21,8 @@ network is told come from ``ReGraspStateMachine`` (the paper's end-to-end deploy
 ``act(obs)``: rendering the cameras' cloud costs far more than the network, so a deployment
 (``deploy.run_policy``) renders only when ``begin_step`` says so. ``stride`` k: the network
 reads an observation every k-th acting step and its arm action is repeated in between (a
-diffusion policy's chunks run as they are; its termination is checked every k-th step).
+diffusion policy's chunk actions each last the control steps its training frames stood for,
+the checkpoint's ``frame_stride``; its termination is checked every k-th step).
 """
 from __future__ import annotations
 
@@ -157,9 +158,12 @@ class ImitationPolicy:
         self.stride = check_stride(stride)
         self.model, self.meta, self.device = model.to(device).eval(), meta or {}, torch.device(device)
         trained = int(self.meta.get("frame_stride", 1))
-        # Steps an arm action lasts here: a diffusion policy's chunk actions last one step each
-        # at any stride; in training a frame's action stood for `trained` steps.
-        lasts = 1 if model.kind == "diffusion" else self.stride
+        # A diffusion policy's chunk is a sequence of training frames, each standing for
+        # `trained` control steps (--frame-stride): each chunk action is repeated that often,
+        # at any policy stride (which only sets how often its termination is checked).
+        self.chunk_repeat = trained if model.kind == "diffusion" else 1
+        # Steps an arm action lasts here, against the `trained` steps a frame's action stood for.
+        lasts = self.chunk_repeat if model.kind == "diffusion" else self.stride
         if lasts != trained:
             warnings.warn(f"this {model.kind} policy was trained on data of --frame-stride {trained} and its arm "
                           f"actions last {lasts} control step(s) here (policy stride {self.stride}), against "
@@ -250,6 +254,8 @@ class ImitationPolicy:
                 chunk = list(actions[0])
                 if self.model.kind != "diffusion":  # one action, repeated over the stride (action repeat)
                     chunk = chunk[:1] * self.stride
+                else:  # each chunk action for the steps its training frame stood for
+                    chunk = [a for a in chunk for _ in range(self.chunk_repeat)]
                 self.queue = deque(chunk)
             else:  # an action chunk in progress: only the termination output is fresh
                 _, term = self._act(self._batch(step_input, stage), termination_only=True)

@@ -15,6 +15,8 @@ FetchBench data kept every 6th frame and ``fetchbench eval --policy-stride K`` d
 replay tool then runs state-only (``-o state``, no rendering) and the kept frames alone are
 rendered from its recorded env states (``fetchbench_ms.render_env_states``, ``--num-envs``
 processes), so the costly rendering is a K-th (docs/imitation.md, "Frame stride").
+``--overlap-replay`` (K > 1) starts the next chunk's replay in the background while a chunk
+renders (the same files).
 
     # the GPU machine (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
     python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
@@ -24,8 +26,8 @@ processes), so the costly rendering is a K-th (docs/imitation.md, "Frame stride"
     # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
     python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
         --out /tmp/imit-sample --count 2 --first-steps 12 --sizes 128,64,32
-    # every 3rd frame of each stage
-    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-k3 --frame-stride 3 ...
+    # every 3rd frame of each stage, the next chunk's replay beside each chunk's render pass
+    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-k3 --frame-stride 3 --overlap-replay ...
 """
 from __future__ import annotations
 
@@ -33,9 +35,11 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -80,19 +84,59 @@ def write_chunk_source(source_h5: Path, episodes: list[dict], env_info: dict, ou
     atomic_write_text(out_h5.with_suffix(".json"), json.dumps({"env_info": env_info, "episodes": episodes}))
 
 
-def replay(chunk_h5: Path, num_envs: int, allow_failure: bool, obs_mode: str, log) -> Path:
+@dataclass
+class Replay:
+    """One chunk's replay-tool subprocess, in its own process group (so that stopping it stops
+    the processes it spawned); its output goes to ``replay.log`` in the chunk's work folder."""
+    chunk: int
+    work: Path
+    process: subprocess.Popen
+    converted: Path
+    obs_mode: str
+    background: bool
+    started: float
+
+
+def start_replay(k: int, work: Path, chunk_h5: Path, num_envs: int, allow_failure: bool, obs_mode: str,
+                 background: bool) -> Replay:
     command = [sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(chunk_h5),
                "-c", "pd_joint_delta_pos", "-o", obs_mode, "--save-traj", "--num-envs", str(num_envs)]
     if allow_failure:
         command.append("--allow-failure")
-    t = time.perf_counter()
-    result = subprocess.run(command, capture_output=True, text=True)
+    # A file, not a pipe: a background replay's output is read by no one until it ends.
+    with open(work / "replay.log", "w") as output:
+        process = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
     converted = chunk_h5.with_name(f"{chunk_h5.stem}.{obs_mode}.pd_joint_delta_pos.physx_cpu.h5")
-    if result.returncode != 0 or not converted.is_file():
-        raise RuntimeError(f"the replay tool failed on {chunk_h5} (exit {result.returncode}):\n"
-                           f"{result.stdout[-2000:]}\n{result.stderr[-4000:]}")
-    log(f"  replayed {chunk_h5.name} (-o {obs_mode}) in {time.perf_counter() - t:.0f} s")
-    return converted
+    return Replay(k, work, process, converted, obs_mode, background, time.perf_counter())
+
+
+def finish_replay(replay: Replay, log) -> Path:
+    """Wait for ``replay``; its converted file."""
+    t = time.perf_counter()
+    code = replay.process.wait()
+    if code != 0 or not replay.converted.is_file():
+        output = (replay.work / "replay.log").read_text(errors="replace")
+        raise RuntimeError(f"the replay tool failed on {replay.work / 'demos.h5'} (exit {code}):\n{output[-6000:]}")
+    took = f"in {time.perf_counter() - replay.started:.0f} s"
+    if replay.background:
+        took += f" (in the background; the converter waited {time.perf_counter() - t:.1f} s for it)"
+    log(f"  replayed chunk {replay.chunk} (-o {replay.obs_mode}) {took}")
+    return replay.converted
+
+
+def stop_replay(replay: Replay) -> None:
+    """Terminate ``replay``'s process group (the replay tool and its workers) and remove its work folder."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(replay.process.pid, sig)
+        except ProcessLookupError:
+            break  # the group is gone
+        try:
+            replay.process.wait(timeout=10)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    shutil.rmtree(replay.work, ignore_errors=True)
 
 
 def chunk_record(path: Path) -> dict:
@@ -132,10 +176,16 @@ def main(argv=None) -> int:
     p.add_argument("--frame-stride", type=int, default=1,
                    help="K: keep every K-th converted step of each stage, its arm action the mean over its K steps "
                         "(a replay without rendering, then the kept frames rendered from its env states)")
+    p.add_argument("--overlap-replay", action="store_true",
+                   help="K > 1: run the next chunk's state-only replay in the background while this chunk's "
+                        "kept frames are rendered (the same output)")
     args = p.parse_args(argv)
     if args.frame_stride < 1:
         raise SystemExit(f"--frame-stride takes an integer >= 1 (converted steps per frame kept), "
                          f"got {args.frame_stride}")
+    if args.overlap_replay and args.frame_stride == 1:
+        raise SystemExit("--overlap-replay overlaps a state-only replay with the render pass of --frame-stride K > 1; "
+                         "at stride 1 the replay renders and there is no separate render pass to overlap")
     sizes = parse_sizes(args.sizes)
     source = Path(args.traj_path)
     if not source.is_file() or not source.with_suffix(".json").is_file():
@@ -175,40 +225,59 @@ def main(argv=None) -> int:
     totals = write_manifest(manifest_path, settings, records, len(chunks))
     t_start, longest = time.perf_counter(), 0.0
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
-    for k, chunk in enumerate(chunks, start=args.start // args.chunk):
-        target = out / f"chunk_{k:05d}.imit.h5"
-        if target.is_file():
-            continue
-        # Stop before a chunk that would not finish in time (as long as the slowest so far).
-        if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
-            log(f"time limit: stopped before chunk {k}; run the same command again to resume")
-            break
-        t_chunk = time.perf_counter()
+    # Stride 1 renders every step in the replay; a larger stride replays without rendering
+    # and renders the kept frames from the recorded env states (convert_episodes).
+    obs_mode = "compact_pointcloud" if args.frame_stride == 1 else "state"
+    todo = [(k, chunk) for k, chunk in enumerate(chunks, start=args.start // args.chunk)
+            if not (out / f"chunk_{k:05d}.imit.h5").is_file()]
+
+    def start_chunk(k: int, chunk: list, background: bool) -> Replay:
         work = out / "work" / f"chunk_{k:05d}"
         shutil.rmtree(work, ignore_errors=True)  # a killed run's leftovers
         work.mkdir(parents=True)
         chunk_h5 = work / "demos.h5"
         write_chunk_source(source, chunk, meta["env_info"], chunk_h5, args.first_steps)
-        workers = min(args.num_envs, len(chunk))
-        # Stride 1 renders every step in the replay; a larger stride replays without rendering
-        # and renders the kept frames from the recorded env states (convert_episodes).
-        obs_mode = "compact_pointcloud" if args.frame_stride == 1 else "state"
-        converted = replay(chunk_h5, workers, args.first_steps is not None, obs_mode, log)
-        t = time.perf_counter()
-        data = convert_episodes(converted, chunk_h5, sizes, device=args.device, log=log,
-                                frame_stride=args.frame_stride, render_workers=workers)
-        for e in data["episodes"]:
-            e["source"] = source.name  # the chunk file is a temporary copy
-        size = write_training_file(target, data)
-        frames = int(len(data.get("qpos", [])))
-        log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos, {frames} frames, {size / 1e6:.1f} MB "
-            f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
-            f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), points and labels in "
-            f"{time.perf_counter() - t:.0f} s; the chunk in {time.perf_counter() - t_chunk:.1f} s")
-        shutil.rmtree(work)
-        records[target.name] = chunk_record(target)
-        totals = write_manifest(manifest_path, settings, records, len(chunks))
-        longest = max(longest, time.perf_counter() - t_chunk)
+        return start_replay(k, work, chunk_h5, min(args.num_envs, len(chunk)), args.first_steps is not None,
+                            obs_mode, background)
+
+    running: dict[int, Replay] = {}  # replays started and not waited for, by chunk
+    try:
+        for i, (k, chunk) in enumerate(todo):
+            target = out / f"chunk_{k:05d}.imit.h5"
+            # Stop before a chunk that would not finish in time (as long as the slowest so far).
+            if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
+                log(f"time limit: stopped before chunk {k}; run the same command again to resume")
+                break
+            t_chunk = time.perf_counter()
+            replay = running.get(k)  # started in the background during the previous chunk
+            if replay is None:
+                replay = running[k] = start_chunk(k, chunk, background=False)
+            converted = finish_replay(replay, log)
+            del running[k]
+            if args.overlap_replay and i + 1 < len(todo):
+                # The next chunk's state-only replay (CPU) runs while this chunk renders (GPU).
+                running[todo[i + 1][0]] = start_chunk(*todo[i + 1], background=True)
+                log(f"  chunk {todo[i + 1][0]}: its replay runs in the background during chunk {k}'s render")
+            t = time.perf_counter()
+            data = convert_episodes(converted, replay.work / "demos.h5", sizes, device=args.device, log=log,
+                                    frame_stride=args.frame_stride, render_workers=min(args.num_envs, len(chunk)))
+            for e in data["episodes"]:
+                e["source"] = source.name  # the chunk file is a temporary copy
+            size = write_training_file(target, data)
+            frames = int(len(data.get("qpos", [])))
+            log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos, {frames} frames, {size / 1e6:.1f} MB "
+                f"({size / max(frames, 1) / 1e3:.1f} KB a frame; replay output "
+                f"{converted.stat().st_size / max(frames, 1) / 1e3:.0f} KB a frame), points and labels in "
+                f"{time.perf_counter() - t:.0f} s; the chunk in {time.perf_counter() - t_chunk:.1f} s")
+            shutil.rmtree(replay.work)
+            records[target.name] = chunk_record(target)
+            totals = write_manifest(manifest_path, settings, records, len(chunks))
+            longest = max(longest, time.perf_counter() - t_chunk)
+    finally:
+        # A background replay of a chunk that will not be done now (the time limit, an error).
+        for k, replay in running.items():
+            stop_replay(replay)
+            log(f"  stopped the replay of chunk {k} (it is redone on resuming)")
     shutil.rmtree(out / "work", ignore_errors=True)
     log(f"{len(records)}/{len(chunks)} chunks done, {totals['frames']} frames, {totals['bytes'] / 1e9:.2f} GB"
         + ("" if len(records) == len(chunks) else " (incomplete: run again)"))

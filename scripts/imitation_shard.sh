@@ -23,6 +23,8 @@
 # converter's --frame-stride K (default 1; K keeps every K-th step of each stage and renders
 # only those, docs/imitation.md "Frame stride"). Keep K for the whole run: the trainers refuse
 # a checkpoint trained at another K; its policies are deployed with --policy-stride K.
+# OVERLAP_REPLAY=1 (with FRAME_STRIDE > 1) adds the converter's --overlap-replay: the next
+# chunk's state-only replay runs in the background during a chunk's render pass.
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
@@ -33,15 +35,17 @@ PY=${PYTHON:-python3}
 ROUND=${ROUND:-${TRAIN_SECONDS:-300}}
 # Replay processes: all 16 cores when converting alone, else 13 beside the three trainers.
 if [[ -n "${TRAIN_SECONDS:-}" ]]; then NUM_ENVS=${NUM_ENVS:-16}; else NUM_ENVS=${NUM_ENVS:-13}; fi
+overlap=""
+[[ "${OVERLAP_REPLAY:-0}" != 1 ]] || overlap="--overlap-replay"
 declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-16000} [diffusion]=${STEPS_DIFFUSION:-16000})
 deadline=$(( $(date +%s) + SECONDS_TOTAL ))
 mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
 say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
 
-say "converting demos $START..$((START + COUNT)) of $TRAJ (frame stride ${FRAME_STRIDE:-1}); trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
+say "converting demos $START..$((START + COUNT)) of $TRAJ (frame stride ${FRAME_STRIDE:-1}${overlap:+, replays overlapped}); trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
 $PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
     --chunk 128 --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
-    --frame-stride "${FRAME_STRIDE:-1}" \
+    --frame-stride "${FRAME_STRIDE:-1}" $overlap \
     >> "$ROOT/logs/convert.log" 2>&1 &
 converter=$!
 until compgen -G "$ROOT/data/chunk_*.imit.h5" > /dev/null; do

@@ -345,6 +345,44 @@ def test_strided_conversion_keeps_the_replays_frames(sample_data, sample_data_k3
                       "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"])
 
 
+def test_overlapped_replay_writes_the_same_files(tmp_path, monkeypatch):
+    """--overlap-replay (chunk k + 1's state-only replay in the background during chunk k's
+    render) writes the sequential conversion's bytes; an error during a chunk stops the
+    background replay and removes its work folder, and the same command then resumes."""
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    common = ["--traj-path", str(SAMPLE), "--count", "2", "--chunk", "1", "--first-steps", str(FIRST_STEPS),
+              "--sizes", "128,64,32", "--frame-stride", str(FRAME_STRIDE)]
+    with pytest.raises(SystemExit, match="--overlap-replay.*K > 1"):
+        convert.main(common[:-2] + ["--out", str(tmp_path / "k1"), "--overlap-replay"])
+    assert convert.main(common + ["--out", str(tmp_path / "seq")]) == 0
+    # The first try fails in chunk 0's render, its replay of chunk 1 started in the background.
+    started, start_replay, convert_episodes = [], convert.start_replay, convert.convert_episodes
+
+    def recorded(*args, **kwargs):
+        started.append(start_replay(*args, **kwargs))
+        return started[-1]
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("a failed render")
+
+    monkeypatch.setattr(convert, "start_replay", recorded)
+    monkeypatch.setattr(convert, "convert_episodes", failing)
+    with pytest.raises(RuntimeError, match="a failed render"):
+        convert.main(common + ["--out", str(tmp_path / "overlap"), "--overlap-replay"])
+    assert [(r.chunk, r.background) for r in started] == [(0, False), (1, True)]
+    assert started[1].process.poll() is not None and not started[1].work.exists()
+    monkeypatch.setattr(convert, "convert_episodes", convert_episodes)
+    assert convert.main(common + ["--out", str(tmp_path / "overlap"), "--overlap-replay"]) == 0
+    log = (tmp_path / "overlap" / "convert.log").read_text()
+    assert "stopped the replay of chunk 1" in log and "the converter waited" in log
+    seq, overlap = (sorted((tmp_path / name).glob("chunk_*.imit.h5")) for name in ("seq", "overlap"))
+    assert [p.name for p in seq] == [p.name for p in overlap] == ["chunk_00000.imit.h5", "chunk_00001.imit.h5"]
+    assert [hashlib.sha256(p.read_bytes()).hexdigest() for p in seq] == \
+        [hashlib.sha256(p.read_bytes()).hexdigest() for p in overlap]
+    assert (tmp_path / "seq" / "manifest.json").read_text() == (tmp_path / "overlap" / "manifest.json").read_text()
+    assert not (tmp_path / "overlap" / "work").exists()
+
+
 def test_training_files_of_two_frame_strides_are_refused(sample_data, sample_data_k3, tmp_path):
     import shutil
 

@@ -285,4 +285,7 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    # A stop (SIGTERM: `device_jobs.py stop`, a shell's kill) runs main's `finally`, which
+    # stops the replays: they run in process groups of their own, which the signal misses.
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     sys.exit(main())

@@ -414,6 +414,29 @@ def test_trainer_records_the_frame_stride(sample_data, sample_data_k3, tmp_path)
         ImitationPolicy.load(export, stride=FRAME_STRIDE)
 
 
+
+def test_trainer_val_success_runs_at_the_data_stride(sample_data_k3, tmp_path, monkeypatch):
+    """The trainer's val-task evaluation of stride-3 data deploys the policy as it learned:
+    policy stride 3, and an evaluation checkpoint whose meta carries frame_stride 3 (which a
+    diffusion policy's chunk repeat reads); the figure records the stride."""
+    import fetchbench_ms.evaluation.runner as runner
+
+    asked = []
+
+    def fake_evaluate(method, out_dir, **kwargs):
+        _, meta = load_model(kwargs["policy_checkpoint"])
+        asked.append((method, kwargs["suite"], kwargs["policy_stride"], meta["frame_stride"]))
+        return [{"task_id": "val/0000", "category": "on_table", "success": True, "failure": None,
+                 "computation_time": 1.0, "cspace_length": 1.0}]
+
+    monkeypatch.setattr(runner, "evaluate", fake_evaluate)
+    module = _import(ROOT / "baselines/imitation/train_diffusion.py", "train_diffusion")
+    tiny = {**TINY, "eval_every": 2, "eval_tasks": 1, "eval_workers": 1}
+    args = module.Args(data=str(sample_data_k3), run=str(tmp_path / "run"), steps=2, **tiny, **TRAINER_KW["diffusion"])
+    history = module.main(args)["history"]
+    assert asked == [("e2e-diffusion", "val", FRAME_STRIDE, FRAME_STRIDE)]
+    assert history["val_success"][-1]["policy_stride"] == FRAME_STRIDE
+
 # ----------------------------------------------------------------------------- deployment
 def test_regrasp_state_machine_scripted():
     cfg = ReGraspConfig(close_steps=3, reopen_steps=2, settle_steps=1, min_approach_steps=2, min_retrieve_steps=3,

@@ -243,15 +243,18 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     def val_success() -> dict:
         ckpt_path = run / "eval" / f"step_{step}.pt"
         ckpt_path.parent.mkdir(parents=True, exist_ok=True)
-        save_checkpoint(ckpt_path, model, {"step": step})
+        # The policy acts at its data's time scale: an observation (and an arm action) every
+        # frame_stride control steps, a diffusion chunk's actions frame_stride steps each.
+        save_checkpoint(ckpt_path, model, {"step": step, "frame_stride": frames.frame_stride})
         from fetchbench_ms.evaluation.metrics import summarize
         from fetchbench_ms.evaluation.runner import evaluate
 
         records = evaluate(EVAL_METHOD[kind], run / "eval" / f"step_{step}", suite="val", tasks=f"0:{args.eval_tasks}",
-                           workers=args.eval_workers, policy_checkpoint=str(ckpt_path), progress=False)
+                           workers=args.eval_workers, policy_checkpoint=str(ckpt_path), progress=False,
+                           policy_stride=frames.frame_stride)
         summary = summarize(records)
         return {"step": step, "tasks": len(records), "success_rate": summary["all"]["success_rate"],
-                "errors": summary["all"]["errors"]}
+                "errors": summary["all"]["errors"], "policy_stride": frames.frame_stride}
 
     def evaluate_now() -> None:
         save()  # an evaluation takes minutes: do not lose the steps before it (its results resume too)

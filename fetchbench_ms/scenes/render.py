@@ -127,9 +127,12 @@ def render_scene(spec: SceneSpec, width: int = 640, height: int = 480, highlight
     build_static_scene(scene, spec)
     if highlight:
         _add_overlays(scene, spec)
-    # The camera shader is a process-wide SAPIEN setting that ManiSkill switches (to
-    # "minimal" for its sensors) when it builds an env: ask for the full one here.
-    sapien.render.set_camera_shader_dir("default")
+    # The camera shader and the pictures' formats are process-wide SAPIEN settings that
+    # ManiSkill switches when it builds an env (its "minimal" sensors make "Color" 8-bit,
+    # which this float picture read would clip): ask for ManiSkill's full pack here.
+    from mani_skill.render.shaders import PREBUILT_SHADER_CONFIGS, set_shader_pack
+
+    set_shader_pack(PREBUILT_SHADER_CONFIGS["default"])
     camera = scene.add_camera("view", width, height, VERTICAL_FOV, 0.02, 20.0)
     camera.entity.set_pose(camera_pose(spec, width, height))
     scene.update_render()

@@ -162,11 +162,11 @@ class ImitationPolicy:
         # `trained` control steps (--frame-stride): each chunk action is repeated that often,
         # at any policy stride (which only sets how often its termination is checked).
         self.chunk_repeat = trained if model.kind == "diffusion" else 1
-        # Steps an arm action lasts here, against the `trained` steps a frame's action stood for.
-        lasts = self.chunk_repeat if model.kind == "diffusion" else self.stride
-        if lasts != trained:
+        # An MLP / Transformer arm action lasts the policy stride, against the `trained` steps
+        # a frame's action stood for (a diffusion policy's always lasts `trained`).
+        if model.kind != "diffusion" and self.stride != trained:
             warnings.warn(f"this {model.kind} policy was trained on data of --frame-stride {trained} and its arm "
-                          f"actions last {lasts} control step(s) here (policy stride {self.stride}), against "
+                          f"actions last {self.stride} control step(s) here (policy stride {self.stride}), against "
                           f"{trained} in training: it acts at another time scale than it learned", stacklevel=2)
         self.regrasp_config = regrasp or ReGraspConfig()
         self.seed = seed

@@ -25,10 +25,14 @@
 # a checkpoint trained at another K; its policies are deployed with --policy-stride K.
 # OVERLAP_REPLAY=1 (with FRAME_STRIDE > 1) adds the converter's --overlap-replay: the next
 # chunk's state-only replay runs in the background during a chunk's render pass.
+# CHUNK: demos per converter chunk (default 128; START must be a multiple of it): smaller
+# chunks waste less of the time limit, which the converter never starts a chunk past.
+# WAIT_FOR=PATH (with TRAIN_SECONDS): the trainers start only once PATH exists, so a run's
+# checkpoints can still be arriving (one transfer a call) while the demos convert.
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
-START=${3:?START: the first demo, a multiple of 128}
+START=${3:?START: the first demo, a multiple of CHUNK (128)}
 COUNT=${4:?COUNT: demos to convert}
 SECONDS_TOTAL=${5:?SECONDS: seconds this job may take}
 PY=${PYTHON:-python3}
@@ -44,7 +48,7 @@ say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
 
 say "converting demos $START..$((START + COUNT)) of $TRAJ (frame stride ${FRAME_STRIDE:-1}${overlap:+, replays overlapped}); trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
 $PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
-    --chunk 128 --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
+    --chunk "${CHUNK:-128}" --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
     --frame-stride "${FRAME_STRIDE:-1}" $overlap \
     >> "$ROOT/logs/convert.log" 2>&1 &
 converter=$!
@@ -55,6 +59,13 @@ done
 if [[ -n "${TRAIN_SECONDS:-}" ]]; then
     say "converting alone, then training for the last ${TRAIN_SECONDS} s"
     wait $converter || say "the converter exited with $?"
+    if [[ -n "${WAIT_FOR:-}" ]]; then
+        say "waiting for $WAIT_FOR before training"
+        until [[ -e "$WAIT_FOR" ]]; do
+            (( $(date +%s) < deadline - 150 )) || { say "$WAIT_FOR never came: no training"; exit 1; }
+            sleep 5
+        done
+    fi
 fi
 round=0
 while :; do

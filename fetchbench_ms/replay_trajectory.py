@@ -10,6 +10,14 @@ first (registering FetchBench-*-v0) and then runs the same tool. Worker processe
 (``--num-envs N`` on CPU) are spawned and re-import this module, so they register the
 envs too.
 
+Converting ``pd_joint_pos`` demos to a joint-space controller (``-c pd_joint_delta_pos``,
+``pd_joint_target_delta_pos``, ``pd_joint_vel``), ManiSkill's tool steps a second env with the
+source actions beside the one it records, and reads nothing of it but its controller's action
+layout: that env's physics is half a conversion's cost. Here it is not stepped
+(``_SourceControllerOnly``); the converted file is the same to the bit
+(``tests/test_envs_replay.py``). End-effector targets (``pd_ee_*``) read the stepped source
+env's joint targets, so they run as ManiSkill wrote them.
+
 A demo recorded without a renderer (``render_backend="none"`` in its env kwargs, e.g.
 state-only data collection) is replayed with ManiSkill's default renderer when the replay
 needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so.
@@ -93,10 +101,46 @@ class _WrappersOverride:
         return getattr(self._wrappers, name)
 
 
+class _SourceControllerOnly:
+    """The source env of a ``pd_joint_pos`` -> joint-space conversion, unstepped.
+
+    ``action_conversion.from_pd_joint_pos`` steps the source env every step but, for a
+    joint-space target, reads only its controller (``to_action_dict``: how an action vector
+    splits into arm and gripper), which the steps never change. ManiSkill gives no switch for
+    this, hence the stand-in: ``step`` does nothing and everything else is the real env's."""
+
+    def __init__(self, env):
+        self._env = env
+
+    def step(self, action):
+        return None
+
+    def __getattr__(self, name):
+        return getattr(self._env, name)
+
+
+class _ActionConversionOverride:
+    """Stands in for ``mani_skill.trajectory.utils.actions.conversion`` inside the replay
+    module: ``from_pd_joint_pos`` to a joint-space target gets the unstepped source env."""
+
+    def __init__(self, conversion):
+        self._conversion = conversion
+
+    def from_pd_joint_pos(self, output_mode, ori_actions, ori_env, env, **kwargs):
+        if "ee" not in output_mode:  # the ee conversion reads the stepped source's joint targets
+            ori_env = _SourceControllerOnly(ori_env)
+        return self._conversion.from_pd_joint_pos(output_mode, ori_actions, ori_env, env, **kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._conversion, name)
+
+
 # At import, not in ``main``: the replay tool's worker processes are spawned and import this
 # module again (see the module docstring), and each builds its own recorder.
 if _maniskill_replay.wrappers.RecordEpisode.__name__ != RecordEpisodeWithoutFailedReplays.__name__:
     _maniskill_replay.wrappers = _WrappersOverride(_maniskill_replay.wrappers)
+if not isinstance(_maniskill_replay.action_conversion, _ActionConversionOverride):
+    _maniskill_replay.action_conversion = _ActionConversionOverride(_maniskill_replay.action_conversion)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import gymnasium as gym
 import h5py
@@ -77,6 +78,36 @@ def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
     with h5py.File(out, "r") as f:
         actions = f["traj_0/actions"][:]
     assert actions.shape[1] == 8 and np.abs(actions).max() <= 1.0 + 1e-6  # normalised delta actions
+
+
+def test_joint_delta_conversion_without_stepping_the_source_env_writes_the_same_file(demo, tmp_path, monkeypatch):
+    """The converter leaves ManiSkill's source env unstepped (it reads only its controller):
+    the converted trajectory is ManiSkill's own conversion's, every array to the bit."""
+    outputs, skipped = {}, []
+    for name in ("stock", "unstepped"):
+        folder = tmp_path / name
+        folder.mkdir()
+        for suffix in (".h5", ".json"):
+            shutil.copy(demo.with_suffix(suffix), folder / f"demo{suffix}")
+        with monkeypatch.context() as m:
+            if name == "stock":  # ManiSkill's conversion module, which steps the source env
+                m.setattr(replay_trajectory._maniskill_replay, "action_conversion",
+                          replay_trajectory._maniskill_replay.action_conversion._conversion)
+            else:  # count the source steps the stand-in skipped
+                m.setattr(replay_trajectory._SourceControllerOnly, "step", lambda self, action: skipped.append(action))
+            replay_trajectory.main(["--traj-path", str(folder / "demo.h5"), "-c", "pd_joint_delta_pos", "--save-traj",
+                                    "--allow-failure"])
+        outputs[name] = folder / "demo.state.pd_joint_delta_pos.physx_cpu.h5"
+    arrays = {}
+    for name, path in outputs.items():
+        with h5py.File(path, "r") as f:
+            arrays[name] = {}
+            f.visititems(lambda key, obj, out=arrays[name]: out.__setitem__(key, obj[()])
+                         if isinstance(obj, h5py.Dataset) else None)
+    assert set(arrays["stock"]) == set(arrays["unstepped"]) and "traj_0/actions" in arrays["stock"]
+    for key, value in arrays["stock"].items():
+        assert np.array_equal(value, arrays["unstepped"][key]), key
+    assert len(skipped) == STEPS  # every source step of the demo went to the stand-in, not to PhysX
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,8 @@
 # only those, docs/imitation.md "Frame stride"). Keep K for the whole run: the trainers refuse
 # a checkpoint trained at another K; its policies are deployed with --policy-stride K.
 # OVERLAP_REPLAY=1 (with FRAME_STRIDE > 1) adds the converter's --overlap-replay: the next
-# chunk's state-only replay runs in the background during a chunk's render pass.
+# chunk's state-only replay runs in the background during a chunk's render pass (measured on
+# the 16-core H100 node: no gain, the two share the CPUs; docs/imitation.md).
 # CHUNK: demos per converter chunk (default 128; START must be a multiple of it): smaller
 # chunks waste less of the time limit, which the converter never starts a chunk past.
 # WAIT_FOR=PATH (with TRAIN_SECONDS): the trainers start only once PATH exists, so a run's

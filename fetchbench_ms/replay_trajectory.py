@@ -24,6 +24,7 @@ needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing as mp
 import os
@@ -141,6 +142,18 @@ if _maniskill_replay.wrappers.RecordEpisode.__name__ != RecordEpisodeWithoutFail
     _maniskill_replay.wrappers = _WrappersOverride(_maniskill_replay.wrappers)
 if not isinstance(_maniskill_replay.action_conversion, _ActionConversionOverride):
     _maniskill_replay.action_conversion = _ActionConversionOverride(_maniskill_replay.action_conversion)
+
+
+@contextlib.contextmanager
+def stock_action_conversion():
+    """Within it, the replay tool converts as ManiSkill ships it (the source env stepped):
+    the reference that the unstepped conversion is tested and timed against."""
+    override = _maniskill_replay.action_conversion
+    _maniskill_replay.action_conversion = override._conversion
+    try:
+        yield
+    finally:
+        _maniskill_replay.action_conversion = override
 
 
 def main(argv: list[str] | None = None) -> None:

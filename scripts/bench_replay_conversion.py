@@ -7,6 +7,7 @@ same file; ``fetchbench_ms/replay_trajectory.py``), state-only, on the shipped d
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shutil
 import tempfile
 import time
@@ -25,17 +26,11 @@ def convert(source: Path, folder: Path, count: int, stock: bool) -> tuple[float,
     folder.mkdir()
     for suffix in (".h5", ".json"):
         shutil.copy(source.with_suffix(suffix), folder / f"demos{suffix}")
-    module = replay_trajectory._maniskill_replay
-    override = module.action_conversion
-    if stock:
-        module.action_conversion = override._conversion
-    try:
+    with replay_trajectory.stock_action_conversion() if stock else contextlib.nullcontext():
         t = time.perf_counter()
         replay_trajectory.main(["--traj-path", str(folder / "demos.h5"), "-c", "pd_joint_delta_pos", "-o", "state",
                                 "--save-traj", "--count", str(count)])
         return time.perf_counter() - t, folder / "demos.state.pd_joint_delta_pos.physx_cpu.h5"
-    finally:
-        module.action_conversion = override
 
 
 def main() -> None:

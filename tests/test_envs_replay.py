@@ -1,6 +1,7 @@
 """Record a scripted FetchBench episode and convert it with the replay tool."""
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 
@@ -89,10 +90,9 @@ def test_joint_delta_conversion_without_stepping_the_source_env_writes_the_same_
         folder.mkdir()
         for suffix in (".h5", ".json"):
             shutil.copy(demo.with_suffix(suffix), folder / f"demo{suffix}")
-        with monkeypatch.context() as m:
+        with monkeypatch.context() as m, contextlib.ExitStack() as stack:
             if name == "stock":  # ManiSkill's conversion module, which steps the source env
-                m.setattr(replay_trajectory._maniskill_replay, "action_conversion",
-                          replay_trajectory._maniskill_replay.action_conversion._conversion)
+                stack.enter_context(replay_trajectory.stock_action_conversion())
             else:  # count the source steps the stand-in skipped
                 m.setattr(replay_trajectory._SourceControllerOnly, "step", lambda self, action: skipped.append(action))
             replay_trajectory.main(["--traj-path", str(folder / "demo.h5"), "-c", "pd_joint_delta_pos", "--save-traj",

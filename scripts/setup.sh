@@ -13,13 +13,34 @@ cd "$(dirname "$0")/.."
 VENV=${FETCHBENCH_VENV:-.venv}
 PY=${PYTHON:-python3}
 say() { echo "[setup] $*"; }
+# One set-up of a virtual environment at a time (`make demo` and `make test` started together
+# on a fresh machine would otherwise install into the same venv at once).
+mkdir -p "$(dirname "$VENV")"
+exec 9>"$VENV.setup-lock"
+if ! flock -n 9; then say "another set-up of $VENV is running: waiting for it"; flock 9; fi
 SUDO=""; [ "$(id -u)" != "0" ] && SUDO=sudo
 apt_install() {
   if [ -n "$SUDO" ] && ! command -v sudo >/dev/null; then
     say "not root and no sudo: install $* by hand"; exit 1
   fi
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$@" >/dev/null
+  apt_waiting $SUDO apt-get update -qq
+  apt_waiting env DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$@"
+}
+# Run an apt command, waiting while another apt or dpkg holds its lock (a second set-up, or
+# the system's unattended upgrades): `apt-get update` does not honour DPkg::Lock::Timeout.
+# Any other failure ends the set-up at once.
+apt_waiting() {
+  local out i
+  for i in $(seq 120); do
+    if out=$("$@" 2>&1); then return 0; fi
+    case "$out" in
+      *"Could not get lock"*|*"Unable to lock"*)
+        [ "$i" = 1 ] && say "another apt or dpkg holds its lock: waiting (up to 10 minutes)"
+        sleep 5 ;;
+      *) echo "$out" >&2; return 1 ;;
+    esac
+  done
+  echo "$out" >&2; return 1
 }
 
 # 1. Virtual environment (Debian/Ubuntu ship venv support as a separate package).

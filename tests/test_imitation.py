@@ -218,6 +218,68 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     assert manifest["complete"] and hashlib.sha256(listed.encode()).hexdigest() == meta["data_sha256"]
 
 
+def test_a_run_goes_on_from_an_export(sample_data, tmp_path):
+    """--init-from: a new run folder starts from an exported checkpoint (the fp16 weights alone,
+    what a session can keep of a run): its step, weights and data history go on, the learning
+    rate warms up again for the fresh optimiser, and an export of another network is refused
+    with the difference named."""
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    first_export = tmp_path / "first.pt"
+    args = module.Args(data=str(sample_data), run=str(tmp_path / "run1"), steps=12, until_step=5, export=True,
+                       export_path=str(first_export), **{**TINY, "warmup": 3}, **TRAINER_KW["mlp"])
+    assert module.main(args)["step"] == 5
+    exported, _ = load_model(first_export)
+    second_export = tmp_path / "second.pt"
+    args.run, args.until_step, args.init_from, args.export_path = (str(tmp_path / "run2"), 0, str(first_export),
+                                                                    str(second_export))
+    common = sys.modules["common"]
+    # The first step taken from the export: the weights are the export's, the rate warms up again.
+    seen = {}
+    real_lr_at = common.lr_at
+
+    def spy(step, a, restart=0):
+        if step == 5 and "weights" not in seen:
+            seen["weights"] = {k: v.clone() for k, v in spy.model.state_dict().items()}
+        seen.setdefault("lr", []).append((step, real_lr_at(step, a, restart)))
+        return real_lr_at(step, a, restart)
+
+    real_make = module.make_model
+
+    def make(a):
+        spy.model = real_make(a)
+        return spy.model
+
+    common.lr_at, module.make_model = spy, make
+    try:
+        result = module.main(args)
+    finally:
+        common.lr_at, module.make_model = real_lr_at, real_make
+    assert result["step"] == 12 and not result["stopped"]
+    assert all(torch.equal(seen["weights"][k], v) for k, v in exported.state_dict().items())
+    rates = dict(seen["lr"])
+    schedule = real_lr_at(5, args)
+    assert rates[5] == pytest.approx(schedule / 3) and rates[6] == pytest.approx(real_lr_at(6, args) * 2 / 3)
+    assert rates[8] == pytest.approx(real_lr_at(8, args))
+    _, meta = load_model(second_export)
+    assert meta["init_from"]["step"] == 5 and meta["init_from"]["sha256"] == hashlib.sha256(
+        first_export.read_bytes()).hexdigest()
+    assert [d["from_step"] for d in meta["data_history"]] == [0] and meta["step"] == 12
+    assert "from " + str(first_export) + " at step 5" in (tmp_path / "run2" / "log.txt").read_text()
+    # Re-running the same command resumes run2's own checkpoint (init_from is not read again).
+    args.steps = 14
+    assert module.main(args)["step"] == 14
+    assert "resumed at step 12" in (tmp_path / "run2" / "log.txt").read_text()
+    # Another network, another trainer's export: refused, naming what differs.
+    args.run, args.hidden = str(tmp_path / "run3"), 32
+    with pytest.raises(ValueError, match="hidden: 64 vs 32"):
+        module.main(args)
+    transformer = _import(ROOT / "baselines/imitation/train_transformer.py", "train_transformer")
+    other = transformer.Args(data=str(sample_data), run=str(tmp_path / "run4"), steps=12, init_from=str(first_export),
+                             **TINY, **TRAINER_KW["transformer"])
+    with pytest.raises(ValueError, match="is a mlp checkpoint, this trainer trains transformer"):
+        transformer.main(other)
+
+
 # ----------------------------------------------------------------------------- frame stride
 FRAME_STRIDE = 3
 

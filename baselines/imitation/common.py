@@ -60,6 +60,12 @@ class TrainArgs:
     # one machine's hold (scripts/convert_demos_for_imitation.py --start). Each data hash and
     # the step it began at are recorded (checkpoint, export JSON).
     new_data: bool = False
+    # Start a new run folder from an exported checkpoint (assets/checkpoints/imit_<kind>.pt or a
+    # hold's export): its weights, step and data history go on; the optimiser starts afresh
+    # (an export has no Adam moments) and the learning rate warms up again over --warmup steps.
+    # What carries a run from one session to the next when its full checkpoint (~85 MB with the
+    # optimiser state, three trainers) could not be kept: an export is the fp16 weights alone.
+    init_from: str = ""
     log_every: int = 100
     ckpt_every: int = 1000
     export: bool = False  # write the shipped checkpoint (--export-path) and its JSON when done
@@ -159,11 +165,46 @@ def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:
 
 
 # ----------------------------------------------------------------------------- the loop
-def lr_at(step: int, args: TrainArgs) -> float:
+def lr_at(step: int, args: TrainArgs, restart: int = 0) -> float:
+    """Linear warm-up, then cosine decay to ``lr_final`` at ``--steps``; ``restart``: the step a
+    fresh optimiser took over (``--init-from``), from which the rate warms up again."""
     if step < args.warmup:
         return args.lr * (step + 1) / args.warmup
     progress = (step - args.warmup) / max(1, args.steps - args.warmup)
-    return args.lr_final + 0.5 * (args.lr - args.lr_final) * (1 + math.cos(math.pi * min(1.0, progress)))
+    rate = args.lr_final + 0.5 * (args.lr - args.lr_final) * (1 + math.cos(math.pi * min(1.0, progress)))
+    if restart and step - restart < args.warmup:
+        rate *= (step - restart + 1) / args.warmup
+    return rate
+
+
+def init_from_export(path: str, model: torch.nn.Module, frames: Frames, dhash: str, args: TrainArgs) -> dict:
+    """Load an exported checkpoint's weights into ``model`` (built from ``args``: the export's
+    network must be the same) for ``--init-from``; returns the run's starting history."""
+    from fetchbench_ms.policies.agent import load_model
+    from fetchbench_ms.policies.networks import config_to_dict
+
+    exported, meta = load_model(path)
+    if exported.kind != model.kind:
+        raise ValueError(f"--init-from {path} is a {exported.kind} checkpoint, this trainer trains {model.kind}")
+    have, want = config_to_dict(exported.cfg), config_to_dict(model.cfg)
+    if have != want:
+        differ = sorted(k for k in {*have, *want} if have.get(k) != want.get(k))
+        raise ValueError(f"--init-from {path}: its network differs from these arguments' in {', '.join(differ)} "
+                         f"({', '.join(f'{k}: {have.get(k)} vs {want.get(k)}' for k in differ)})")
+    stride = int(meta.get("frame_stride", 1))
+    if stride != frames.frame_stride:
+        raise ValueError(f"--init-from {path} was trained on frames every {stride} converted steps, {args.data} holds "
+                         f"frames every {frames.frame_stride} (--frame-stride): a run learns from one frame stride")
+    if meta.get("data_sha256") != dhash and not args.new_data:
+        raise ValueError(f"--init-from {path} was trained on other data ({str(meta.get('data_sha256'))[:12]} vs "
+                         f"{dhash[:12]}): add --new-data to go on with this data (the next shard)")
+    model.load_state_dict(exported.state_dict())
+    step = int(meta["step"])
+    data = [dict(d) for d in meta.get("data_history") or [{"data_sha256": meta["data_sha256"], "from_step": 0}]]
+    if meta["data_sha256"] != dhash:
+        data.append({"data_sha256": dhash, "from_step": step})
+    return {"step": step, "val_loss": [], "val_success": [], "data": data,
+            "init_from": {"path": str(path), "sha256": sha256_file(path), "step": step}}
 
 
 def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
@@ -214,9 +255,18 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             log(f"resumed at step {step} on new data {dhash[:12]} (was {saved['data_sha256'][:12]})")
         else:
             log(f"resumed at step {step}")
+    elif args.init_from:
+        history = init_from_export(args.init_from, model, frames, dhash, args)
+        step = history.pop("step")
+        # Other batches than the run's first steps drew (the generator's state is not exported).
+        generator.manual_seed(args.seed + step)
+        log(f"{kind}: {n_params / 1e6:.2f} M parameters; from {args.init_from} at step {step} "
+            f"(sha256 {history['init_from']['sha256'][:12]}; a fresh optimiser, warming up over {args.warmup} steps); "
+            f"{command}")
     else:
         history["data"] = [{"data_sha256": dhash, "from_step": 0}]
         log(f"{kind}: {n_params / 1e6:.2f} M parameters; {command}")
+    restart = history.get("init_from", {}).get("step", 0)
 
     def save() -> None:
         payload = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
@@ -274,7 +324,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             stopped = True
             break
         for group in optimizer.param_groups:
-            group["lr"] = lr_at(step, args)
+            group["lr"] = lr_at(step, args, restart)
         pick = torch.randint(len(frames.train_index), (args.batch_size,), device=args.device, generator=generator)
         out = batch_loss(model, frames, frames.train_index[pick], generator)
         optimizer.zero_grad(set_to_none=True)
@@ -285,7 +335,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         if step % args.log_every == 0 or step == 1:
             last = {k: round(float(v.detach()), 5) for k, v in out.items()}
             rate = args.log_every / max(time.perf_counter() - t_log, 1e-9) if step > 1 else 0.0
-            log(f"step {step} lr {lr_at(step, args):.2e} " + " ".join(f"{k} {v:.4f}" for k, v in last.items())
+            log(f"step {step} lr {lr_at(step, args, restart):.2e} " + " ".join(f"{k} {v:.4f}" for k, v in last.items())
                 + f" ({rate:.1f} steps/s)")
             t_log = time.perf_counter()
         if step % args.val_every == 0 or step == args.steps:
@@ -325,7 +375,7 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, frame_st
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
             "frame_stride": frame_stride,
-            "data_history": history.get("data", []), "command": command,
+            "data_history": history.get("data", []), "init_from": history.get("init_from"), "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}
     size = save_checkpoint(path, model, meta)

@@ -33,6 +33,7 @@ gallery: setup
 lock:
 	@bash scripts/lock.sh
 
-# The GPU machine's offline install bundle in .whl/ (docs/gpu-machine.md); pip download only.
+# The GPU machine's kit (docs/gpu-machine.md): the offline install bundle in .whl/ and the
+# Vulkan/EGL loaders in .gl/; downloads only.
 bundle:
-	@python3 scripts/offline_bundle.py
+	@bash scripts/device_kit.sh

@@ -33,7 +33,8 @@ TINY = dict(point_dims=(32, 64), batch_size=16, scene_points=SIZES["scene"], tar
             lr=2e-3, lr_final=2e-3, point_jitter=0.0, ckpt_every=10_000)
 TRAINER_KW = {"mlp": dict(hidden=64), "transformer": dict(d_model=32, layers=1, heads=2, dropout=0.0),
               "diffusion": dict(unet_dims=(16, 32), pred_horizon=8, act_horizon=4, train_diffusion_steps=20,
-                                sample_steps=4)}
+                                sample_steps=4),
+              "act": dict(chunk=8, latent_dim=8, d_model=32, layers=1, heads=2, dropout=0.0)}
 
 
 def _import(path: Path, name: str):
@@ -152,7 +153,7 @@ def _full_loss(module, model, data_dir: Path, args) -> float:
     return float(out["loss"])
 
 
-@pytest.mark.parametrize("kind", ["mlp", "transformer", "diffusion"])
+@pytest.mark.parametrize("kind", ["mlp", "transformer", "diffusion", "act"])
 def test_trainer_loss_falls_and_checkpoint_exports(kind, sample_data, tmp_path):
     module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
     export = tmp_path / f"{kind}.pt"

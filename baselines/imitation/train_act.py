@@ -29,7 +29,7 @@ from fetchbench_ms.policies.networks import ACTConfig, ACTPolicy
 @dataclass
 class Args(TrainArgs):
     chunk: int = 16  # frames of actions predicted at once
-    kl_weight: float = 10.0  # ACT's
+    kl_weight: float = 10.0  # the KL term's weight (ACT's 10)
     latent_dim: int = 32
     d_model: int = 192
     layers: int = 2  # of each transformer (CVAE encoder, observation encoder, decoder)

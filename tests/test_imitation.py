@@ -875,7 +875,8 @@ def test_act_loss_ignores_actions_past_the_segment_end(sample_data):
     chunk, valid = frames.action_chunk(index, 8, with_mask=True)
     assert torch.equal(chunk, frames.action_chunk(index, 8))  # what the diffusion trainer gets
     ends = frames.seg_end[index]
-    assert torch.equal(valid, index[:, None] + torch.arange(8) < ends[:, None]) and not valid.all() and valid[:, 0].all()
+    assert torch.equal(valid, index[:, None] + torch.arange(8) < ends[:, None])
+    assert valid[:, 0].all() and not valid.all()  # some chunks run past their segment's end
     model = _tiny_model("act", chunk=8).eval()
     obs = frames.observation(index)
     noisy = torch.where(valid[..., None], chunk, torch.rand(chunk.shape) * 2 - 1)
@@ -898,11 +899,12 @@ def test_e2e_act_without_a_checkpoint_says_how_to_train_one(tmp_path, monkeypatc
 
     missing = tmp_path / "imit_act.pt"
     monkeypatch.setattr(deploy, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
-    assert main(["eval", "--method", "e2e-act", "--suite", "val", "--tasks", "0:1", "--out", str(tmp_path / "out")]) == 2
+    out = tmp_path / "out"
+    assert main(["eval", "--method", "e2e-act", "--suite", "val", "--tasks", "0:1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert str(missing) in err and "python baselines/imitation/train_act.py --data" in err and "--export" in err
-    assert not (tmp_path / "out" / "results.jsonl").exists()
+    assert not (out / "results.jsonl").exists()
 
 
 # ----------------------------------------------------------------------------- shipped checkpoints
@@ -985,10 +987,10 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     monkeypatch.setattr(ship, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
     sha = ship.sha256_file(tmp_path / "imit_mlp.pt")
 
-    def run(name: str, task_prefix: str, checkpoint_sha: str) -> Path:
+    def run(name: str, task_prefix: str, checkpoint_sha: str, method: str = "e2e-mlp") -> Path:
         folder = tmp_path / name
         folder.mkdir()
-        records = [{"task_id": f"{task_prefix}/000{i}", "method": "e2e-mlp", "success": i == 0, "failure": None,
+        records = [{"task_id": f"{task_prefix}/000{i}", "method": method, "success": i == 0, "failure": None,
                     "category": "on_table", "scene_type": "Desk", "checkpoint": "imit_mlp.pt",
                     "checkpoint_sha256": checkpoint_sha, "policy_stride": 3} for i in range(2)]
         (folder / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
@@ -1003,3 +1005,5 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
         ship.main(["--val-runs", str(run("other-bytes", "val", "0" * 64))])
     with pytest.raises(SystemExit, match="test tasks never choose"):
         ship.main(["--val-runs", str(run("on-test", "test", sha))])
+    with pytest.raises(SystemExit, match="kind 'act'; this script ships mlp"):  # no ACT checkpoint ships
+        ship.main(["--val-runs", str(run("e2e-act-val", "val", sha, method="e2e-act"))])

@@ -891,6 +891,19 @@ def test_act_loss_ignores_actions_past_the_segment_end(sample_data):
     assert not torch.equal(loss(shifted)["l1"], a["l1"])
 
 
+def test_act_default_checkpoint_fits_in_8_mb(tmp_path):
+    """The default ACT (the trainer's defaults) exports an fp16 checkpoint of at most 8 MB, as
+    the shipped ones are, and it loads as an ensembling ImitationPolicy."""
+    from fetchbench_ms.policies.networks import ACTConfig, ACTPolicy
+
+    model = ACTPolicy(ACTConfig())
+    size = agent_mod.save_checkpoint(tmp_path / "act.pt", model, {})
+    print(f"default ACT: {sum(p.numel() for p in model.parameters()) / 1e6:.2f} M parameters, {size / 1e6:.2f} MB fp16")
+    assert size <= 8e6
+    policy = ImitationPolicy.load(tmp_path / "act.pt")
+    assert policy.ensemble is not None and policy.ensemble.m == 0.01 and policy.model.cfg.chunk == 16
+
+
 def test_e2e_act_without_a_checkpoint_says_how_to_train_one(tmp_path, monkeypatch, capsys):
     """No ACT checkpoint ships: ``fetchbench eval --method e2e-act`` stops before any task with
     one line naming the missing file and the trainer's command, no traceback."""

@@ -64,14 +64,17 @@ def stage_one_hot(stage: torch.Tensor) -> torch.Tensor:
 
 
 class StepEncoder(nn.Module):
-    """One step's observation -> an embedding [..., embed_dim] (any leading batch dims)."""
+    """One step's observation -> an embedding [..., embed_dim] (any leading batch dims).
 
-    def __init__(self, cfg: EncoderConfig):
+    ``embedding=False``: only ``parts`` is used (ACT), so the segments' joint projection that
+    ``forward`` needs is not made (no unused weights in the checkpoint)."""
+
+    def __init__(self, cfg: EncoderConfig, embedding: bool = True):
         super().__init__()
         self.cfg = cfg
         self.slices = segment_slices(cfg.sizes)
         self.point_mlp = _mlp((POINT_FEATURES, *cfg.point_dims))
-        self.point_proj = _mlp((3 * cfg.point_dims[-1], cfg.point_out))
+        self.point_proj = _mlp((3 * cfg.point_dims[-1], cfg.point_out)) if embedding else None
         self.proprio_mlp = _mlp((PROPRIO_DIM, *cfg.proprio_dims))
         self.register_buffer("classes", torch.tensor(POINT_CLASSES, dtype=torch.uint8), persistent=False)
 
@@ -376,7 +379,7 @@ class ACTConfig:
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     chunk: int = 16  # actions predicted at once, from the observed frame on
     latent_dim: int = 32  # the CVAE's style variable z
-    d_model: int = 192  # 3.46M parameters in all: a 7.0 MB fp16 checkpoint (<= 8 MB)
+    d_model: int = 192  # 3.26M parameters in all: a 6.6 MB fp16 checkpoint (<= 8 MB)
     layers: int = 2  # of each transformer: the CVAE encoder, the observation encoder, the decoder
     heads: int = 6
     dropout: float = 0.1
@@ -407,7 +410,7 @@ class ACTPolicy(nn.Module):
         super().__init__()
         self.cfg = cfg
         d, enc = cfg.d_model, cfg.encoder
-        self.encoder = StepEncoder(enc)
+        self.encoder = StepEncoder(enc, embedding=False)
         self.segment_token = nn.Linear(enc.point_dims[-1], d)
         self.proprio_token = nn.Linear(enc.proprio_dims[-1], d)
         self.stage_token = nn.Linear(len(POLICY_STAGES), d)

@@ -1,5 +1,6 @@
-"""Imitation baselines: conversion of the shipped demo sample, the three trainers (loss falls,
-resume), checkpoints acting in the env, the re-grasp state machine, the eval methods.
+"""Imitation baselines: conversion of the shipped demo sample, the trainers (loss falls,
+resume), checkpoints acting in the env, the re-grasp state machine, ACT's temporal ensemble,
+the eval methods.
 
 The sample is regenerated with the train suite: nothing here depends on its trajectories or
 their number (the first 2 demos' first steps are converted, whatever they are)."""

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The imitation baselines from nothing on one GPU node (16 cores): demos -> training files ->
-# the three policies -> validation on the `val` suite. Every stage resumes, so the same command
-# continues after an interruption (the root folder must survive).
+# the four policies (MLP, Transformer, diffusion, ACT) -> validation on the `val` suite. Every
+# stage resumes, so the same command continues after an interruption (the root folder must survive).
 #
 #   bash scripts/imitation_pipeline.sh ROOT [DEMOS] [STEPS]
 #     ROOT   work folder (demos, data, runs, eval); DEMOS successful demos (default 5000);
@@ -21,14 +21,15 @@ $PY -m fetchbench_ms.demos.run -e FetchBench-v0 --task-suite train -n "$DEMOS" -
 # 2. compact training files through ManiSkill's replay tool (docs/imitation.md)
 $PY scripts/convert_demos_for_imitation.py --traj-path "$ROOT/demos/FetchBench-v0/motionplanning/train.h5" \
     --out "$ROOT/data" --count "$DEMOS" --chunk 128 --num-envs 16 --device cuda
-# 3. the three policies at once on the one GPU (small models); each validates on 32 val tasks
-for kind in mlp transformer diffusion; do
+# 3. the four policies at once on the one GPU (small models); each validates on 32 val tasks
+for kind in mlp transformer diffusion act; do
     $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "$STEPS" \
         --eval-workers 5 --export --export-path "$ROOT/export/imit_$kind.pt" > "$ROOT/export/train_$kind.log" 2>&1 &
 done
 wait
 # 4. every method on the first 100 val tasks (never test here)
-for method in e2e-mlp e2e-transformer e2e-diffusion cgn-imit-mlp cgn-imit-transformer cgn-imit-diffusion; do
+for method in e2e-mlp e2e-transformer e2e-diffusion e2e-act cgn-imit-mlp cgn-imit-transformer cgn-imit-diffusion \
+    cgn-imit-act; do
     kind=${method##*-}
     $PY -m fetchbench_ms eval --method "$method" --suite val --tasks 0:100 --workers 16 \
         --policy-checkpoint "$ROOT/export/imit_$kind.pt" --out "$ROOT/eval/$method"

@@ -50,6 +50,9 @@ def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[di
         kind = POLICY_METHODS.get(method)
         if kind is None:
             raise SystemExit(f"{run}: method {method!r} is not an imitation method; valid: {', '.join(POLICY_METHODS)}")
+        if kind not in out:  # (ACT: trained by scripts/imitation_pipeline.sh, not shipped by this script yet)
+            raise SystemExit(f"{run}: method {method!r} runs a policy of kind {kind!r}; this script ships "
+                             f"{', '.join(KINDS)}")
         # Records name the checkpoint's sha256 (since 2026-11-24 evening); older ones only its path.
         used = {r.get("checkpoint_sha256") or Path(r["checkpoint"]).name for r in records}
         if used not in ({exported[kind]}, {f"imit_{kind}.pt"}):

@@ -1,5 +1,6 @@
-"""Imitation baselines: conversion of the shipped demo sample, the three trainers (loss falls,
-resume), checkpoints acting in the env, the re-grasp state machine, the eval methods.
+"""Imitation baselines: conversion of the shipped demo sample, the trainers (loss falls,
+resume), checkpoints acting in the env, the re-grasp state machine, ACT's temporal ensemble,
+the eval methods.
 
 The sample is regenerated with the train suite: nothing here depends on its trajectories or
 their number (the first 2 demos' first steps are converted, whatever they are)."""
@@ -33,7 +34,9 @@ TINY = dict(point_dims=(32, 64), batch_size=16, scene_points=SIZES["scene"], tar
             lr=2e-3, lr_final=2e-3, point_jitter=0.0, ckpt_every=10_000)
 TRAINER_KW = {"mlp": dict(hidden=64), "transformer": dict(d_model=32, layers=1, heads=2, dropout=0.0),
               "diffusion": dict(unet_dims=(16, 32), pred_horizon=8, act_horizon=4, train_diffusion_steps=20,
-                                sample_steps=4)}
+                                sample_steps=4),
+              "act": dict(chunk=8, latent_dim=8, d_model=32, layers=1, heads=2, dropout=0.0)}
+TINY_ACT = dict(chunk=4, latent_dim=8, d_model=32, layers=1, heads=2, dropout=0.0)
 
 
 def _import(path: Path, name: str):
@@ -152,7 +155,7 @@ def _full_loss(module, model, data_dir: Path, args) -> float:
     return float(out["loss"])
 
 
-@pytest.mark.parametrize("kind", ["mlp", "transformer", "diffusion"])
+@pytest.mark.parametrize("kind", ["mlp", "transformer", "diffusion", "act"])
 def test_trainer_loss_falls_and_checkpoint_exports(kind, sample_data, tmp_path):
     module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
     export = tmp_path / f"{kind}.pt"
@@ -611,7 +614,7 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
     from fetchbench_ms.policies import deploy
 
     paths = {}
-    for kind in ("mlp", "diffusion"):
+    for kind in ("mlp", "diffusion", "act"):
         module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
         paths[kind] = tmp_path / f"{kind}.pt"
         module.main(module.Args(data=str(sample_data), run=str(tmp_path / kind), steps=2, export=True,
@@ -620,6 +623,8 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
     assert method.obs_mode == "compact_pointcloud"
     assert resolve_method("cgn-imit-diffusion", policy_checkpoint=str(paths["diffusion"])).obs_mode == "pointcloud"
     assert resolve_method("twostage-mlp", policy_checkpoint=str(paths["mlp"])).obs_mode == "compact_pointcloud"
+    assert resolve_method("e2e-act", policy_checkpoint=str(paths["act"])).obs_mode == "compact_pointcloud"
+    assert resolve_method("cgn-imit-act", policy_checkpoint=str(paths["act"])).obs_mode == "pointcloud"
     with pytest.raises(FileNotFoundError, match="train_transformer.py"):
         resolve_method("e2e-transformer", policy_checkpoint=str(tmp_path / "missing.pt"))
     with pytest.raises(ValueError, match="needs a mlp checkpoint"):
@@ -629,16 +634,18 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
     try:
         env.reset(seed=0)
         u = env.unwrapped
-        policy = deploy.load_policy("e2e-diffusion", str(paths["diffusion"]), device="cpu")
-        policy.reset(episode_seed=0)
         obs = u.get_obs(unflattened=True)
-        for _ in range(2):
-            action = policy.get_action(obs)
-            assert action.shape == (1, 8) and np.isfinite(action).all() and np.abs(action).max() <= 1.0
-            qpos = u.agent.robot.get_qpos()[0].cpu().numpy()
-            target = deploy.env_action(env, action)
-            assert np.allclose(target[0, :7], qpos[:7] + 0.1 * action[0, :7], atol=1e-6)
-            obs, *_ = env.step(target)
+        for method in ("e2e-diffusion", "e2e-act"):  # ACT: a chunk each step, ensembled
+            policy = deploy.load_policy(method, str(paths[deploy.POLICY_METHODS[method]]), device="cpu")
+            policy.reset(episode_seed=0)
+            for _ in range(2):
+                action = policy.get_action(obs)
+                assert action.shape == (1, 8) and np.isfinite(action).all() and np.abs(action).max() <= 1.0
+                qpos = u.agent.robot.get_qpos()[0].cpu().numpy()
+                target = deploy.env_action(env, action)
+                assert np.allclose(target[0, :7], qpos[:7] + 0.1 * action[0, :7], atol=1e-6)
+                obs, *_ = env.step(target)
+        assert policy.model.kind == "act" and len(policy.ensemble.chunks) == 2
         record = deploy.run_e2e(env, 0, "e2e-mlp", str(paths["mlp"]), max_steps=3)
         assert record["policy_steps"] == 3 and isinstance(record["success"], bool)
         assert record["cspace_length"] > 0 and record["checkpoint"] == str(paths["mlp"])
@@ -658,11 +665,13 @@ def test_unknown_phase_and_kind_are_named():
 
 
 # ----------------------------------------------------------------------------- policy stride
-def _tiny_model(kind: str):
-    from fetchbench_ms.policies.networks import (DiffusionConfig, DiffusionPolicy, EncoderConfig, MLPConfig, MLPPolicy,
-                                                 TransformerConfig, TransformerPolicy)
+def _tiny_model(kind: str, **act_config):
+    from fetchbench_ms.policies.networks import (ACTConfig, ACTPolicy, DiffusionConfig, DiffusionPolicy, EncoderConfig,
+                                                 MLPConfig, MLPPolicy, TransformerConfig, TransformerPolicy)
 
     encoder = EncoderConfig(sizes=SIZES, point_dims=(16, 32), point_out=32)
+    if kind == "act":
+        return ACTPolicy(ACTConfig(encoder=encoder, **{**TINY_ACT, **act_config}))
     if kind == "mlp":
         return MLPPolicy(MLPConfig(encoder=encoder, hidden=32))
     if kind == "transformer":
@@ -771,14 +780,18 @@ def test_diffusion_stride_runs_chunks_and_checks_termination_every_k_steps(monke
     assert np.allclose(actions[:, 0], [0.01, 0.011, 0.012, 0.013, 0.03, 0.031, 0.032, 0.033, 0.05], atol=1e-6)
 
 
-def test_diffusion_trained_on_strided_frames_repeats_each_chunk_action(monkeypatch):
-    """A diffusion checkpoint of --frame-stride 3 data: each of its chunk's actions stood for
-    3 control steps in training, so each lasts 3 steps here (a chunk of 4: 12 steps); at
-    policy stride 3 the termination is checked every 3rd step, and no warning is given."""
+@pytest.mark.parametrize("kind", ["diffusion", "act"])
+def test_open_loop_chunk_trained_on_strided_frames_repeats_each_action(kind, monkeypatch):
+    """A diffusion checkpoint (or an ACT one with ``temporal_ensemble=False``) of --frame-stride
+    3 data: each of its chunk's actions stood for 3 control steps in training, so each lasts 3
+    steps here (a chunk of 4: 12 steps); at policy stride 3 the termination is checked every
+    3rd step, and no warning is given."""
     calls = _scripted_network(monkeypatch, chunk=4)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        policy = ImitationPolicy(_tiny_model("diffusion"), meta={"frame_stride": 3}, stride=3)
+        model = _tiny_model("act", temporal_ensemble=False) if kind == "act" else _tiny_model(kind)
+        policy = ImitationPolicy(model, meta={"frame_stride": 3}, stride=3)
+    assert policy.open_loop and policy.ensemble is None
     policy.reset(episode_seed=0)
     asked, actions = _split_steps(policy, [0.04] * 13, np.random.default_rng(0))
     T, F = True, False
@@ -863,6 +876,113 @@ def test_strided_episode_renders_fewer_observations(tmp_path):
         env.close()
 
 
+# ----------------------------------------------------------------------------- ACT
+def test_temporal_ensemble_weights_the_oldest_prediction_most():
+    """ACT's temporal ensembling on hand-made chunks: frame f's action is the mean of every
+    kept chunk's prediction for f, weighted exp(-m i) with i = 0 for the oldest chunk; chunks
+    that ended are dropped; clear() starts again at frame 0 with none."""
+    from fetchbench_ms.policies.agent import TemporalEnsemble
+
+    ensemble = TemporalEnsemble(m=0.5)
+    w = np.exp(-0.5 * np.arange(3))
+    assert np.allclose(ensemble.weights(3), w / w.sum()) and ensemble.weights(3)[0] > ensemble.weights(3)[1]
+    chunks = [np.full((3, 2), value, np.float32) + np.arange(3)[:, None] for value in (0.0, 10.0, 20.0, 30.0)]
+    # chunk k starts at frame k; its prediction for frame f is 10 k + (f - k)
+    assert np.allclose(ensemble.push(chunks[0]), [0.0, 0.0])
+    assert np.allclose(ensemble.push(chunks[1]), (w[0] * 1 + w[1] * 10) / w[:2].sum())
+    assert np.allclose(ensemble.push(chunks[2]), (w[0] * 2 + w[1] * 11 + w[2] * 20) / w.sum())
+    # frame 3: chunk 0 (frames 0-2) has ended; chunks 1, 2, 3 predict 12, 21, 30
+    assert np.allclose(ensemble.push(chunks[3]), (w[0] * 12 + w[1] * 21 + w[2] * 30) / w.sum())
+    assert [start for start, _ in ensemble.chunks] == [1, 2, 3] and ensemble.frame == 4
+    ensemble.clear()
+    assert ensemble.frame == 0 and not ensemble.chunks
+    assert np.allclose(ensemble.push(chunks[3]), [30.0, 30.0])
+    assert np.allclose(TemporalEnsemble(m=0.0).weights(4), 0.25)  # m = 0: the plain mean
+
+
+def test_act_policy_ensembles_its_chunks_and_clears_them_at_a_phase_change(monkeypatch):
+    """An ACT policy in deployment: the network at every observed step (stride 2: every 2nd
+    step), the arm action the ensemble's for that frame, held over the stride; the chunks of
+    the approach are forgotten when retrieval starts. A stride other than the data's is
+    warned of, as for the MLP."""
+    calls = _scripted_network(monkeypatch, {1: 0.9}, chunk=4)
+    config = ReGraspConfig(close_steps=2, min_approach_steps=1, settle_steps=1, min_retrieve_steps=50)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        policy = ImitationPolicy(_tiny_model("act", ensemble_m=0.1), meta={"frame_stride": 2}, regrasp=config,
+                                 stride=2)
+    policy.reset(episode_seed=0)
+    # approach x3 (the 2nd call terminates), close x2, retrieve x5
+    asked, actions = _split_steps(policy, [0.04] * 10, np.random.default_rng(0))
+    T, F = True, False
+    assert asked == [T, F, T, F, F, T, F, T, F, T] and len(calls) == 5
+    assert [to for _, _, to in policy.machine.log] == [CLOSE, RETRIEVE]
+    w = np.exp(-0.1 * np.arange(3))
+    # call k's chunk predicts 0.01 (k + 1) + 0.001 j for its j-th frame
+    approach_1 = (w[0] * 0.011 + w[1] * 0.02) / w[:2].sum()  # calls 0 and 1 for frame 1
+    retrieve_1 = (w[0] * 0.031 + w[1] * 0.04) / w[:2].sum()  # calls 2 and 3 only: the approach's are gone
+    retrieve_2 = (w[0] * 0.032 + w[1] * 0.041 + w[2] * 0.05) / w.sum()
+    arm = [0.01, 0.01, approach_1, 0.0, 0.0, 0.03, 0.03, retrieve_1, retrieve_1, retrieve_2]
+    assert np.allclose(actions[:, :7], np.array(arm)[:, None], atol=1e-6), actions[:, 0]
+    with pytest.warns(UserWarning, match="frame-stride 2"):
+        ImitationPolicy(_tiny_model("act"), meta={"frame_stride": 2}, stride=1)
+
+
+def test_act_loss_ignores_actions_past_the_segment_end(sample_data):
+    """ACT's L1 looks at the chunk's steps inside the frame's stage segment only (ACT's
+    is_pad): the trainers' chunk mask says where the segment ends, and any targets past it
+    leave the loss (the CVAE encoder does not attend to them either) unchanged."""
+    common = _import(ROOT / "baselines/imitation/common.py", "common")
+    frames = common.Frames(load_training_files(sample_data, sizes=SIZES), "cpu", common.TrainArgs(device="cpu"))
+    index = frames.train_index
+    chunk, valid = frames.action_chunk(index, 8, with_mask=True)
+    assert torch.equal(chunk, frames.action_chunk(index, 8))  # what the diffusion trainer gets
+    ends = frames.seg_end[index]
+    assert torch.equal(valid, index[:, None] + torch.arange(8) < ends[:, None])
+    assert valid[:, 0].all() and not valid.all()  # some chunks run past their segment's end
+    model = _tiny_model("act", chunk=8).eval()
+    obs = frames.observation(index)
+    noisy = torch.where(valid[..., None], chunk, torch.rand(chunk.shape) * 2 - 1)
+
+    def loss(actions):
+        with torch.no_grad():
+            return model.loss(obs, actions, valid, frames.terminal[index], generator=torch.Generator().manual_seed(0))
+
+    a, b = loss(chunk), loss(noisy)
+    assert torch.equal(a["l1"], b["l1"]) and torch.equal(a["loss"], b["loss"])
+    shifted = chunk + 0.1 * valid[..., None]  # a change inside the segment does count
+    assert not torch.equal(loss(shifted)["l1"], a["l1"])
+
+
+def test_act_default_checkpoint_fits_in_8_mb(tmp_path):
+    """The default ACT (the trainer's defaults) exports an fp16 checkpoint of at most 8 MB, as
+    the shipped ones are, and it loads as an ensembling ImitationPolicy."""
+    from fetchbench_ms.policies.networks import ACTConfig, ACTPolicy
+
+    model = ACTPolicy(ACTConfig())
+    size = agent_mod.save_checkpoint(tmp_path / "act.pt", model, {})
+    print(f"default ACT: {sum(p.numel() for p in model.parameters()) / 1e6:.2f} M parameters, {size / 1e6:.2f} MB fp16")
+    assert size <= 8e6
+    policy = ImitationPolicy.load(tmp_path / "act.pt")
+    assert policy.ensemble is not None and policy.ensemble.m == 0.01 and policy.model.cfg.chunk == 16
+
+
+def test_e2e_act_without_a_checkpoint_says_how_to_train_one(tmp_path, monkeypatch, capsys):
+    """No ACT checkpoint ships: ``fetchbench eval --method e2e-act`` stops before any task with
+    one line naming the missing file and the trainer's command, no traceback."""
+    from fetchbench_ms.cli import main
+    from fetchbench_ms.policies import deploy
+
+    missing = tmp_path / "imit_act.pt"
+    monkeypatch.setattr(deploy, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
+    out = tmp_path / "out"
+    assert main(["eval", "--method", "e2e-act", "--suite", "val", "--tasks", "0:1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert str(missing) in err and "python baselines/imitation/train_act.py --data" in err and "--export" in err
+    assert not (out / "results.jsonl").exists()
+
+
 # ----------------------------------------------------------------------------- shipped checkpoints
 @pytest.fixture(scope="module")
 def sample_frames_full_size(tmp_path_factory) -> Path:
@@ -943,10 +1063,10 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     monkeypatch.setattr(ship, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
     sha = ship.sha256_file(tmp_path / "imit_mlp.pt")
 
-    def run(name: str, task_prefix: str, checkpoint_sha: str) -> Path:
+    def run(name: str, task_prefix: str, checkpoint_sha: str, method: str = "e2e-mlp") -> Path:
         folder = tmp_path / name
         folder.mkdir()
-        records = [{"task_id": f"{task_prefix}/000{i}", "method": "e2e-mlp", "success": i == 0, "failure": None,
+        records = [{"task_id": f"{task_prefix}/000{i}", "method": method, "success": i == 0, "failure": None,
                     "category": "on_table", "scene_type": "Desk", "checkpoint": "imit_mlp.pt",
                     "checkpoint_sha256": checkpoint_sha, "policy_stride": 3} for i in range(2)]
         (folder / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
@@ -961,3 +1081,5 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
         ship.main(["--val-runs", str(run("other-bytes", "val", "0" * 64))])
     with pytest.raises(SystemExit, match="test tasks never choose"):
         ship.main(["--val-runs", str(run("on-test", "test", sha))])
+    with pytest.raises(SystemExit, match="kind 'act'; this script ships mlp"):  # no ACT checkpoint ships
+        ship.main(["--val-runs", str(run("e2e-act-val", "val", sha, method="e2e-act"))])

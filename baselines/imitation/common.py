@@ -1,8 +1,8 @@
-"""What the three imitation trainers share: the frames on the device, batches, the run folder
+"""What the imitation trainers share: the frames on the device, batches, the run folder
 (log, checkpoint, resume, time limit), validation (held-out demos' loss; success on `val`
 suite tasks through `fetchbench eval`) and the export of the shipped checkpoint.
 
-The trainers (``train_mlp.py``, ``train_transformer.py``, ``train_diffusion.py``) hold their
+The trainers (``train_mlp.py``, ``train_transformer.py``, ``train_diffusion.py``, ``train_act.py``) hold their
 arguments, their model and their loss; read one of them first.
 """
 from __future__ import annotations
@@ -26,7 +26,7 @@ from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_traini
 from fetchbench_ms.policies.networks import EncoderConfig
 from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
 
-EVAL_METHOD = {"mlp": "e2e-mlp", "transformer": "e2e-transformer", "diffusion": "e2e-diffusion"}
+EVAL_METHOD = {"mlp": "e2e-mlp", "transformer": "e2e-transformer", "diffusion": "e2e-diffusion", "act": "e2e-act"}
 
 
 @dataclass
@@ -145,11 +145,13 @@ class Frames:
         return {"points": points, "point_label": self.point_label[rows], "qpos": self.qpos[rows],
                 "tcp": self.tcp[rows], "stage": self.stage[rows]}
 
-    def action_chunk(self, index: torch.Tensor, horizon: int) -> torch.Tensor:
-        """[B, horizon, 7]: the actions from each frame on; past its segment's end, zeros (the arm holds)."""
+    def action_chunk(self, index: torch.Tensor, horizon: int, with_mask: bool = False):
+        """[B, horizon, 7]: the actions from each frame on; past its segment's end, zeros (the arm holds).
+        ``with_mask``: also [B, horizon] bool, True where the action is inside the segment."""
         rows = index[:, None] + torch.arange(horizon, device=self.device)
         inside = rows < self.seg_end[index][:, None]
-        return self.action[rows.clamp(max=len(self.action) - 1)] * inside[..., None]
+        chunk = self.action[rows.clamp(max=len(self.action) - 1)] * inside[..., None]
+        return (chunk, inside) if with_mask else chunk
 
 
 def load_frames(args: TrainArgs, log) -> tuple[Frames, str]:

@@ -51,8 +51,9 @@ def add_commands(subparsers) -> None:
                    help="e2e-* / twostage-* / cgn-imit-* methods: the policy checkpoint (default: assets/checkpoints/imit_KIND.pt)")
     p.add_argument("--policy-stride", type=int, default=1, metavar="K",
                    help="e2e-* / twostage-* / cgn-imit-* methods: the policy observes and acts every K control "
-                        "steps, repeating its arm action in between (1: every step, as trained; a diffusion "
-                        "policy runs its action chunks and checks termination every K steps)")
+                        "steps, repeating its arm action in between (1: every step, as trained; an ACT policy "
+                        "ensembles a chunk from each observation; a diffusion policy runs its action chunks and "
+                        "checks termination every K steps)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

@@ -22,7 +22,10 @@ network is told come from ``ReGraspStateMachine`` (the paper's end-to-end deploy
 (``deploy.run_policy``) renders only when ``begin_step`` says so. ``stride`` k: the network
 reads an observation every k-th acting step and its arm action is repeated in between (a
 diffusion policy's chunk actions each last the control steps its training frames stood for,
-the checkpoint's ``frame_stride``; its termination is checked every k-th step).
+the checkpoint's ``frame_stride``; its termination is checked every k-th step). An ACT
+policy reads every k-th step too and ensembles its overlapping chunks (``TemporalEnsemble``),
+or, with its config's ``temporal_ensemble`` off, runs each chunk open-loop as the diffusion
+policy does.
 """
 from __future__ import annotations
 
@@ -117,6 +120,37 @@ def check_stride(stride) -> int:
     return int(stride)
 
 
+class TemporalEnsemble:
+    """ACT's temporal ensembling: every predicted chunk is kept with the frame it started at;
+    a frame's action is the mean of every kept prediction for it, weighted exp(-m i) with i = 0
+    for the oldest (the earliest predictions count most: the action changes smoothly).
+
+    ``push(chunk)`` adds the chunk [T, A] predicted at the current frame and returns that
+    frame's action [A]; the next push is the next frame. ``clear()``: a new phase, frame 0."""
+
+    def __init__(self, m: float = 0.01):
+        self.m = float(m)
+        self.clear()
+
+    def clear(self) -> None:
+        self.frame = 0
+        self.chunks: deque = deque()  # (start frame, chunk [T, A]), oldest first
+
+    def weights(self, n: int) -> np.ndarray:
+        """The normalised weights of ``n`` predictions, oldest first."""
+        w = np.exp(-self.m * np.arange(n))
+        return w / w.sum()
+
+    def push(self, chunk) -> np.ndarray:
+        chunk = np.asarray(chunk, np.float32)
+        self.chunks.append((self.frame, chunk))
+        while self.chunks[0][0] + len(self.chunks[0][1]) <= self.frame:  # chunks ended before this frame
+            self.chunks.popleft()
+        predictions = np.stack([c[self.frame - start] for start, c in self.chunks])
+        self.frame += 1
+        return (self.weights(len(predictions))[:, None] * predictions).sum(0).astype(np.float32)
+
+
 def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: bool = True) -> int:
     """The model's weights (fp16 by default) and config, plus ``meta`` (training command,
     data hash, ...), written atomically; returns the file size."""
@@ -148,23 +182,29 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[to
 class ImitationPolicy:
     """A trained policy with its observation history, action queue and state machine.
 
-    ``stride``: control steps per observation of an MLP / Transformer policy (its arm action
-    is repeated meanwhile), and per termination check of a diffusion one; the checkpoint's
-    ``frame_stride`` (its data's, 1: every step observed) is how it was trained, and another
-    stride is warned of."""
+    ``stride``: control steps per observation of an MLP / Transformer / ensembled ACT policy
+    (its arm action is repeated meanwhile), and per termination check of an open-loop chunk
+    (diffusion, ACT without the ensemble); the checkpoint's ``frame_stride`` (its data's, 1:
+    every step observed) is how it was trained, and another stride is warned of."""
 
     def __init__(self, model: torch.nn.Module, meta: dict | None = None, device: str | torch.device = "cpu",
                  regrasp: ReGraspConfig | None = None, seed: int = 0, stride: int = 1):
         self.stride = check_stride(stride)
         self.model, self.meta, self.device = model.to(device).eval(), meta or {}, torch.device(device)
         trained = int(self.meta.get("frame_stride", 1))
-        # A diffusion policy's chunk is a sequence of training frames, each standing for
-        # `trained` control steps (--frame-stride): each chunk action is repeated that often,
-        # at any policy stride (which only sets how often its termination is checked).
-        self.chunk_repeat = trained if model.kind == "diffusion" else 1
-        # An MLP / Transformer arm action lasts the policy stride, against the `trained` steps
-        # a frame's action stood for (a diffusion policy's always lasts `trained`).
-        if model.kind != "diffusion" and self.stride != trained:
+        ensemble = model.kind == "act" and model.cfg.temporal_ensemble
+        # A diffusion policy's chunk (an ACT one's without the ensemble) runs open-loop.
+        self.open_loop = model.kind == "diffusion" or (model.kind == "act" and not ensemble)
+        # ACT with the ensemble: a chunk at every observation, each frame's action averaged
+        # over the chunks that predicted it (cleared with the history at a phase change).
+        self.ensemble = TemporalEnsemble(model.cfg.ensemble_m) if ensemble else None
+        # An open-loop chunk is a sequence of training frames, each standing for `trained`
+        # control steps (--frame-stride): each chunk action is repeated that often, at any
+        # policy stride (which only sets how often its termination is checked).
+        self.chunk_repeat = trained if self.open_loop else 1
+        # Any other arm action (an ensembled one is a frame's too) lasts the policy stride,
+        # against the `trained` steps a frame's action stood for.
+        if not self.open_loop and self.stride != trained:
             warnings.warn(f"this {model.kind} policy was trained on data of --frame-stride {trained} and its arm "
                           f"actions last {self.stride} control step(s) here (policy stride {self.stride}), against "
                           f"{trained} in training: it acts at another time scale than it learned", stacklevel=2)
@@ -225,12 +265,14 @@ class ImitationPolicy:
             raise RuntimeError("begin_step called twice: act() ends the control step begin_step began")
         q = _numpy(qpos).astype(np.float32).reshape(-1)
         phase = self.machine.begin_step(float(q[7] + q[8]))
-        if phase != self.last_phase:  # a new phase: its own history and action chunk
+        if phase != self.last_phase:  # a new phase: its own history and action chunk(s)
             self.history.clear()
             self.queue.clear()
+            if self.ensemble is not None:
+                self.ensemble.clear()
             self.last_phase = phase
         self.needs_obs = self.machine.acting and (
-            not self.queue or (self.model.kind == "diffusion" and self.since_observed >= self.stride))
+            not self.queue or (self.open_loop and self.since_observed >= self.stride))
         return self.needs_obs
 
     def act(self, obs: dict | None = None) -> np.ndarray:
@@ -251,11 +293,12 @@ class ImitationPolicy:
             t = time.perf_counter()
             if not self.queue:
                 actions, term = self._act(self._batch(step_input, stage))
-                chunk = list(actions[0])
-                if self.model.kind != "diffusion":  # one action, repeated over the stride (action repeat)
-                    chunk = chunk[:1] * self.stride
+                if self.ensemble is not None:  # this frame's ensembled action, repeated over the stride
+                    chunk = [self.ensemble.push(actions[0])] * self.stride
+                elif not self.open_loop:  # one action, repeated over the stride (action repeat)
+                    chunk = [actions[0][0]] * self.stride
                 else:  # each chunk action for the steps its training frame stood for
-                    chunk = [a for a in chunk for _ in range(self.chunk_repeat)]
+                    chunk = [a for a in actions[0] for _ in range(self.chunk_repeat)]
                 self.queue = deque(chunk)
             else:  # an action chunk in progress: only the termination output is fresh
                 _, term = self._act(self._batch(step_input, stage), termination_only=True)
@@ -272,10 +315,9 @@ class ImitationPolicy:
 
     def _act(self, batch: dict, termination_only: bool = False):
         with torch.no_grad():
+            if termination_only:  # an open-loop chunk in progress
+                return None, self.model.termination_prob(batch).cpu().numpy()
             if self.model.kind == "diffusion":
-                if termination_only:
-                    cond = self.model.condition(batch)
-                    return None, torch.sigmoid(self.model.termination(cond)[:, 0]).cpu().numpy()
                 actions, term = self.model.act(batch, generator=self.generator)
             else:
                 actions, term = self.model.act(batch)

@@ -1,15 +1,16 @@
 """The imitation methods of ``fetchbench eval``: end-to-end and hybrid (CGN + planner + policy).
 
-- ``e2e-mlp`` / ``e2e-transformer`` / ``e2e-diffusion``: the policy drives the whole fetch
-  through the re-grasp state machine (``agent.ReGraspStateMachine``), then FetchBench's
-  10 s settle-and-hold judges; ``twostage-*``: the same without re-grasping (the paper's
-  TwoStageImit);
-- ``cgn-imit-mlp`` / ``cgn-imit-transformer`` / ``cgn-imit-diffusion`` (the paper's
+- ``e2e-mlp`` / ``e2e-transformer`` / ``e2e-diffusion`` / ``e2e-act``: the policy drives the
+  whole fetch through the re-grasp state machine (``agent.ReGraspStateMachine``), then
+  FetchBench's 10 s settle-and-hold judges; ``twostage-*``: the same without re-grasping (the
+  paper's TwoStageImit);
+- ``cgn-imit-mlp`` / ``cgn-imit-transformer`` / ``cgn-imit-diffusion`` / ``cgn-imit-act`` (the paper's
   CGN-CuRobo-Imit): the sense-plan-act pipeline (Contact-GraspNet grasps on the observed
   target, the point-cloud world, the planner to the pre-grasp, the straight approach, the
   gripper closing) and then the policy retrieves (``SolveConfig.retrieval``).
 
-Each loads its checkpoint from ``assets/checkpoints/imit_<method>.pt`` (``DEFAULT_CHECKPOINTS``)
+Each loads its checkpoint from ``assets/checkpoints/imit_<kind>.pt`` (``default_checkpoint``; none
+ships for ``act`` yet)
 or from the one given (``fetchbench eval --policy-checkpoint PATH``); its policy observes every
 control step, or every K-th with ``--policy-stride K`` (``ImitationPolicy``). Policies speak
 ``pd_joint_delta_pos``; the evaluation env drives ``pd_joint_pos`` (as the planners do), so a
@@ -29,14 +30,14 @@ from ..utils.paths import assets_root
 from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
 
-E2E_METHODS = {"e2e-mlp": "mlp", "e2e-transformer": "transformer", "e2e-diffusion": "diffusion"}
+POLICY_KINDS = ("mlp", "transformer", "diffusion", "act")
+E2E_METHODS = {f"e2e-{kind}": kind for kind in POLICY_KINDS}
 #: The paper's TwoStageImit: the same policies without re-grasping (approach, then retrieve).
-TWO_STAGE_METHODS = {"twostage-mlp": "mlp", "twostage-transformer": "transformer", "twostage-diffusion": "diffusion"}
-HYBRID_METHODS = {"cgn-imit-mlp": "mlp", "cgn-imit-transformer": "transformer", "cgn-imit-diffusion": "diffusion"}
+TWO_STAGE_METHODS = {f"twostage-{kind}": kind for kind in POLICY_KINDS}
+HYBRID_METHODS = {f"cgn-imit-{kind}": kind for kind in POLICY_KINDS}
 POLICY_METHODS = {**E2E_METHODS, **TWO_STAGE_METHODS, **HYBRID_METHODS}
 #: Trainers per policy kind (named in the error when a checkpoint is missing).
-TRAINERS = {"mlp": "baselines/imitation/train_mlp.py", "transformer": "baselines/imitation/train_transformer.py",
-            "diffusion": "baselines/imitation/train_diffusion.py"}
+TRAINERS = {kind: f"baselines/imitation/train_{kind}.py" for kind in POLICY_KINDS}
 MAX_POLICY_STEPS = 600  # 30 s at 20 Hz: a demo takes ~200, re-grasps take more
 MAX_RETRIEVE_STEPS = 300
 

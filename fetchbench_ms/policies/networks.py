@@ -16,6 +16,9 @@ Heads:
   ``obs_horizon`` steps condition a 1-D convolutional UNet that denoises a chunk of
   ``pred_horizon`` actions (DDPM training, DDIM sampling); a termination MLP on the same
   condition.
+- ``ACTPolicy`` (ACT, Zhao et al. 2023): the step encoder's pieces as tokens (a point segment
+  each, proprioception, stage), a CVAE style latent, a transformer encoder-decoder whose
+  ``chunk`` learned queries give a chunk of actions (L1 loss, masked past the stage's end).
 """
 from __future__ import annotations
 
@@ -61,19 +64,24 @@ def stage_one_hot(stage: torch.Tensor) -> torch.Tensor:
 
 
 class StepEncoder(nn.Module):
-    """One step's observation -> an embedding [..., embed_dim] (any leading batch dims)."""
+    """One step's observation -> an embedding [..., embed_dim] (any leading batch dims).
 
-    def __init__(self, cfg: EncoderConfig):
+    ``embedding=False``: only ``parts`` is used (ACT), so the segments' joint projection that
+    ``forward`` needs is not made (no unused weights in the checkpoint)."""
+
+    def __init__(self, cfg: EncoderConfig, embedding: bool = True):
         super().__init__()
         self.cfg = cfg
         self.slices = segment_slices(cfg.sizes)
         self.point_mlp = _mlp((POINT_FEATURES, *cfg.point_dims))
-        self.point_proj = _mlp((3 * cfg.point_dims[-1], cfg.point_out))
+        self.point_proj = _mlp((3 * cfg.point_dims[-1], cfg.point_out)) if embedding else None
         self.proprio_mlp = _mlp((PROPRIO_DIM, *cfg.proprio_dims))
         self.register_buffer("classes", torch.tensor(POINT_CLASSES, dtype=torch.uint8), persistent=False)
 
-    def forward(self, points, point_label, qpos, tcp, stage) -> torch.Tensor:
-        lead = points.shape[:-2]
+    def parts(self, points, point_label, qpos, tcp) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pieces the embedding is made of, leading dims flattened to N: the per-segment
+        max-pooled point features [N, 3 (scene, target, robot), point_dims[-1]] and the
+        proprioception features [N, proprio_dims[-1]] (ACT makes a token of each)."""
         points = points.reshape(-1, *points.shape[-2:]).float()
         point_label = point_label.reshape(-1, point_label.shape[-1])
         tcp_flat = tcp.reshape(-1, tcp.shape[-1]).float()
@@ -82,9 +90,14 @@ class StepEncoder(nn.Module):
         per_point = self.point_mlp(x)
         # Filler points (an unseen segment: label none) must not win the max.
         per_point = per_point.masked_fill((one_hot.sum(-1) == 0)[..., None], -1e4)
-        pooled = [per_point[:, s].max(dim=1).values.clamp(min=-10.0) for s in self.slices.values()]
-        cloud = self.point_proj(torch.cat(pooled, dim=-1))
+        pooled = torch.stack([per_point[:, s].max(dim=1).values.clamp(min=-10.0) for s in self.slices.values()], dim=1)
         proprio = self.proprio_mlp(torch.cat([qpos.reshape(-1, qpos.shape[-1]).float(), tcp_flat], dim=-1))
+        return pooled, proprio
+
+    def forward(self, points, point_label, qpos, tcp, stage) -> torch.Tensor:
+        lead = points.shape[:-2]
+        pooled, proprio = self.parts(points, point_label, qpos, tcp)
+        cloud = self.point_proj(pooled.flatten(1))  # the segments side by side, as concatenated
         out = torch.cat([cloud, proprio, stage_one_hot(stage.reshape(-1))], dim=-1)
         return out.reshape(*lead, -1)
 
@@ -338,6 +351,10 @@ class DiffusionPolicy(nn.Module):
                                                  pos_weight=torch.tensor(term_pos_weight, device=term.device))
         return {"loss": mse + term_weight * bce, "noise_mse": mse, "termination": bce}
 
+    def termination_prob(self, obs: dict) -> torch.Tensor:
+        """[B]: the termination probability alone (no denoising)."""
+        return torch.sigmoid(self.termination(self.condition(obs))[:, 0])
+
     @torch.no_grad()
     def act(self, obs: dict, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(action chunk [B, act_horizon, 7] in [-1, 1], termination probability [B]): DDIM
@@ -356,8 +373,132 @@ class DiffusionPolicy(nn.Module):
         return x[:, : self.cfg.act_horizon].clamp(-1, 1), torch.sigmoid(self.termination(cond)[:, 0])
 
 
+# ----------------------------------------------------------------------------- ACT
+@dataclass
+class ACTConfig:
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    chunk: int = 16  # actions predicted at once, from the observed frame on
+    latent_dim: int = 32  # the CVAE's style variable z
+    d_model: int = 192  # 3.26M parameters in all: a 6.6 MB fp16 checkpoint (<= 8 MB)
+    layers: int = 2  # of each transformer: the CVAE encoder, the observation encoder, the decoder
+    heads: int = 6
+    dropout: float = 0.1
+    # Deployment (agent.ImitationPolicy): ACT's temporal ensembling, or the chunk open-loop.
+    temporal_ensemble: bool = True
+    ensemble_m: float = 0.01  # weights exp(-m i), i = 0 for the oldest prediction of a frame
+
+
+def _encoder_stack(cfg: ACTConfig, layers: int) -> nn.TransformerEncoder:
+    layer = nn.TransformerEncoderLayer(cfg.d_model, cfg.heads, 4 * cfg.d_model, cfg.dropout, activation="gelu",
+                                       batch_first=True, norm_first=True)
+    return nn.TransformerEncoder(layer, layers, norm=nn.LayerNorm(cfg.d_model), enable_nested_tensor=False)
+
+
+class ACTPolicy(nn.Module):
+    """Action Chunking with Transformers (Zhao et al. 2023) on the shared step encoder.
+
+    Observation tokens: one per point segment (its pooled PointNet feature), one for the
+    proprioception, one for the stage. A CVAE encoder (transformer over [CLS, proprioception,
+    the demo's action chunk]) gives the style latent z in training; at run time z = 0. The
+    encoder reads [z, observation tokens]; the decoder's ``chunk`` learned queries read its
+    output and give the chunk of normalised arm deltas (tanh)."""
+
+    kind = "act"
+    history = 1  # ACT conditions on the current observation only
+
+    def __init__(self, cfg: ACTConfig):
+        super().__init__()
+        self.cfg = cfg
+        d, enc = cfg.d_model, cfg.encoder
+        self.encoder = StepEncoder(enc, embedding=False)
+        self.segment_token = nn.Linear(enc.point_dims[-1], d)
+        self.proprio_token = nn.Linear(enc.proprio_dims[-1], d)
+        self.stage_token = nn.Linear(len(POLICY_STAGES), d)
+        n_obs = len(self.encoder.slices) + 2
+        # CVAE encoder (training only): [CLS, raw proprioception, actions].
+        self.cls = nn.Parameter(torch.zeros(1, 1, d))
+        self.cvae_proprio = nn.Linear(PROPRIO_DIM, d)
+        self.cvae_action = nn.Linear(ARM_DOF, d)
+        self.cvae_position = nn.Parameter(torch.zeros(2 + cfg.chunk, d))
+        self.cvae = _encoder_stack(cfg, cfg.layers)
+        self.latent_stats = nn.Linear(d, 2 * cfg.latent_dim)
+        self.latent_token = nn.Linear(cfg.latent_dim, d)
+        # Observation encoder over [z, observation tokens]; decoder with the chunk's queries.
+        self.position = nn.Parameter(torch.zeros(1 + n_obs, d))
+        self.obs_encoder = _encoder_stack(cfg, cfg.layers)
+        self.queries = nn.Parameter(torch.zeros(cfg.chunk, d))
+        layer = nn.TransformerDecoderLayer(d, cfg.heads, 4 * d, cfg.dropout, activation="gelu", batch_first=True,
+                                           norm_first=True)
+        self.decoder = nn.TransformerDecoder(layer, cfg.layers, norm=nn.LayerNorm(d))
+        self.action_head = nn.Linear(d, ARM_DOF)
+        # The termination reads the observation tokens before the encoder mixes z in: in
+        # training z comes from the demo's own chunk, whose padding tells how near the stage
+        # ends, and at run time z = 0, so a head after the encoder would learn from a cue
+        # that deployment never gives.
+        self.termination = _mlp((n_obs * d, 128, 1), last_activation=False)
+        for p in (self.cls, self.cvae_position, self.position, self.queries):
+            nn.init.normal_(p, std=0.02)
+
+    def observation_tokens(self, obs: dict) -> torch.Tensor:
+        """[B, 5, d]: scene, target, robot, proprioception, stage."""
+        pooled, proprio = self.encoder.parts(obs["points"], obs["point_label"], obs["qpos"], obs["tcp"])
+        return torch.cat([self.segment_token(pooled), self.proprio_token(proprio)[:, None],
+                          self.stage_token(stage_one_hot(obs["stage"].reshape(-1)))[:, None]], dim=1)
+
+    def latent(self, obs: dict, actions, valid) -> tuple[torch.Tensor, torch.Tensor]:
+        """The CVAE posterior's (mean, log-variance) [B, latent_dim] of the chunk ``actions``
+        [B, chunk, 7], ``valid`` [B, chunk] (False past the segment's end: not attended to)."""
+        B = len(actions)
+        proprio = torch.cat([obs["qpos"].float(), obs["tcp"].float()], dim=-1)
+        tokens = torch.cat([self.cls.expand(B, -1, -1), self.cvae_proprio(proprio)[:, None],
+                            self.cvae_action(actions)], dim=1) + self.cvae_position
+        ignore = torch.cat([torch.zeros(B, 2, dtype=torch.bool, device=actions.device), ~valid], dim=1)
+        h = self.cvae(tokens, src_key_padding_mask=ignore)[:, 0]
+        mean, log_var = self.latent_stats(h).chunk(2, dim=-1)
+        return mean, log_var
+
+    def forward(self, obs: dict, z: torch.Tensor | None = None):
+        """obs tensors [B, ...], z [B, latent_dim] (None: 0) -> (actions [B, chunk, 7] in
+        [-1, 1], termination logit [B])."""
+        tokens = self.observation_tokens(obs)
+        if z is None:
+            z = tokens.new_zeros(len(tokens), self.cfg.latent_dim)
+        memory = self.obs_encoder(torch.cat([self.latent_token(z)[:, None], tokens], dim=1) + self.position)
+        h = self.decoder(self.queries.expand(len(tokens), -1, -1), memory)
+        return torch.tanh(self.action_head(h)), self.termination(tokens.flatten(1))[:, 0]
+
+    def loss(self, obs: dict, actions, valid, terminal, kl_weight: float = 10.0, term_weight: float = 1.0,
+             term_pos_weight: float = 1.0, generator: torch.Generator | None = None) -> dict:
+        """``actions`` [B, chunk, 7] from the frame on, ``valid`` [B, chunk]: False past the
+        frame's segment end (ACT's is_pad), where the L1 does not look."""
+        mean, log_var = self.latent(obs, actions, valid)
+        eps = torch.randn(mean.shape, device=mean.device, generator=generator)
+        predicted, term = self(obs, mean + (0.5 * log_var).exp() * eps)
+        l1 = masked_l1(predicted, actions, valid)
+        kl = (-0.5 * (1 + log_var - mean.pow(2) - log_var.exp())).sum(-1).mean()
+        bce = F.binary_cross_entropy_with_logits(term, terminal.float(),
+                                                 pos_weight=torch.tensor(term_pos_weight, device=term.device))
+        return {"loss": l1 + kl_weight * kl + term_weight * bce, "l1": l1, "kl": kl, "termination": bce}
+
+    def termination_prob(self, obs: dict) -> torch.Tensor:
+        """[B]: the termination probability alone (no transformer)."""
+        return torch.sigmoid(self.termination(self.observation_tokens(obs).flatten(1))[:, 0])
+
+    @torch.no_grad()
+    def act(self, obs: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """(action chunk [B, chunk, 7] in [-1, 1], termination probability [B]), z = 0."""
+        actions, term = self(obs)
+        return actions, torch.sigmoid(term)
+
+
+def masked_l1(predicted, target, valid) -> torch.Tensor:
+    """The mean |predicted - target| over the valid steps [B, T] of chunks [B, T, A]."""
+    weight = valid[..., None].float()
+    return ((predicted - target).abs() * weight).sum() / (weight.sum() * target.shape[-1]).clamp(min=1.0)
+
+
 POLICIES = {"mlp": (MLPPolicy, MLPConfig), "transformer": (TransformerPolicy, TransformerConfig),
-            "diffusion": (DiffusionPolicy, DiffusionConfig)}
+            "diffusion": (DiffusionPolicy, DiffusionConfig), "act": (ACTPolicy, ACTConfig)}
 
 
 def config_to_dict(cfg) -> dict:

@@ -30,6 +30,11 @@
 # chunks waste less of the time limit, which the converter never starts a chunk past.
 # WAIT_FOR=PATH (with TRAIN_SECONDS): the trainers start only once PATH exists, so a run's
 # checkpoints can still be arriving (one transfer a call) while the demos convert.
+# KINDS: the trainers to run (default "mlp transformer diffusion"; add act for ACT, whose
+# schedule is STEPS_ACT, default 16000). INIT_FROM=DIR: a trainer without a checkpoint in
+# ROOT/runs/<kind> starts from DIR/imit_<kind>.pt (an earlier hold's export: the trainers'
+# --init-from, weights and step without the optimiser's state; ~15 MB for three against the
+# full checkpoints' 85 MB).
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
@@ -42,7 +47,15 @@ ROUND=${ROUND:-${TRAIN_SECONDS:-300}}
 if [[ -n "${TRAIN_SECONDS:-}" ]]; then NUM_ENVS=${NUM_ENVS:-16}; else NUM_ENVS=${NUM_ENVS:-13}; fi
 overlap=""
 [[ "${OVERLAP_REPLAY:-0}" != 1 ]] || overlap="--overlap-replay"
-declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-16000} [diffusion]=${STEPS_DIFFUSION:-16000})
+declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-16000} [diffusion]=${STEPS_DIFFUSION:-16000}
+                  [act]=${STEPS_ACT:-16000})
+read -r -a kinds <<< "${KINDS:-mlp transformer diffusion}"
+for kind in "${kinds[@]}"; do
+    [[ -n "${STEPS[$kind]:-}" ]] || { echo "KINDS: unknown trainer '$kind'; valid: ${!STEPS[*]}" >&2; exit 2; }
+    if [[ -n "${INIT_FROM:-}" && ! -f "$INIT_FROM/imit_$kind.pt" ]]; then
+        echo "INIT_FROM: no $INIT_FROM/imit_$kind.pt for the $kind trainer" >&2; exit 2
+    fi
+done
 deadline=$(( $(date +%s) + SECONDS_TOTAL ))
 mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
 say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
@@ -76,17 +89,19 @@ while :; do
     round=$((round + 1))
     say "round $round: $(ls "$ROOT"/data/chunk_*.imit.h5 | wc -l) chunks, ${limit} s"
     pids=()
-    for kind in mlp transformer diffusion; do
+    for kind in "${kinds[@]}"; do
+        init=()  # read only while the run folder has no checkpoint (a later round resumes its own)
+        [[ -z "${INIT_FROM:-}" ]] || init=(--init-from "$INIT_FROM/imit_$kind.pt")
         $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "${STEPS[$kind]}" \
             --time-limit "$limit" --new-data --eval-every 0 --export --export-path "$ROOT/export/imit_$kind.pt" \
-            --device "${DEVICE:-cuda}" ${TRAIN_ARGS:-} >> "$ROOT/logs/train_$kind.log" 2>&1 &
+            --device "${DEVICE:-cuda}" "${init[@]}" ${TRAIN_ARGS:-} >> "$ROOT/logs/train_$kind.log" 2>&1 &
         pids+=($!)
     done
     status=0
     for pid in "${pids[@]}"; do wait "$pid" || status=$?; done
     (( status == 0 )) || { say "a trainer failed (exit $status)"; tail -20 "$ROOT"/logs/train_*.log; exit 1; }
     done_all=1
-    for kind in mlp transformer diffusion; do grep -q "done: ${STEPS[$kind]} steps" "$ROOT/logs/train_$kind.log" || done_all=0; done
+    for kind in "${kinds[@]}"; do grep -q "done: ${STEPS[$kind]} steps" "$ROOT/logs/train_$kind.log" || done_all=0; done
     (( done_all == 0 )) || { say "every schedule is finished"; break; }
 done
 [[ -n "${TRAIN_SECONDS:-}" ]] || wait $converter || say "the converter exited with $?"

@@ -174,7 +174,7 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["eval", "--method", "cgn-rrt", "--suite", "smoke"], "valid: ga-mesh-rrt, ga-ptd-rrt, ga-mesh-trajopt, ga-ptd-trajopt, cgn-ptd-rrt, cgn-mesh-rrt, cgn-ptd-trajopt, cgn-mesh-trajopt, cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, e2e-mlp, e2e-transformer, e2e-diffusion, twostage-mlp, twostage-transformer, twostage-diffusion, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, idle"),
+    (["eval", "--method", "cgn-rrt", "--suite", "smoke"], "valid: ga-mesh-rrt, ga-ptd-rrt, ga-mesh-trajopt, ga-ptd-trajopt, cgn-ptd-rrt, cgn-mesh-rrt, cgn-ptd-trajopt, cgn-mesh-trajopt, cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, e2e-mlp, e2e-transformer, e2e-diffusion, e2e-act, twostage-mlp, twostage-transformer, twostage-diffusion, twostage-act, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, cgn-imit-act, idle"),
     (["eval", "--method", "idle", "--suite", "no-such-suite"], "unknown task suite 'no-such-suite'; valid:"),
     (["eval", "--method", "idle", "--suite", "SUITE", "--tasks", "3-9"], "--tasks takes START:END"),
     (["eval", "--method", "idle", "--suite", "SUITE", "--tasks", "2:99"], "need 0 <= START < END <= 4"),

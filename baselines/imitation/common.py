@@ -21,12 +21,13 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from fetchbench_ms.policies.agent import save_checkpoint
+from fetchbench_ms.policies.agent import load_model, save_checkpoint
 from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_training_files
-from fetchbench_ms.policies.networks import EncoderConfig
+from fetchbench_ms.policies.deploy import E2E_METHODS
+from fetchbench_ms.policies.networks import EncoderConfig, config_to_dict
 from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
 
-EVAL_METHOD = {"mlp": "e2e-mlp", "transformer": "e2e-transformer", "diffusion": "e2e-diffusion", "act": "e2e-act"}
+EVAL_METHOD = {kind: method for method, kind in E2E_METHODS.items()}  # the val-success method of each kind
 
 
 @dataclass
@@ -182,9 +183,6 @@ def lr_at(step: int, args: TrainArgs, restart: int = 0) -> float:
 def init_from_export(path: str, model: torch.nn.Module, frames: Frames, dhash: str, args: TrainArgs) -> dict:
     """Load an exported checkpoint's weights into ``model`` (built from ``args``: the export's
     network must be the same) for ``--init-from``; returns the run's starting history."""
-    from fetchbench_ms.policies.agent import load_model
-    from fetchbench_ms.policies.networks import config_to_dict
-
     exported, meta = load_model(path)
     if exported.kind != model.kind:
         raise ValueError(f"--init-from {path} is a {exported.kind} checkpoint, this trainer trains {model.kind}")

@@ -29,8 +29,9 @@ import numpy as np
 from ..utils.paths import assets_root
 from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
+from .networks import POLICIES
 
-POLICY_KINDS = ("mlp", "transformer", "diffusion", "act")
+POLICY_KINDS = tuple(POLICIES)  # mlp, transformer, diffusion, act: the networks the package has
 E2E_METHODS = {f"e2e-{kind}": kind for kind in POLICY_KINDS}
 #: The paper's TwoStageImit: the same policies without re-grasping (approach, then retrieve).
 TWO_STAGE_METHODS = {f"twostage-{kind}": kind for kind in POLICY_KINDS}

@@ -27,7 +27,7 @@ from fetchbench_ms.evaluation.metrics import summarize
 from fetchbench_ms.policies.deploy import POLICY_METHODS, default_checkpoint
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
-KINDS = ("mlp", "transformer", "diffusion")
+KINDS = ("mlp", "transformer", "diffusion", "act")
 
 
 def read_records(run: Path) -> list[dict]:
@@ -43,16 +43,16 @@ def read_records(run: Path) -> list[dict]:
 
 def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[dict]]:
     """Per kind: each val run's method, tasks and success, checked against the exported bytes."""
-    out: dict[str, list[dict]] = {k: [] for k in KINDS}
+    out: dict[str, list[dict]] = {k: [] for k in exported}
     for run in runs:
         records = read_records(run)
         method = records[0]["method"]
         kind = POLICY_METHODS.get(method)
         if kind is None:
             raise SystemExit(f"{run}: method {method!r} is not an imitation method; valid: {', '.join(POLICY_METHODS)}")
-        if kind not in out:  # (ACT: trained by scripts/imitation_pipeline.sh, not shipped by this script yet)
-            raise SystemExit(f"{run}: method {method!r} runs a policy of kind {kind!r}; this script ships "
-                             f"{', '.join(KINDS)}")
+        if kind not in out:
+            raise SystemExit(f"{run}: method {method!r} runs a policy of kind {kind!r}, and no imit_{kind}.pt is "
+                             f"shipped here; these are: {', '.join(out)}")
         # Records name the checkpoint's sha256 (since 2026-11-24 evening); older ones only its path.
         used = {r.get("checkpoint_sha256") or Path(r["checkpoint"]).name for r in records}
         if used not in ({exported[kind]}, {f"imit_{kind}.pt"}):
@@ -71,9 +71,9 @@ def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[di
 
 def add_val_runs(runs: list[Path]) -> int:
     """Add val runs to the shipped checkpoints' JSON, checked against their bytes."""
-    shipped = {k: sha256_file(default_checkpoint(k)) for k in KINDS}
+    shipped = {k: sha256_file(default_checkpoint(k)) for k in KINDS if default_checkpoint(k).is_file()}
     val = val_figures(runs, shipped)
-    for kind in KINDS:
+    for kind in shipped:
         if not val[kind]:
             continue
         path = default_checkpoint(kind).with_suffix(".json")
@@ -93,7 +93,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--hold", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
                                   "to the shipped checkpoints)")
-    p.add_argument("--retrain", help="the one command that retrains the three (into the JSON; with --hold)")
+    p.add_argument("--retrain", help="the one command that retrains them (into the JSON; with --hold)")
+    p.add_argument("--kinds", default="mlp,transformer,diffusion",
+                   help=f"the hold's kinds to ship, comma-separated (default mlp,transformer,diffusion; of {', '.join(KINDS)})")
     p.add_argument("--val-runs", nargs="*", default=[], help="eval folders of val runs with these checkpoints")
     p.add_argument("--note", default="", help="a line on what limits these checkpoints (into the JSON)")
     args = p.parse_args(argv)
@@ -102,12 +104,19 @@ def main(argv=None) -> int:
             p.error("give --hold (ship a hold's checkpoints) or --val-runs (add val runs to the shipped ones)")
         return add_val_runs([Path(r) for r in args.val_runs])
     if not args.retrain:
-        p.error("--hold needs --retrain (the one command that retrains the three)")
+        p.error("--hold needs --retrain (the one command that retrains them)")
+    kinds = [k for k in args.kinds.split(",") if k]
+    bad = sorted(set(kinds) - set(KINDS))
+    if bad or not kinds:
+        p.error(f"--kinds {args.kinds!r}: unknown {', '.join(bad) or '(none given)'}; valid: {', '.join(KINDS)}")
     hold = Path(args.hold)
+    missing = [k for k in kinds if not (hold / "export" / f"imit_{k}.pt").is_file()]
+    if missing:
+        raise SystemExit(f"{hold}: no export/imit_<kind>.pt for {', '.join(missing)} (--kinds {args.kinds})")
     manifest = json.loads((hold / "data" / "manifest.json").read_text())
-    exported = {k: sha256_file(hold / "export" / f"imit_{k}.pt") for k in KINDS}
+    exported = {k: sha256_file(hold / "export" / f"imit_{k}.pt") for k in kinds}
     val = val_figures([Path(r) for r in args.val_runs], exported)
-    for kind in KINDS:
+    for kind in kinds:
         meta = json.loads((hold / "export" / f"imit_{kind}.json").read_text())
         target = default_checkpoint(kind)
         shutil.copyfile(hold / "export" / f"imit_{kind}.pt", target)

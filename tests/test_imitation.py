@@ -969,8 +969,9 @@ def test_act_default_checkpoint_fits_in_8_mb(tmp_path):
 
 
 def test_e2e_act_without_a_checkpoint_says_how_to_train_one(tmp_path, monkeypatch, capsys):
-    """No ACT checkpoint ships: ``fetchbench eval --method e2e-act`` stops before any task with
-    one line naming the missing file and the trainer's command, no traceback."""
+    """Without an ACT checkpoint (the default path made to point at a missing file), ``fetchbench
+    eval --method e2e-act`` stops before any task with one line naming the missing file and the
+    trainer's command, no traceback."""
     from fetchbench_ms.cli import main
     from fetchbench_ms.policies import deploy
 

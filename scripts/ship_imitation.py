@@ -24,10 +24,10 @@ import sys
 from pathlib import Path
 
 from fetchbench_ms.evaluation.metrics import summarize
-from fetchbench_ms.policies.deploy import POLICY_METHODS, default_checkpoint
+from fetchbench_ms.policies.deploy import POLICY_KINDS, POLICY_METHODS, default_checkpoint
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
-KINDS = ("mlp", "transformer", "diffusion", "act")
+KINDS = POLICY_KINDS  # every network the package has
 
 
 def read_records(run: Path) -> list[dict]:

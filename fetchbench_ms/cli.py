@@ -9,6 +9,8 @@ import sys
 
 # Sub-packages that may contribute commands, in the order they appear in --help.
 COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "demos", "evaluation")
+# Further command modules (a package's second set of commands).
+COMMAND_MODULES = ("fetchbench_ms.evaluation.results_cli",)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -22,6 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
             continue
         if importlib.util.find_spec(module_name) is None:
             continue
+        importlib.import_module(module_name).add_commands(subparsers)
+    for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).add_commands(subparsers)
     # The main job (`make demo`); its content changes as the project grows.
     importlib.import_module("fetchbench_ms.demo").add_commands(subparsers)

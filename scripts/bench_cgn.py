@@ -22,9 +22,12 @@ row says ``"numpy"`` (its sampler).
 shake), and measures the coverage of the target's annotated successful grasps
 (``fetchbench_ms.grasping.metrics.grasp_coverage``: those with a prediction of score
 >= ``--coverage-score`` whose TCP is within 2 cm and approach within 30 deg; annotated
-grasps on the unseen side count too). Run on the test suite it reports the grasp quality on test-split objects; such
-figures are reporting only, never used to choose anything (training validates on held-out
-train-split objects: baselines/contact_graspnet/train.py).
+grasps on the unseen side count too). It is how weights and settings are compared, so it
+runs on ``val`` (the default); the test suite (or a suite of its tasks, such as ``smoke``)
+is refused with exit status 2 unless ``--report-only`` says that the figures are a report on
+test-split objects of weights already chosen, never used to choose anything (training
+validates on held-out train-split objects: baselines/contact_graspnet/train.py); the
+summary then records ``"report_only": true``.
 """
 from __future__ import annotations
 
@@ -129,6 +132,11 @@ def cmd_speed(args) -> dict:
 def cmd_quality(args) -> dict:
     import torch
 
+    from fetchbench_ms.tasks.splits import cli_guard, refuse_test
+
+    if not args.report_only:  # comparing weights or settings: never on test tasks
+        cli_guard(refuse_test, args.suite, "grasp-quality comparison (bench_cgn.py quality without --report-only)")
+
     from fetchbench_ms.evaluation.runner import open_suite, parse_range
     from fetchbench_ms.envs import fetch_clouds, make
     from fetchbench_ms.grasping import predict_from_clouds
@@ -179,6 +187,7 @@ def cmd_quality(args) -> dict:
         "coverage_rule": f"annotated successful grasps with a prediction of score >= {args.coverage_score} whose TCP "
                          "is within 2 cm and approach within 30 deg",
         "median_predict_s": round(float(np.median([r["seconds"] for r in judged])), 2) if judged else None,
+        "report_only": bool(args.report_only),
     }
 
 
@@ -209,6 +218,9 @@ def main(argv=None) -> int:
     q.add_argument("--top", type=int, default=10)
     q.add_argument("--coverage-score", type=float, default=0.5,
                    help="predictions at least this confident count for the coverage of the annotated grasps")
+    q.add_argument("--report-only", action="store_true",
+                   help="the figures report weights already chosen and choose nothing: the only way to run the test "
+                        "suite (refused otherwise)")
     q.set_defaults(func=cmd_quality)
     for p in (s, q):  # (save-cloud needs neither)
         p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))

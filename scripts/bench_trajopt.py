@@ -44,14 +44,14 @@ def record_problems(suite: str, tasks: str, world: str, full: bool) -> list[dict
     runner = TaskRunner(method)
     problems, original = [], spa._plan
 
-    def recorder(state, rng, checker, q_start, q_goals, budget, *args):
+    def recorder(state, rng, checker, q_start, q_goals, *args):
         kind = "pre-grasp" if not any(p["task"] == item.task_id for p in problems) else "retrieval/home"
         problems.append(dict(task=item.task_id, kind=kind, checker=checker, q_start=np.array(q_start, float),
                              q_goals=np.array(q_goals, float).reshape(-1, 7),
-                             start_tolerance=state.config.start_tolerance))
+                             start_tolerance=state.config.start_escape_depth))
         if not full:
             raise _Recorded
-        return original(state, rng, checker, q_start, q_goals, budget, *args)
+        return original(state, rng, checker, q_start, q_goals, *args)
 
     spa._plan = recorder
     try:

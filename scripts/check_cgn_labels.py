@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fetchbench_ms.tasks.splits import cli_guard
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -75,6 +77,9 @@ def main() -> None:
     from fetchbench_ms.grasping.predict import load_model
 
     train = load_trainer()
+    args = train.Args()
+    # held-out train-split objects only; a test-split object is refused (exit 2)
+    _, val_ids = cli_guard(train.train_val_objects, args.val_fraction)
     torch.set_num_threads(1)
     if cli.model in ("pretrained", "ours"):
         model = load_model(cli.model)
@@ -82,8 +87,6 @@ def main() -> None:
         model = ContactGraspNet(CGNConfig())
         model.load_state_dict(torch.load(cli.model, map_location="cpu", weights_only=False)["model"])
         model.eval()
-    args = train.Args()
-    _, val_ids = train.train_val_objects(args.val_fraction)
     rng = np.random.default_rng(cli.seed)
     flip = np.diag([-1.0, -1, 1, 1])  # the gripper turned half about its approach: the same grasp
     rows: dict[str, list] = {k: [] for k in ("approach", "baseline", "baseline_mod_sign", "width_diff", "width_ratio",

@@ -7,7 +7,8 @@ farthest-point sampled per segment + joints + TCP + arm action + the source's st
 (``fetchbench_ms.policies.data``) -> ``OUT/chunk_NNNNN.imit.h5``; the replay tool's
 139 KB-a-frame file is deleted. Resumable: finished chunks are skipped, so the same command
 continues after ``--time-limit`` or a kill. ``OUT/manifest.json`` records the source's hash,
-the sizes and every chunk's hash and frames (the trainers record its hash).
+the sizes and every chunk's hash and frames (the trainers record its hash). Demos of test
+tasks or test-split objects are refused (exit 2) before anything is written.
 
 ``--frame-stride K`` (K > 1) keeps every K-th converted step of each stage, its arm action the
 mean over the K steps it stands for (``policies.data.select_frames``), as the original
@@ -45,6 +46,7 @@ from pathlib import Path
 import h5py
 
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
+from fetchbench_ms.tasks.splits import cli_guard, refuse_test_env_kwargs, refuse_test_objects, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
 
@@ -147,6 +149,17 @@ def chunk_record(path: Path) -> dict:
             "bytes": path.stat().st_size}
 
 
+def refuse_test_demos(meta: dict, purpose: str) -> None:
+    """Demos of test tasks or test-split objects never become training data: the generator's
+    env (its task suite, its object split), every episode's task and target object."""
+    env_kwargs = meta.get("env_info", {}).get("env_kwargs", {})
+    episodes = meta.get("episodes", [])
+    cli_guard(refuse_test_env_kwargs, env_kwargs, purpose)
+    cli_guard(refuse_test_task_ids, [e.get("task_id") or e.get("reset_kwargs", {}).get("options", {}).get("task_id")
+                                     for e in episodes], purpose)
+    cli_guard(refuse_test_objects, [e.get("target_object") for e in episodes], purpose)
+
+
 def write_manifest(path: Path, settings: dict, records: dict, n_chunks: int) -> dict:
     chunks = [records[name] for name in sorted(records)]
     frames, nbytes = sum(r["frames"] for r in chunks), sum(r["bytes"] for r in chunks)
@@ -190,6 +203,8 @@ def main(argv=None) -> int:
     source = Path(args.traj_path)
     if not source.is_file() or not source.with_suffix(".json").is_file():
         raise SystemExit(f"no demos at {source} (+ .json); make them with `fetchbench demos run` (docs/demos.md)")
+    meta = json.loads(source.with_suffix(".json").read_text())
+    refuse_test_demos(meta, "demo conversion for imitation")  # before anything is written
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_file = open(out / "convert.log", "a")
@@ -199,7 +214,6 @@ def main(argv=None) -> int:
         log_file.write(message + "\n")
         log_file.flush()
 
-    meta = json.loads(source.with_suffix(".json").read_text())
     if args.start < 0 or args.start % args.chunk or args.start >= len(meta["episodes"]):
         raise SystemExit(f"--start must be a multiple of --chunk ({args.chunk}) below the {len(meta['episodes'])} "
                          f"demos of {source}, got {args.start}")

@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
 # The imitation baselines from nothing on one GPU node (16 cores): demos -> training files ->
-# the four policies (MLP, Transformer, diffusion, ACT) -> validation on the `val` suite. Every
-# stage resumes, so the same command continues after an interruption (the root folder must survive).
+# the four policies (MLP, Transformer, diffusion, ACT), a candidate every STEPS/5 steps -> the
+# checkpoint of each chosen on 100 `val` tasks (scripts/select_checkpoint.py) -> every method on
+# them on `val`. Every stage resumes, so the same command continues after an interruption (the
+# root folder must survive). Test tasks are never used here: they are run once, by `fetchbench
+# eval --suite test`, for the shipped checkpoints.
 #
 #   bash scripts/imitation_pipeline.sh ROOT [DEMOS] [STEPS]
 #     ROOT   work folder (demos, data, runs, eval); DEMOS successful demos (default 5000);
 #     STEPS  training steps per policy (default 30000)
 #
-# Checkpoints end in ROOT/export/imit_<kind>.{pt,json}; copy them to assets/checkpoints/ to ship.
+# Checkpoints end in ROOT/export/imit_<kind>.{pt,json} (the JSON records the val choice); ship them
+# with scripts/ship_imitation.py.
 set -euo pipefail
 ROOT=${1:?usage: imitation_pipeline.sh ROOT [DEMOS] [STEPS]}
 DEMOS=${2:-5000}
@@ -24,9 +28,14 @@ $PY scripts/convert_demos_for_imitation.py --traj-path "$ROOT/demos/FetchBench-v
 # 3. the four policies at once on the one GPU (small models); each validates on 32 val tasks
 for kind in mlp transformer diffusion act; do
     $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "$STEPS" \
-        --eval-workers 5 --export --export-path "$ROOT/export/imit_$kind.pt" > "$ROOT/export/train_$kind.log" 2>&1 &
+        --save-every $(( STEPS / 5 )) --eval-workers 5 > "$ROOT/export/train_$kind.log" 2>&1 &
 done
 wait
+# 3b. each policy's checkpoint: the candidate with the best success on val tasks 0:100
+for kind in mlp transformer diffusion act; do
+    $PY scripts/select_checkpoint.py --candidates "$ROOT/runs/$kind/candidates" --tasks 0:100 --workers 16 \
+        --out "$ROOT/select/e2e-$kind" --export-path "$ROOT/export/imit_$kind.pt"
+done
 # 4. every method on the first 100 val tasks (never test here)
 for method in e2e-mlp e2e-transformer e2e-diffusion e2e-act cgn-imit-mlp cgn-imit-transformer cgn-imit-diffusion \
     cgn-imit-act; do

@@ -34,7 +34,9 @@
 # schedule is STEPS_ACT, default 16000). INIT_FROM=DIR: a trainer without a checkpoint in
 # ROOT/runs/<kind> starts from DIR/imit_<kind>.pt (an earlier hold's export: the trainers'
 # --init-from, weights and step without the optimiser's state; ~15 MB for three against the
-# full checkpoints' 85 MB).
+# full checkpoints' 85 MB). SAVE_EVERY=STEPS: the trainers' --save-every (a candidate export every
+# STEPS steps in ROOT/runs/<kind>/candidates/, chosen from on val tasks afterwards by
+# scripts/select_checkpoint.py; docs/imitation.md "Choosing the checkpoint").
 set -euo pipefail
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
@@ -92,9 +94,11 @@ while :; do
     for kind in "${kinds[@]}"; do
         init=()  # read only while the run folder has no checkpoint (a later round resumes its own)
         [[ -z "${INIT_FROM:-}" ]] || init=(--init-from "$INIT_FROM/imit_$kind.pt")
+        save=()  # candidates for scripts/select_checkpoint.py
+        [[ -z "${SAVE_EVERY:-}" ]] || save=(--save-every "$SAVE_EVERY")
         $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "${STEPS[$kind]}" \
             --time-limit "$limit" --new-data --eval-every 0 --export --export-path "$ROOT/export/imit_$kind.pt" \
-            --device "${DEVICE:-cuda}" "${init[@]}" ${TRAIN_ARGS:-} >> "$ROOT/logs/train_$kind.log" 2>&1 &
+            --device "${DEVICE:-cuda}" "${init[@]}" "${save[@]}" ${TRAIN_ARGS:-} >> "$ROOT/logs/train_$kind.log" 2>&1 &
         pids+=($!)
     done
     status=0

@@ -8,9 +8,11 @@ retrains it, the converted data's manifest and the success on ``val`` tasks) and
         --val-runs build/h4/evals/val-cgn-imit-mlp-0 build/h4/evals/val-e2e-mlp-0 ...
 
 ``--hold`` is the hold's root as it came back: ``export/imit_<kind>.{pt,json}``,
-``logs/train_<kind>.log``, ``data/manifest.json``. A val run is an eval folder
-(``fetchbench eval --suite val``) of one method; the checkpoint its records name must be the
-shipped one (by sha256), else it is refused. Without ``--hold`` the val runs are added to the
+``logs/train_<kind>.log``, ``data/manifest.json``; an export chosen by
+``scripts/select_checkpoint.py`` keeps its ``selection`` record (every candidate's val
+figures). A val run is an eval folder (``fetchbench eval --suite val``) of one method; the
+checkpoint its records name must be the shipped one (by sha256), else it is refused; a run
+of test tasks is refused (exit 2). Without ``--hold`` the val runs are added to the
 checkpoints already shipped (a run of the same method and folder name is replaced):
 
     python scripts/ship_imitation.py --val-runs build/h5/runs/e2e-mlp-val16-k3 ...
@@ -25,6 +27,7 @@ from pathlib import Path
 
 from fetchbench_ms.evaluation.metrics import summarize
 from fetchbench_ms.policies.deploy import POLICY_KINDS, POLICY_METHODS, default_checkpoint
+from fetchbench_ms.tasks.splits import cli_guard, refuse_test_results
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
 KINDS = POLICY_KINDS  # every network the package has
@@ -34,6 +37,7 @@ def read_records(run: Path) -> list[dict]:
     path = run / "results.jsonl"
     if not path.is_file():
         raise SystemExit(f"{run}: no results.jsonl (an eval folder of `fetchbench eval --out`)")
+    cli_guard(refuse_test_results, run, "shipping's val figures")  # a test run: exit 2, nothing written
     records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     others = sorted({r["task_id"] for r in records if not str(r.get("task_id")).startswith("val/")})
     if others:
@@ -130,8 +134,10 @@ def main(argv=None) -> int:
         })
         atomic_write_text(target.with_suffix(".json"), json.dumps(meta, indent=1))
         shutil.copyfile(hold / "logs" / f"train_{kind}.log", target.with_suffix(".log"))
+        chosen = meta.get("selection")  # scripts/select_checkpoint.py's record, kept as it is
         print(f"{target}: step {meta['step']}, {manifest['totals']['demos']} demos, sha256 {exported[kind][:12]}, "
-              f"val {[(v['method'], v['successes'], v['tasks']) for v in val[kind]]}")
+              f"val {[(v['method'], v['successes'], v['tasks']) for v in val[kind]]}"
+              + (f"; chosen on val from {len(chosen['candidates'])} candidates" if chosen else "; no selection record"))
     return 0
 
 

@@ -76,12 +76,13 @@ def test_faults_are_isolated(tiny_suite, tmp_path, monkeypatch):
     assert by_id["tiny/0001"]["error"]["kind"] == "timeout"
     assert by_id["tiny/0002"]["error"]["kind"] == "crash" and "exit code 11" in by_id["tiny/0002"]["error"]["message"]
     assert "error" not in by_id["tiny/0003"] and by_id["tiny/0003"]["failure"] == "not_attempted"
-    for k in faults:
-        assert by_id[k]["success"] is False and by_id[k]["failure"] == "error"
+    for k in faults:  # a task stopped by the time limit is a timeout, the others errors
+        assert by_id[k]["success"] is False
+        assert by_id[k]["failure"] == ("timeout" if faults[k] == "hang" else "error")
         assert by_id[k]["scene_type"] and by_id[k]["category"]  # known from the task, even without a result
     assert len((tmp_path / "results.jsonl").read_text().splitlines()) == 4
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["all"]["errors"] == 3 and summary["all"]["tasks"] == 4
+    assert summary["all"]["errors"] == 3 and summary["all"]["timeouts"] == 1 and summary["all"]["tasks"] == 4
 
 
 def children(pid: int) -> list[int]:

@@ -1085,8 +1085,9 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     assert any(e["method"] == "cgn-imit-mlp" for e in entries)  # the earlier val runs stay
     with pytest.raises(SystemExit, match="not the shipped"):
         ship.main(["--val-runs", str(run("other-bytes", "val", "0" * 64))])
-    with pytest.raises(SystemExit, match="test tasks never choose"):
+    with pytest.raises(SystemExit, match="shipping's val figures refuses the test suite") as refused:
         ship.main(["--val-runs", str(run("on-test", "test", sha))])
+    assert refused.value.code == 2
     with pytest.raises(SystemExit, match="kind 'act', and no imit_act.pt is shipped here"):
         ship.main(["--val-runs", str(run("e2e-act-val", "val", sha, method="e2e-act"))])
 

@@ -138,7 +138,7 @@ def test_ga_mesh_trajopt_runs_a_smoke_task_end_to_end(tmp_path, monkeypatch):
 
     monkeypatch.setenv("FETCHBENCH_TRAJOPT_DEVICE", "cpu")
     assert main(["eval", "--method", "ga-mesh-trajopt", "--suite", "smoke", "--tasks", "0:1",
-                 "--out", str(tmp_path)]) == 0
+                 "--pipeline", "ours", "--out", str(tmp_path)]) == 0
     record = json.loads((tmp_path / "results.jsonl").read_text().splitlines()[0])
     assert not record.get("error"), record["error"]
     assert record["phases"]["pregrasp_plan"] and record["phases"]["retrieval_plan"], record["notes"]

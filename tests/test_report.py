@@ -142,24 +142,3 @@ def test_demo_evaluates_and_reports(tmp_path, capsys):
     assert "ga-mesh-rrt on the 'smoke' suite" in out and "all" in out
     assert len((tmp_path / "results" / "results.jsonl").read_text().splitlines()) == 2
     assert (tmp_path / "report" / "index.html").exists()
-
-
-def test_results_table_script_prints_one_row_per_run(runs, tmp_path, capsys):
-    """scripts/results_table.py: the docs' Markdown table from results directories."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "scripts" / "results_table.py"
-    spec = importlib.util.spec_from_file_location("results_table", path)
-    table = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(table)
-    table.main([str(runs[0]), str(runs[1])])
-    lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 4 and lines[1].count("---") == lines[0].count("|") - 1
-    row_a = [c.strip() for c in lines[2].strip("|").split("|")]
-    assert row_a[0] == "`ga-mesh-rrt`" and row_a[1] == "6"
-    assert row_a[2].startswith("**0.333**") and row_a[3] == "0.333"
-    assert row_a[4] == "1.000 (2)" and row_a[5] == "0.000 (2)"  # on_table, on_shelf
-    assert row_a[8] == "2.00 s" and row_a[9] == "4.00 rad"
-    assert "error 1" in row_a[10]
-    with pytest.raises(SystemExit, match="not a results directory"):
-        table.main([str(tmp_path / "nothing")])

@@ -138,13 +138,17 @@ def holdout(object_id: str, fraction: float) -> bool:
     return int(hashlib.sha256(object_id.encode()).hexdigest()[:8], 16) < fraction * 16**8
 
 
+@functools.lru_cache(maxsize=None)
 def train_val_objects(fraction: float) -> tuple[list[str], list[str]]:
-    """(training, validation) ids: train-split objects with verified grasps, split by ``holdout``."""
+    """(training, validation) ids: train-split objects with verified grasps, split by ``holdout``.
+    A test-split object among them is refused (``tasks.splits.TestSplitRefused``)."""
     from fetchbench_ms.grasps import objects_with_grasps
     from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.tasks.splits import refuse_test_objects
 
     kept = set(objects_with_grasps())
     ids = [i for i in object_ids("train") if i in kept]
+    refuse_test_objects(ids, "Contact-GraspNet training data")
     val = [i for i in ids if holdout(i, fraction)]
     train = [i for i in ids if not holdout(i, fraction)]
     if not train or not val:
@@ -531,6 +535,10 @@ def train_mode(model: torch.nn.Module, freeze_bn: bool) -> None:
 
 
 def main(args: Args) -> dict:
+    from fetchbench_ms.tasks.splits import cli_guard
+
+    # The objects the views are made of: train-split only (before anything is written).
+    cli_guard(train_val_objects, args.val_fraction)
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
     log_file = open(run / "log.txt", "a")

@@ -1,6 +1,8 @@
 """What the imitation trainers share: the frames on the device, batches, the run folder
 (log, checkpoint, resume, time limit), validation (held-out demos' loss; success on `val`
-suite tasks through `fetchbench eval`) and the export of the shipped checkpoint.
+suite tasks through `fetchbench eval`), the export of the shipped checkpoint and of the
+``--save-every`` candidates that ``scripts/select_checkpoint.py`` chooses from on val tasks.
+Training files of test tasks are refused before anything is written (``tasks.splits``).
 
 The trainers (``train_mlp.py``, ``train_transformer.py``, ``train_diffusion.py``, ``train_act.py``) hold their
 arguments, their model and their loss; read one of them first.
@@ -25,9 +27,11 @@ from fetchbench_ms.policies.agent import load_model, save_checkpoint
 from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_training_files
 from fetchbench_ms.policies.deploy import E2E_METHODS
 from fetchbench_ms.policies.networks import EncoderConfig, config_to_dict
+from fetchbench_ms.tasks.splits import cli_guard, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
 
 EVAL_METHOD = {kind: method for method, kind in E2E_METHODS.items()}  # the val-success method of each kind
+EVAL_SUITE = "val"  # success is measured on val tasks, never test
 
 
 @dataclass
@@ -69,6 +73,10 @@ class TrainArgs:
     init_from: str = ""
     log_every: int = 100
     ckpt_every: int = 1000
+    # > 0: every this many steps, and at the end of the schedule, export a candidate checkpoint
+    # (<run>/candidates/step_NNNNNNN.pt + .json, as --export writes): what
+    # scripts/select_checkpoint.py chooses from on val tasks
+    save_every: int = 0
     export: bool = False  # write the shipped checkpoint (--export-path) and its JSON when done
     export_path: str = ""  # default assets/checkpoints/imit_<kind>.pt
     point_dims: tuple[int, ...] = (64, 128, 256)  # the shared PointNet's layer widths
@@ -88,6 +96,25 @@ def data_hash(files: list[str]) -> str:
     the ones in the converter's manifest.json."""
     lines = "".join(f"{Path(f).name} {sha256_file(f)}\n" for f in sorted(files, key=lambda f: Path(f).name))
     return sha256_bytes(lines.encode())
+
+
+def training_task_ids(data: str) -> list:
+    """The task ids of the demos in the training files of ``data`` (read from the files'
+    attributes only: a cheap look before any work)."""
+    import h5py
+
+    path = Path(data)
+    files = sorted(path.glob("*.imit.h5")) if path.is_dir() else [path] if path.is_file() else []
+    ids = []
+    for f in files:
+        with h5py.File(f, "r") as h:
+            ids += [e.get("task_id") for e in json.loads(h.attrs.get("episodes", "[]"))]
+    return ids
+
+
+def candidate_path(run: Path, step: int) -> Path:
+    """Where ``--save-every`` exports the candidate checkpoint of ``step``."""
+    return Path(run) / "candidates" / f"step_{step:07d}.pt"
 
 
 def _is_val_task(task_id: str, fraction: float) -> bool:
@@ -212,6 +239,9 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     """Train ``make_model()`` (built after seeding) with ``batch_loss(model, frames, index,
     generator) -> {"loss": ..., ...}``; returns the model and the last figures. Resumes from
     ``<run>/checkpoint.pt``."""
+    # Demos of test tasks are never learnt from (refused before anything is written; the
+    # success figures below are measured on EVAL_SUITE, val).
+    cli_guard(refuse_test_task_ids, training_task_ids(args.data), f"{kind} imitation training")
     run = Path(args.run or f"runs/imit/{kind}")
     run.mkdir(parents=True, exist_ok=True)
     log_file = open(run / "log.txt", "a")
@@ -299,9 +329,9 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         from fetchbench_ms.evaluation.metrics import summarize
         from fetchbench_ms.evaluation.runner import evaluate
 
-        records = evaluate(EVAL_METHOD[kind], run / "eval" / f"step_{step}", suite="val", tasks=f"0:{args.eval_tasks}",
-                           workers=args.eval_workers, policy_checkpoint=str(ckpt_path), progress=False,
-                           policy_stride=frames.frame_stride)
+        records = evaluate(EVAL_METHOD[kind], run / "eval" / f"step_{step}", suite=EVAL_SUITE,
+                           tasks=f"0:{args.eval_tasks}", workers=args.eval_workers,
+                           policy_checkpoint=str(ckpt_path), progress=False, policy_stride=frames.frame_stride)
         summary = summarize(records)
         return {"step": step, "tasks": len(records), "success_rate": summary["all"]["success_rate"],
                 "errors": summary["all"]["errors"], "policy_stride": frames.frame_stride}
@@ -345,6 +375,9 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
                 log(f"val step {step} " + " ".join(f"{k} {v:.4f}" for k, v in figures.items()))
         if args.eval_every and args.eval_tasks and step % args.eval_every == 0 and step < args.steps:
             evaluate_now()
+        if args.save_every and (step % args.save_every == 0 or step == args.steps):
+            export(model, kind, args, command, dhash, frames.frame_stride, step, history, last, log,
+                   path=candidate_path(run, step))
         if step % args.ckpt_every == 0:
             save()
         if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < args.steps:
@@ -366,12 +399,13 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
 
 def export(model, kind: str, args: TrainArgs, command: str, dhash: str, frame_stride: int, step: int, history: dict,
-           last: dict, log) -> Path:
-    """``assets/checkpoints/imit_<kind>.pt`` (fp16) and ``.json`` beside it: the command, the
-    data hash and frame stride, the steps and the validation figures."""
+           last: dict, log, path: Optional[Path] = None) -> Path:
+    """``assets/checkpoints/imit_<kind>.pt`` (fp16; or ``--export-path``, or ``path``: a
+    ``--save-every`` candidate) and ``.json`` beside it: the command, the data hash and frame
+    stride, the steps and the validation figures."""
     from fetchbench_ms.policies.deploy import default_checkpoint
 
-    path = Path(args.export_path) if args.export_path else default_checkpoint(kind)
+    path = Path(path or args.export_path or default_checkpoint(kind))
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
             "frame_stride": frame_stride,

@@ -250,8 +250,11 @@ def _worker(args: Args, task_ids: list[str], t_start: float, queue) -> None:
 def main(args: Args, reporting_only: bool = False) -> None:
     """Label the tasks. ``reporting_only``: the test suite is allowed (the benchmark script
     measures the network there; nothing trains on its files, ``train.py`` refuses them)."""
+    from fetchbench_ms.tasks.splits import cli_guard, refuse_test
     from fetchbench_ms.tasks.suite import load_suite
 
+    if not reporting_only:
+        cli_guard(refuse_test, args.suite, "collision-net labelling")  # exit 2, before anything is written
     if args.suite not in ALLOWED_SUITES and not (reporting_only and args.suite == "test"):
         raise SystemExit(f"labels come from train-split suites only; got {args.suite!r}; valid: {', '.join(ALLOWED_SUITES)}")
     ids = load_suite(args.suite).ids()

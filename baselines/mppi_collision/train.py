@@ -39,6 +39,7 @@ import torch.nn.functional as F
 
 from fetchbench_ms.planning.collision_net import (CLEARANCE_CLIP, TAU, NetConfig, RobotSpheres, SceneCollisionNet,
                                                   checkpoint_path, grid_from_uint8, save_checkpoint)
+from fetchbench_ms.tasks.splits import cli_guard, refuse_test, refuse_test_task_ids
 
 
 @dataclass
@@ -69,6 +70,18 @@ class Args:
 
 
 # -- data ---------------------------------------------------------------------------------
+def refuse_test_labels(folders: list[str]) -> None:
+    """Labels of test-suite tasks are never trained or validated on: each file's suite and
+    task id (``labels.py`` records both), checked before anything is written (exit 2)."""
+    for folder in folders:
+        for f in sorted(Path(folder).glob("*.npz")):
+            if f.name.endswith(".tmp.npz"):
+                continue
+            with np.load(f) as z:
+                cli_guard(refuse_test, str(z["suite"]), "collision-net training")
+                cli_guard(refuse_test_task_ids, [str(z["task_id"])], "collision-net training")
+
+
 class Tasks:
     """All tasks of a labels folder, on the device: grids (uint8), queries and labels."""
 
@@ -84,8 +97,7 @@ class Tasks:
             h.update(f.name.encode())
             for key in ("q", "clearance_mm", "label", "grid"):
                 h.update(np.ascontiguousarray(z[key]).tobytes())
-            if str(z["suite"]) == "test":
-                raise SystemExit(f"{f} holds a test-suite task: never trained or validated on")
+            cli_guard(refuse_test, str(z["suite"]), "collision-net training")  # (checked before the run too)
             grids.append(z["grid"])
             q.append(z["q"])
             mm.append(z["clearance_mm"])
@@ -188,6 +200,7 @@ def evaluate(model: SceneCollisionNet, spheres: RobotSpheres, data: Tasks, n_que
 # -- loop ---------------------------------------------------------------------------------
 def main(args: Args) -> None:
     t_start = time.time()
+    refuse_test_labels([args.data, args.val])
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
     log = open(run / "log.txt", "a")

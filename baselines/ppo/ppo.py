@@ -53,6 +53,7 @@ import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
 from fetchbench_ms.envs import make_vec_env
 from fetchbench_ms.envs.curriculum import prepare as prepare_curriculum
 from fetchbench_ms.envs.wrappers import PointCloudStateObs
+from fetchbench_ms.tasks.splits import cli_guard, refuse_test
 
 
 @dataclass
@@ -355,6 +356,10 @@ def save_checkpoint(path: Path, agent: Agent, optimizer, state: dict, args: Args
 
 
 def main(args: Args) -> dict:
+    # Training tasks and the evaluation that picks the best checkpoint: never test (exit 2,
+    # before anything is written).
+    cli_guard(refuse_test, args.task_suite, "PPO training")
+    cli_guard(refuse_test, args.eval_task_suite, "PPO evaluation")
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()

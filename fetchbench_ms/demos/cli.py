@@ -27,7 +27,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="local", choices=("local", "ray"),
                    help="local processes, or a Ray pool (ray.init from RAY_ADDRESS, else a local cluster)")
     p.add_argument("--save-video", action="store_true", help="an mp4 of each saved trajectory")
-    p.add_argument("--task-suite", default="train", help="task suite to draw tasks from (default train)")
+    p.add_argument("--task-suite", default="train", help="task suite to draw tasks from (default train; the test suite is refused)")
     p.add_argument("--per-task", type=int, default=DEFAULT_PER_TASK,
                    help=f"successful trajectories per task at most, from distinct grasps (default {DEFAULT_PER_TASK})")
     p.add_argument("--max-tries", type=int, default=DEFAULT_MAX_TRIES,

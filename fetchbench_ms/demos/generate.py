@@ -1,7 +1,8 @@
 """Expert demonstrations in ManiSkill's trajectory format (the Fetch dataset).
 
 The tasks are those of a task suite (``train`` by default: filtered tasks of train-split
-objects) that the env id admits (its category or scene type), in the suite's order, which is
+objects; the test suite, or a suite of its tasks or objects, is refused: ``tasks.splits``)
+that the env id admits (its category or scene type), in the suite's order, which is
 stratified, so any prefix is a fair sample. Task ``i`` of that list is episode seed ``i``:
 the env is reset with ``reset(seed=i, options={"task_id": ..., "task_hash": ...})``, which
 the trajectory's JSON records, so ManiSkill's replay tool resets to the same task, and
@@ -38,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..tasks.splits import refuse_test_env_kwargs, refuse_test_task_ids
 from ..utils.io import append_jsonl_atomic, atomic_write_text
 
 PART_PREFIX = "task_"
@@ -196,6 +198,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     then merges them. Returns the merged .h5 path."""
     from tqdm import tqdm
 
+    refuse_test_env_kwargs(job.env_kwargs(), "demonstration generation")  # before anything is written
     if backend not in ("local", "ray"):
         raise ValueError(f"unknown backend {backend!r}; valid: local, ray")
     if num_traj < 1 or num_procs < 1:
@@ -351,6 +354,9 @@ def merge_runs(paths: list, out) -> Path:
             raise ValueError(f"{p} is not a merged generator run (no fetchbench.first_seed in its JSON)")
         runs.append((meta["fetchbench"]["first_seed"], meta["fetchbench"]["tasks"], p, meta))
     runs.sort(key=lambda r: r[0])
+    for _, _, _, meta in runs:  # demonstrations of test tasks are never training data
+        refuse_test_env_kwargs(meta["env_info"].get("env_kwargs", {}), "merging demonstrations")
+        refuse_test_task_ids((e.get("task_id") for e in meta.get("episodes", [])), "merging demonstrations")
     for (seed_a, tasks_a, path_a, meta_a), (seed_b, _, path_b, meta_b) in zip(runs, runs[1:]):
         if seed_a + tasks_a != seed_b:
             raise ValueError(f"{path_a} covers tasks {seed_a} .. {seed_a + tasks_a - 1} and {path_b} starts at "

@@ -5,12 +5,18 @@
 - ``FetchBench-{SceneType}-v0``: scenes of one of the 13 types (e.g. ``FetchBench-LargeShelf-v0``);
   the scene type "Drawer" is ``FetchBench-DrawerScene-v0``, because ``FetchBench-Drawer-v0``
   is the in-drawer category.
+
+Env options toward the original FetchBench, for ablations (``fetchbench_ms.envs.options``):
+``sim_freq`` (120 default, or 60 Hz) and ``camera_placement`` (``"task"`` default, or
+``"paper"``); ``parse_env_options(["sim_freq=60", ...])`` turns ``NAME=VALUE`` strings into
+those kwargs.
 """
 from mani_skill.utils.registration import register_env
 
 from ..scenes import SCENE_TYPES
 from ..tasks.spec import CATEGORY_LABELS
 from .fetchbench import FetchBenchEnv, control_modes, settle_and_hold
+from .options import CAMERA_PLACEMENTS, ENV_OPTIONS, SIM_FREQS, parse_env_options
 from .pointcloud import FetchClouds, fetch_clouds
 from .vector import make_vec_env
 
@@ -44,5 +50,5 @@ def make(env_id: str, **kwargs):
     return gym.make(env_id, **kwargs)
 
 
-__all__ = ["ENV_IDS", "FetchBenchEnv", "FetchClouds", "control_modes", "fetch_clouds", "make", "make_vec_env",
-           "settle_and_hold"]
+__all__ = ["CAMERA_PLACEMENTS", "ENV_IDS", "ENV_OPTIONS", "FetchBenchEnv", "FetchClouds", "SIM_FREQS", "control_modes",
+           "fetch_clouds", "make", "make_vec_env", "parse_env_options", "settle_and_hold"]

@@ -7,7 +7,8 @@ env loads it.
 Rates: physics at 120 Hz with 20 position iterations (ManiSkill's note: >= 20 for stable
 grasps) and control at 20 Hz (6 physics steps per action). The original simulated at
 60 Hz; 120 Hz keeps small objects (2-5 cm) from tunnelling through the fingers and lets
-the PD gripper squeeze without jitter.
+the PD gripper squeeze without jitter. The envs' ``sim_freq=60`` kwarg runs the original's
+rate instead (``envs.options``); the sampler's settle step always runs at ``SIM_FREQ``.
 """
 from __future__ import annotations
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import gc
 import math
@@ -23,13 +24,16 @@ from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from ..scenes import SCENE_TYPES
+from ..tasks.camera_views import paper_camera_pair
 from ..tasks.objects import check_object_source
-from ..tasks.sampler import SamplerConfig, sample_task
-from ..tasks.spec import CATEGORY_LABELS, TaskSpec
+from ..tasks.sampler import SamplerConfig, look_at_quat, sample_task
+from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec
+from ..utils.canonical import canonical_lengths, canonical_quat
 from ..utils.io import canonical_json
 from . import pointcloud
 from .bodies import default_sim_config
 from .curriculum import resolve_curriculum
+from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
 
 #: Success thresholds on the target's centre of mass in the robot-base frame, and on the
@@ -151,6 +155,17 @@ def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
     check_obs_mode(kwargs.get("obs_mode"), kwargs.get("render_backend", "gpu"))
 
 
+def _check_sim_config(sim_freq: Optional[int], sim_config) -> None:
+    """ValueError when ManiSkill's ``sim_config`` sets another physics rate than the
+    ``sim_freq`` kwarg (it would silently win over the kwarg)."""
+    if sim_freq is None or sim_config is None:
+        return
+    given = sim_config.sim_freq if isinstance(sim_config, SimConfig) else dict(sim_config).get("sim_freq")
+    if given is not None and given != sim_freq:
+        raise ValueError(f"sim_config sets sim_freq={given!r} but the sim_freq kwarg is {sim_freq!r}; valid: give "
+                         "the physics rate once, as sim_freq=60 or 120 (or only in sim_config)")
+
+
 def _check_id_fixes(id_fixes: Optional[dict], **given) -> None:
     """ValueError when a kwarg contradicts what the env id fixes (e.g.
     ``gym.make("FetchBench-Shelf-v0", category="Table")``). ``id_fixes``: the kwargs the id
@@ -249,9 +264,12 @@ class FetchBenchEnv(BaseEnv):
       for evaluation on sampled tasks), their support label (weights basket .5,
       shelf .3, drawer .3, table .2), position on the eroded support polygon, stable pose and
       yaw; the target among the placed objects (on the env's category if it has one)
-    - per object: density U(100, 400) kg/m^3, friction U(0.6, 1.2), restitution U(0, 0.1)
+    - per object and task (as the paper lists): density U(100, 400) kg/m^3, friction
+      U(0.6, 1.2) (static = dynamic), restitution U(0, 0.1); furniture friction 0.5
     - robot base position in the scene type's robot region; robot table size x U(0.4, 0.7) m,
       y U(0.6, 1.0) m; two cameras left and right (mirrored), aimed at the supports
+      (``camera_placement``: ``"task"``, the task's pair, chosen by what it sees of the
+      supports; ``"paper"``, the original's heuristic, drawn from the task's content)
     - ``curriculum`` (``fetchbench_ms.envs.curriculum``, for RL): fewer objects, targets on
       chosen supports, the robot closer, the arm starting at a pre-grasp configuration
     - ``reset(options={"task": task_dict})`` replays a given task instead (a task of a suite,
@@ -274,7 +292,8 @@ class FetchBenchEnv(BaseEnv):
     ``fetch_label`` (robot / target / object / furniture, cropped to 0.15-2.5 m depth), see
     ``fetchbench_ms.envs.pointcloud``.
 
-    **Rates:** physics 120 Hz, control 20 Hz (see ``fetchbench_ms.envs.bodies``).
+    **Rates:** physics 120 Hz (``sim_freq=60``: the original's 60 Hz), control 20 Hz
+    (see ``fetchbench_ms.envs.bodies`` and ``fetchbench_ms.envs.options``).
     """
 
     SUPPORTED_ROBOTS = ["panda"]
@@ -298,6 +317,8 @@ class FetchBenchEnv(BaseEnv):
         task_source: Optional[str] = None,
         robot_init_qpos_noise: float = 0.0,
         curriculum=None,
+        sim_freq=None,
+        camera_placement: str = DEFAULT_CAMERA_PLACEMENT,
         num_envs: int = 1,
         reconfiguration_freq: Optional[int] = None,
         id_fixes: Optional[dict] = None,
@@ -319,6 +340,10 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
         if task_source is not None and task_source not in TASK_SOURCES:
             raise ValueError(f"unknown task_source {task_source!r}; valid: {', '.join(TASK_SOURCES)}")
+        self.camera_placement = check_camera_placement(camera_placement)
+        # None: 120 Hz, or the rate ManiSkill's ``sim_config`` sets (it overrides the defaults).
+        self._sim_freq_kwarg = None if sim_freq is None else check_sim_freq(sim_freq)
+        _check_sim_config(self._sim_freq_kwarg, kwargs.get("sim_config"))
         _check_maniskill_kwargs(type(self), kwargs)
         check_num_envs(num_envs, kwargs.get("sim_backend", "auto"))
         # compact_pointcloud: ManiSkill's pointcloud mode underneath, compacted in get_obs.
@@ -352,6 +377,8 @@ class FetchBenchEnv(BaseEnv):
     @property
     def _default_sim_config(self):
         config = default_sim_config()
+        if self._sim_freq_kwarg is not None:  # control stays at 20 Hz: 6 or 3 physics steps an action
+            config.sim_freq = self._sim_freq_kwarg
         # Many contacts per sub-scene (15 objects in furniture): room for them on GPU.
         config.gpu_memory_config = GPUMemoryConfig(
             max_rigid_contact_count=2**22, max_rigid_patch_count=2**20, found_lost_pairs_capacity=2**26
@@ -362,6 +389,13 @@ class FetchBenchEnv(BaseEnv):
     def tasks(self) -> list[TaskSpec]:
         """The task of each sub-scene in the current episode."""
         return list(self._tasks)
+
+    @property
+    def camera_poses(self) -> list[tuple[CameraPose, CameraPose]]:
+        """The (left, right) camera of each sub-scene in the current episode: the task's
+        (``camera_placement="task"``) or the original's heuristic drawn for the task
+        (``"paper"``)."""
+        return list(self._camera_poses)
 
     @property
     def task_ids(self) -> list[Optional[str]]:
@@ -570,7 +604,17 @@ class FetchBenchEnv(BaseEnv):
         # Render meshes only where something can show them: a camera obs mode or a render
         # mode (with state obs and no render_mode, skipping them saves ~0.1 s a new task).
         with_visual = obs_mode_needs_renderer(self._obs_mode) or self.render_mode is not None
-        self.built = build_tasks(self, self._tasks, self._scene_specs, min_slots=self.sampler_config.num_objects,
+        if self.camera_placement == "paper":
+            width, height = self.camera_size
+            self._camera_poses = [paper_camera_poses(t, spec, width / height)
+                                  for t, spec in zip(self._tasks, self._scene_specs)]
+            # Built from copies with those cameras: ``self._tasks`` stay the tasks given.
+            built_tasks = [dataclasses.replace(t, camera_left=left, camera_right=right)
+                           for t, (left, right) in zip(self._tasks, self._camera_poses)]
+        else:
+            self._camera_poses = [(t.camera_left, t.camera_right) for t in self._tasks]
+            built_tasks = self._tasks
+        self.built = build_tasks(self, built_tasks, self._scene_specs, min_slots=self.sampler_config.num_objects,
                                  with_visual=with_visual)
         self.object_slots = self.built.slots
         self.target = self.built.target
@@ -840,6 +884,23 @@ class FetchBenchEnv(BaseEnv):
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """The dense reward over its maximum: in [0, 1]."""
         return self.compute_dense_reward(obs=obs, action=action, info=info) / DENSE_REWARD_MAX
+
+
+#: Mixed into the seed of ``paper_camera_poses``, so its draws are its own.
+PAPER_CAMERA_SALT = 0x70617065  # "pape"
+
+
+def paper_camera_poses(task: TaskSpec, scene, aspect: float = 4.0 / 3.0) -> tuple[CameraPose, CameraPose]:
+    """The (left, right) cameras of the original's heuristic for ``task``
+    (``camera_views.paper_camera_pair``) in the furniture ``scene`` (``task.scene()``),
+    with the task's horizontal FOV. Drawn from a generator seeded by the task's content
+    hash, so the same task always gets the same pair."""
+    fov_x = task.camera_left.fov_x
+    rng = np.random.default_rng([PAPER_CAMERA_SALT, int(task.content_hash()[:16], 16)])
+    pair, _ = paper_camera_pair(rng, scene, fov_x, aspect)
+    left, right = (CameraPose(canonical_lengths(eye), canonical_quat(look_at_quat(eye, target)), fov_x)
+                   for eye, target in pair)
+    return left, right
 
 
 @functools.lru_cache(maxsize=64)

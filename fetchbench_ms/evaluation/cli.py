@@ -14,13 +14,26 @@ def cmd_eval(args) -> int:
         raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
     if args.tasks is not None and args.suite is None:
         raise ValueError("--tasks selects tasks of a --suite")
+    from ..envs import parse_env_options
+    from ..solutions.sense_plan_act import pipeline_improvements, pipeline_label
+    from .methods import has_pipeline
+
+    without = [w.strip() for w in (args.without or "").split(",") if w.strip()]
+    improvements = pipeline_improvements(args.pipeline, without) if has_pipeline(args.method) else ()
+    if not has_pipeline(args.method) and (args.pipeline != "paper" or without):
+        raise ValueError(f"{args.method} runs no sense-plan-act pipeline: --pipeline / --without do not apply")
+    env_options = parse_env_options(args.env_option or [])
     default_out = args.method.replace(":", "_") + (f"-{args.grasp_model}" if args.method.startswith("cgn-") else "")
+    if has_pipeline(args.method):
+        default_out += f"-{pipeline_label(improvements)}"
+    default_out += "".join(f"-{k}={v}" for k, v in sorted(env_options.items()))
     out = args.out or os.path.join("out", "eval", default_out)
     records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
                        retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
-                       policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride)
+                       policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride,
+                       improvements=improvements, env_options=env_options)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -54,6 +67,17 @@ def add_commands(subparsers) -> None:
                         "steps, repeating its arm action in between (1: every step, as trained; an ACT policy "
                         "ensembles a chunk from each observation; a diffusion policy runs its action chunks and "
                         "checks termination every K steps)")
+    from ..solutions.sense_plan_act import IMPROVEMENTS, PIPELINES
+
+    p.add_argument("--pipeline", default="paper", choices=tuple(PIPELINES),
+                   help="sense-plan-act methods and hybrids: 'paper' runs the original's step list (the rows "
+                        "named after the paper's methods); 'ours' adds our improvements "
+                        f"({', '.join(IMPROVEMENTS)}), recorded in run.json and every record")
+    p.add_argument("--without", default=None, metavar="NAME[,NAME]",
+                   help=f"with --pipeline ours: switch these improvements off ({', '.join(IMPROVEMENTS)})")
+    p.add_argument("--env-option", action="append", default=None, metavar="KEY=VALUE",
+                   help="an env option of the ablation, e.g. sim_freq=60 or camera_placement=paper "
+                        "(repeatable; recorded in run.json and every record)")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,
@@ -64,7 +88,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--workers", type=int, default=1, help="worker processes (one core each)")
     p.add_argument("--backend", default="local", help=f"one of: {', '.join(BACKENDS)}")
     p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
-    p.add_argument("--task-timeout", type=float, default=600.0, help="s per task before it is killed (error record)")
+    p.add_argument("--task-timeout", type=float, default=600.0,
+                   help="s per task before it is killed: a safety net only (budgets are counts); such a task "
+                        "is recorded as failure 'timeout'")
     p.add_argument("--retries", type=int, default=1, help="tries per task (FetchBench's --retries 5)")
     p.add_argument("--retry-errors", action="store_true", help="run again the tasks recorded as errors")
     p.add_argument("--videos", action="store_true",

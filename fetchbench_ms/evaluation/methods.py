@@ -66,15 +66,42 @@ class Method:
     run: Callable  # run(env, seed) -> record dict
 
 
+def has_pipeline(name: str) -> bool:
+    """Whether the method runs the sense-plan-act pipeline (whole, or its approach: the hybrids),
+    so ``--pipeline`` and its improvements apply to it."""
+    from ..policies import deploy
+    from ..solutions.sense_plan_act import METHODS
+
+    return name in METHODS or name in deploy.HYBRID_METHODS
+
+
+def pipeline_fields(name: str, improvements=()) -> dict:
+    """``{"pipeline": "paper" | "ours" | "ours-minus-...", "improvements": [...]}`` for a method
+    with the sense-plan-act pipeline; ``{"pipeline": "none"}`` for the others (a run of the
+    count-budgeted evaluation all the same: records without the key predate it)."""
+    from ..solutions.sense_plan_act import IMPROVEMENTS, pipeline_label
+
+    if not has_pipeline(name):
+        return {"pipeline": "none"}
+    return {"pipeline": pipeline_label(improvements), "improvements": [i for i in IMPROVEMENTS if i in improvements]}
+
+
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
-                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1) -> Method:
+                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=()) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
-    ``policy_stride``: their control steps per observation (``ImitationPolicy``)."""
+    ``policy_stride``: their control steps per observation (``ImitationPolicy``);
+    ``improvements``: the sense-plan-act pipeline's (``sense_plan_act.IMPROVEMENTS``; none:
+    the paper's pipeline)."""
     from ..policies import deploy
     from ..policies.agent import check_stride
-    from ..solutions.sense_plan_act import METHODS, needs_pointcloud, solve
+    from ..solutions.sense_plan_act import METHODS, SolveConfig, needs_pointcloud, solve
 
+    improvements = tuple(improvements)
+    config = SolveConfig(improvements=improvements)  # unknown names: a clear error here
+    if improvements and not has_pipeline(name):
+        raise ValueError(f"{name} runs no sense-plan-act pipeline: --pipeline ours applies to "
+                         f"{', '.join(METHODS)} and the cgn-imit-* hybrids")
     if name in METHODS:
         obs_mode = "pointcloud" if needs_pointcloud(name) else "none"
         if METHODS[name]["grasps"] == "cgn":
@@ -87,7 +114,8 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
             load_collision_net()  # no trained scene-collision network: a clear error before any task runs
 
         def run(env, seed):
-            return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model)
+            return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model,
+                         config=config)
 
         return Method(name, obs_mode, run)
     if name in deploy.POLICY_METHODS:
@@ -99,7 +127,8 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
             load_model(grasp_model)
 
             def run(env, seed):
-                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model, policy_stride)
+                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model, policy_stride,
+                                         improvements)
         else:
             def run(env, seed):
                 return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS,
@@ -146,10 +175,12 @@ class RunnerSpec:
     grasp_model: str = "pretrained"  # cgn-* methods: Contact-GraspNet weight set
     policy_checkpoint: Optional[str] = None  # imitation methods: checkpoint (default: the shipped one)
     policy_stride: int = 1  # imitation methods: control steps per observation
+    improvements: tuple = ()  # sense-plan-act pipelines: our improvements that are on (none: the paper's)
+    env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
 
     def make(self) -> "TaskRunner":
         return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
-                          self.policy_stride)
+                          self.policy_stride, self.improvements, dict(self.env_options))
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -160,9 +191,14 @@ class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
-                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1):
-        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride)
+                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
+                 improvements=(), env_options: Optional[dict] = None):
+        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
+                                     improvements)
         self.video_dir = video_dir
+        self.env_options = dict(env_options or {})
+        # Every record of a pipeline method names its variant (error records too).
+        self.pipeline_fields = pipeline_fields(method_name, improvements)
         self.envs: dict = {}
 
     def env(self, env_id: str):
@@ -172,7 +208,7 @@ class TaskRunner:
         if key not in self.envs:
             extra = {"render_mode": "rgb_array"} if self.video_dir else {}
             self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos",
-                                  object_split=SAMPLED_TASK_SPLIT, **extra)
+                                  object_split=SAMPLED_TASK_SPLIT, **self.env_options, **extra)
         return self.envs[key]
 
     def close(self) -> None:
@@ -212,6 +248,10 @@ class TaskRunner:
             record = error_record(item, "exception", f"{type(error).__name__}: {error}", traceback.format_exc())
         record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
                       wall_time=round(time.perf_counter() - t, 2))
+        for key, value in self.pipeline_fields.items():
+            record.setdefault(key, value)
+        if self.env_options:
+            record["env_options"] = self.env_options
         return record
 
 
@@ -230,7 +270,8 @@ def error_record(item: WorkItem, kind: str, message: str, trace: str = "") -> di
         "seed": item.seed,
         "env_id": item.env_id,
         "success": False,
-        "failure": ERROR_FAILURE,
+        # A task stopped by the wall-clock limit is a ``timeout`` (reported apart from errors).
+        "failure": "timeout" if kind == "timeout" else ERROR_FAILURE,
         "error": {"kind": kind, "message": message, "traceback": trace},
     }
 

@@ -3,7 +3,13 @@ the phase funnel, computation time and C-space length.
 
 A task that errored (crash, timeout, exception) counts as a failed task of the method:
 its rate is in every table (column ``errors``) so a broken run cannot look like a good one.
+``timeout`` (failure class) is a task or a plan stopped by a wall-clock safety net (the
+budgets are counts; a timeout says the machine was too slow): counted apart (``timeouts``).
 Medians of computation time and C-space length are over tasks that ran (no error).
+
+The funnel is the paper's (approach plan, approach execution, retrieval plan, final) plus
+the stages between; a stage no record of the group has (an imitation method plans
+nothing) is None, not 0: "not a stage of this method", not "never passed".
 """
 from __future__ import annotations
 
@@ -12,10 +18,11 @@ import statistics
 
 CATEGORIES = ("on_table", "on_shelf", "in_drawer", "in_basket")  # the paper's column order
 # FetchBench's pipeline stages in order; the last is the env's verdict.
-FUNNEL = (("ik_found", "IK"), ("pregrasp_plan", "pre-grasp plan"), ("approach_reached", "approach"),
-          ("grasped", "grasp"), ("retrieval_plan", "retrieval plan"), ("success", "success"))
-FAILURE_ORDER = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision",
-                 "not_attempted", "error")
+FUNNEL = (("ik_found", "IK"), ("pregrasp_plan", "approach plan"), ("approach_reached", "approach execution"),
+          ("grasped", "grasp"), ("retrieval_plan", "retrieval plan"), ("retrieved", "retrieved (policy)"),
+          ("success", "final"))
+FAILURE_ORDER = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "retrieval_failure", "collision",
+                 "timeout", "not_attempted", "error")
 
 
 def _median(values) -> float | None:
@@ -53,13 +60,19 @@ def group_stats(records: list[dict]) -> dict:
         "success_ci95": wilson_interval(successes, n),
         "first_try_success_rate": round(first_try / n, 4) if n else None,
         "errors": n - len(ran),
+        "timeouts": sum(r.get("failure") == "timeout" for r in records),
         "median_computation_time": _median(r.get("computation_time") for r in ran),
         "median_cspace_length": _median(r.get("cspace_length") for r in ran),
         "median_cspace_length_successes": _median(r.get("cspace_length") for r in ran if r["success"]),
-        "funnel": {key: round(sum(bool(_stage(r, key)) for r in records) / n, 4) if n else None
-                   for key, _ in FUNNEL},
+        "funnel": {key: round(sum(bool(_stage(r, key)) for r in records) / n, 4) if n and _has_stage(records, key)
+                   else None for key, _ in FUNNEL},
         "failures": {f: sum(r.get("failure") == f for r in records) for f in failure_classes(records)},
     }
+
+
+def _has_stage(records: list[dict], key: str) -> bool:
+    """Whether the method has this stage: some record that ran carries it."""
+    return key == "success" or any(key in (r.get("phases") or {}) for r in records)
 
 
 def _stage(record: dict, key: str) -> bool:
@@ -85,17 +98,20 @@ def summarize(records: list[dict]) -> dict:
     }
 
 
-def format_table(summary: dict, by: str = "by_category") -> str:
-    """A plain-text table of one grouping plus the overall row."""
+def format_table(summary: dict, by: str = "by_category", timing: bool = True) -> str:
+    """A plain-text table of one grouping plus the overall row. ``timing=False`` leaves out the
+    computation time (the machine's): what is left is the same on every machine."""
     if not summary:
         return "no task ran"
     label = "category" if by == "by_category" else "scene type"
-    header = f"{label:<22}{'tasks':>6}{'success':>9}{'errors':>7}{'med time s':>11}{'med C-len':>10}  failures"
+    time_header = f"{'med time s':>11}" if timing else ""
+    header = f"{label:<22}{'tasks':>6}{'success':>9}{'errors':>7}{time_header}{'med C-len':>10}  failures"
     lines = [header, "-" * len(header)]
     rows = list(summary[by].items()) + [("all", summary["all"])]
     for name, s in rows:
         failures = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"
         t = "-" if s["median_computation_time"] is None else f"{s['median_computation_time']:.2f}"
+        t = f"{t:>11}" if timing else ""
         c = "-" if s["median_cspace_length"] is None else f"{s['median_cspace_length']:.2f}"
-        lines.append(f"{name:<22}{s['tasks']:>6}{s['success_rate']:>9.1%}{s['errors']:>7}{t:>11}{c:>10}  {failures}")
+        lines.append(f"{name:<22}{s['tasks']:>6}{s['success_rate']:>9.1%}{s['errors']:>7}{t}{c:>10}  {failures}")
     return "\n".join(lines)

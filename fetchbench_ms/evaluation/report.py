@@ -1,8 +1,8 @@
 """``fetchbench report DIR [DIR ...]``: one HTML page with PNG plots (matplotlib).
 
 Tables of success by category and by scene type (methods side by side, as the paper's
-tables), failure classes, the phase funnel (IK -> pre-grasp plan -> approach -> grasp ->
-retrieval plan -> success), distributions of computation time and C-space length, and a
+tables), failure classes, the phase funnel (IK -> approach plan -> approach execution -> grasp ->
+retrieval plan or the policy's retrieval -> final; '-' where the method has no such stage), distributions of computation time and C-space length, and a
 gallery of sample failures: the start of the task seen by the env's two cameras
 (rendered from the task) and the episode's video when one was recorded
 (``DIR/videos/<task id>.gif`` or ``.mp4``).
@@ -60,6 +60,11 @@ def _png(fig) -> bytes:
     return buffer.getvalue()
 
 
+def _percent(fraction: float | None) -> str:
+    """A funnel cell: '-' for a stage the method does not have (not 0 %)."""
+    return "-" if fraction is None else f"{100 * fraction:.1f}%"
+
+
 def _grouped_bars(runs, groups: list[str], values, ylabel: str, title: str) -> bytes:
     import matplotlib.pyplot as plt
     import numpy as np
@@ -96,7 +101,7 @@ def plots(runs: list[Run]) -> dict[str, bytes]:
         "success_by_scene_type.png": _grouped_bars(runs, scene_types, lambda r, g: _rate(r, "by_scene_type", g),
                                                    "success rate", "Success by scene type"),
         "funnel.png": _grouped_bars(runs, [name for _, name in FUNNEL],
-                                    lambda r, g: r.summary["all"]["funnel"][dict((n, k) for k, n in FUNNEL)[g]],
+                                    lambda r, g: r.summary["all"]["funnel"][dict((n, k) for k, n in FUNNEL)[g]] or 0.0,
                                     "fraction of tasks", "Phase funnel (reached by)"),
     }
     classes = failure_classes([x for r in runs for x in r.records])
@@ -164,7 +169,7 @@ def tables(runs: list[Run]) -> dict[str, str]:
                              [[esc(r.label)] + [str(r.summary["all"]["failures"].get(c, 0)) for c in classes]
                               for r in runs], "failures")
     out["funnel"] = _table(["method"] + [esc(name) for _, name in FUNNEL],
-                           [[esc(r.label)] + [f"{100 * r.summary['all']['funnel'][k]:.1f}%" for k, _ in FUNNEL]
+                           [[esc(r.label)] + [_percent(r.summary['all']['funnel'][k]) for k, _ in FUNNEL]
                             for r in runs], "funnel")
     return out
 
@@ -248,7 +253,7 @@ def build_report(dirs, out=None, gallery: int = 6, render: bool = True) -> Path:
     parts.append("<h2>Success by target category</h2>" + t["by_category"] + "<img src='success_by_category.png'>")
     parts.append("<h2>Success by scene type</h2>" + t["by_scene_type"] + "<img src='success_by_scene_type.png'>")
     parts.append("<h2>Failure classes</h2>" + t["failures"] + "<img src='failures.png'>")
-    parts.append("<h2>Phase funnel</h2><p>Fraction of tasks that reached each stage (in any try).</p>"
+    parts.append("<h2>Phase funnel</h2><p>Fraction of tasks that reached each stage (in any try); '-': not a stage of that method.</p>"
                  + t["funnel"] + "<img src='funnel.png'>")
     parts.append("<h2>Computation time and C-space length</h2><p>Computation time counts grasp inference, "
                  "IK, world building and planning (not simulation); tasks that errored are left out.</p>"

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Optional
 
 from ..utils.io import sha256_bytes
-from .methods import SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, resolve_method, task_seed
+from .methods import SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, pipeline_fields, resolve_method, task_seed
 from .store import VIDEO_DIR, ResultsStore
 
 BACKENDS = ("local", "ray")
@@ -58,15 +58,19 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
              backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
              retries: int = 1, retry_errors: bool = False, videos: bool = False,
              progress: bool = True, grasp_model: str = "pretrained",
-             policy_checkpoint: Optional[str] = None, policy_stride: int = 1) -> list[dict]:
+             policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
+             env_options: Optional[dict] = None) -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
     selection (old and new), in task order. ``grasp_model``: the weight set of ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint; ``policy_stride``: their control
-    steps per observation."""
+    steps per observation; ``improvements``: the pipeline's (none: the paper's pipeline);
+    ``env_options``: env kwargs of the ablation (``fetchbench_ms.envs.parse_env_options``)."""
     from .metrics import summarize
 
-    # unknown method: fail before anything is written
-    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride)
+    improvements = tuple(improvements)
+    env_options = dict(env_options or {})
+    # unknown method or options: fail before anything is written
+    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:
@@ -87,6 +91,9 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         options["policy_checkpoint"] = str(Path(policy_checkpoint).resolve())
     if policy_stride != 1:  # (stride-1 stores keep their options as they were)
         options["policy_stride"] = policy_stride
+    options.update(pipeline_fields(method, improvements))
+    if env_options:
+        options["env_options"] = env_options
     store.open_run({"method": method, "source": source, "source_sha256": source_sha,
                     "method_options": options, "selection": selection})
     done = {r["task_id"]: r for r in store.records()}
@@ -106,7 +113,8 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         bar.set_postfix(success=f"{successes}/{finished}")
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
-                      str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride)
+                      str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
+                      improvements, tuple(sorted(env_options.items())))
     if todo:
         if backend == "local":
             from .local import run_local

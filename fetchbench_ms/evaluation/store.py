@@ -9,6 +9,7 @@ error instead of a silent mix.
 """
 from __future__ import annotations
 
+import gzip
 import json
 import os
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from pathlib import Path
 from ..utils.io import append_jsonl_atomic, atomic_write_text, canonical_json
 
 RESULTS_FILE = "results.jsonl"
+PACKED_RESULTS_FILE = "results.jsonl.gz"  # a packed run (results/runs/<name>/, read-only)
 MANIFEST_FILE = "run.json"
 SUMMARY_FILE = "summary.json"
 VIDEO_DIR = "videos"  # <task id>.gif of failed tasks, when recorded
@@ -78,12 +80,18 @@ class ResultsStore:
 
     def records(self) -> list[dict]:
         """Every finished task's record (the last line of a task id wins), in file order."""
-        if not self.results_path.exists():
+        path = self.results_path
+        if not path.exists() and (self.root / PACKED_RESULTS_FILE).exists():
+            path = self.root / PACKED_RESULTS_FILE
+            data = gzip.decompress(path.read_bytes())
+        elif not path.exists():
             if not self.manifest_path.exists():
                 self.manifest()  # raises: not a results directory
             return []
+        else:
+            data = path.read_bytes()
         by_id: dict[str, dict] = {}
-        lines = self.results_path.read_bytes().split(b"\n")
+        lines = data.split(b"\n")
         complete = lines[:-1]  # the part after the last newline is an append cut short
         for n, line in enumerate(complete, 1):
             if not line.strip():
@@ -91,7 +99,7 @@ class ResultsStore:
             try:
                 record = json.loads(line)
             except json.JSONDecodeError as error:
-                raise ValueError(f"{self.results_path}:{n} is not a JSON line ({error}); "
+                raise ValueError(f"{path}:{n} is not a JSON line ({error}); "
                                  f"remove that line to resume") from error
             by_id.pop(record["task_id"], None)
             by_id[record["task_id"]] = record

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 import trimesh
 
-from .spheres import fit_balls
+from .spheres import fit_balls, volume_samples
 from .robot import FINGER_OPEN, HAND_LINKS, WORLD_LINKS, PandaModel
 from .world import CollisionWorld
 
@@ -42,7 +42,7 @@ class Attachment:
         for part, share in zip(parts_hand, area / area.sum()):
             n = max(50, int(n_samples * share))
             surface, _ = trimesh.sample.sample_surface(part, n, seed=rng)
-            points += [part.vertices, surface, trimesh.sample.volume_mesh(part, n // 2, seed=rng)]
+            points += [part.vertices, surface, volume_samples(part, n // 2, rng)]
         return cls.from_points(np.concatenate(points), n_spheres, seed)
 
 

@@ -13,13 +13,15 @@ a nearby valid configuration reached by a straight segment that never goes deepe
 the start, then the search from there (``start_tolerance``).
 
 Determinism: the ompl 2.0.1 bindings expose no per-planner seed or sampler hook, so
-RRTConnect's samples come from OMPL's process-wide RNG; everything around it (goal
-order, checks, simplification input) is deterministic. With ``seed``, the planner is
-repeatable: OMPL's seed generator is re-seeded before the planner, its sampler and the
-path simplifier are made (every RNG they create then draws the same seeds; OMPL logs a
-misleading error for a re-seed, silenced here), and the restarts and the end of the search
-count collision checks instead of seconds (``restart_checks``, ``max_checks``), so the
-machine's speed and load change nothing; the time limit stays as a safety net only.
+RRTConnect's samples come from OMPL's process-wide RNG. The planner is made repeatable
+(``seed``, 0 by default): OMPL's seed generator is re-seeded before the planner, its
+sampler and the path simplifier are made (every RNG they create then draws the same seeds;
+OMPL logs a misleading error for a re-seed, silenced here), and the restarts and the end of
+the search count collision checks instead of seconds (``restart_checks``, ``max_checks``:
+status ``budget`` when they run out), so the machine's speed and load change nothing. The
+time limit is a safety net only: a search it stops ends with status ``timeout``, which
+callers report as such. ``seed=None`` gives the old wall-clock search (restarts every
+``restart_after`` seconds until the time limit), for interactive use only.
 """
 from __future__ import annotations
 
@@ -30,7 +32,9 @@ import numpy as np
 
 from .checker import CollisionChecker
 
-STATUSES = ("solved", "direct", "start_invalid", "no_valid_goal", "timeout")
+#: ``budget``: the search used its collision checks without a path; ``timeout``: the wall-clock
+#: safety net stopped it (the machine was too slow or overloaded: not a planning verdict).
+STATUSES = ("solved", "direct", "start_invalid", "no_valid_goal", "budget", "timeout")
 
 
 @dataclass
@@ -97,10 +101,10 @@ def escape_start(checker: CollisionChecker, q_start, tolerance: float, resolutio
     return None
 
 
-def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
+def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 120.0,
                     resolution: float = 0.02, simplify: bool = True, try_direct: bool = True,
                     restart_after: float = 5.0, planner_range: float | None = None,
-                    start_tolerance: float = 0.0, seed: int | None = None, restart_checks: int = 15000,
+                    start_tolerance: float = 0.0, seed: int | None = 0, restart_checks: int = 15000,
                     max_checks: int = 30000) -> PlanResult:
     """Plan from ``q_start`` to any of ``q_goals`` ((7,) or (K, 7)), best goals first.
 
@@ -111,7 +115,9 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
     ``start_tolerance`` > 0: an invalid start up to that deep is escaped first
     (``escape_start``); the path then begins with that move (``start_escaped``).
     ``seed``: a repeatable search (module docstring), restarting every ``restart_checks``
-    collision checks and giving up after ``max_checks`` (about 3,000-6,000 checks a second).
+    collision checks and giving up after ``max_checks`` (about 3,000-6,000 checks a second);
+    ``time_limit`` (s) is then only a safety net. ``seed=None``: restarts every ``restart_after``
+    seconds until ``time_limit`` (not repeatable).
     """
     import ompl.base as ob
     import ompl.geometric as og
@@ -198,7 +204,8 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
             done = (lambda: checker.n_checked >= stop_checks or time.perf_counter() > deadline)
         planner.solve(ob.PlannerTerminationCondition(done))
     if not pdef.hasExactSolution():
-        return result("timeout")
+        out_of_time = seed is None or time.perf_counter() >= deadline
+        return result("timeout" if out_of_time else "budget")
     path_geo = pdef.getSolutionPath()
     if simplify:
         og.PathSimplifier(si).simplifyMax(path_geo)
@@ -206,5 +213,5 @@ def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: flo
     end = path[-1]
     goal_index = int(goal_ids[np.argmin(np.abs(q_goals[goal_ids] - end).max(axis=1))])
     if not path_valid(checker, path, resolution):
-        return result("timeout")  # never expected: the same validator accepted every edge
+        return result("budget")  # never expected: the same validator accepted every edge
     return result("solved", path, goal_index)

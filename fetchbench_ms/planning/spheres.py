@@ -60,13 +60,60 @@ def minimum_enclosing_ball(points: np.ndarray, iterations: int = 300) -> tuple[n
     return center, float(np.linalg.norm(points - center, axis=1).max())
 
 
+# Ray directions for the inside test: the first is trimesh's default; the others are
+# fixed stand-ins for the random direction trimesh draws for ambiguous points.
+_RAY_DIRECTIONS = np.array([[0.4395064455, 0.617598629942, 0.652231566745],
+                            [-0.5773502692, 0.2672612419, 0.7715167498],
+                            [0.8017837257, -0.5345224838, 0.2672612419],
+                            [0.1825741858, 0.3651483717, -0.9128709292]])
+
+
+def contains(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
+    """Which ``points`` lie inside the closed ``mesh``, deterministically.
+
+    ``trimesh.Trimesh.contains`` re-tests points whose two opposite rays disagree (a ray
+    through an edge or vertex) along a direction drawn from OS entropy, so the same call
+    can answer differently from run to run. Here a convex mesh is tested against its face
+    planes (exact), any other by ray parity along fixed directions in turn.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    if mesh.is_convex:
+        normals = mesh.face_normals
+        offsets = np.einsum("ij,ij->i", normals, mesh.triangles[:, 0])
+        return (points @ normals.T <= offsets[None]).all(axis=1)
+    inside = np.zeros(len(points), dtype=bool)
+    todo = np.flatnonzero(trimesh.bounds.contains(mesh.bounds, points))
+    for direction in _RAY_DIRECTIONS:
+        if len(todo) == 0:
+            break
+        d = np.tile(direction / np.linalg.norm(direction), (len(todo), 1))
+        _, index_ray, _ = mesh.ray.intersects_location(np.vstack([points[todo], points[todo]]),
+                                                       np.vstack([d, -d]), multiple_hits=True)
+        hits = np.bincount(index_ray, minlength=2 * len(todo)).reshape(2, -1)
+        odd = hits % 2 == 1
+        agree = odd[0] == odd[1]
+        inside[todo[agree]] = odd[0][agree]
+        # One ray escaping with no hit: outside. Otherwise ambiguous: try the next direction.
+        todo = todo[~agree & ~(hits == 0).any(axis=0)]
+    return inside
+
+
+def volume_samples(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Rejection samples of the solid (at most ``count``): ``trimesh.sample.volume_mesh``
+    (same draws from ``rng``) with a deterministic inside test."""
+    points = rng.random((count, 3)) * mesh.extents + mesh.bounds[0]
+    return points[contains(mesh, points)][:count]
+
+
 def sample_link_points(mesh: trimesh.Trimesh, seed: int, surface_count: int = 8000) -> np.ndarray:
     """Mesh vertices + even surface samples + interior samples (the balls must cover the solid)."""
     rng = np.random.default_rng(seed)
     surface, _ = trimesh.sample.sample_surface(mesh, surface_count, seed=rng)
     parts = [mesh.vertices, surface]
     if mesh.is_watertight:
-        parts.append(trimesh.sample.volume_mesh(mesh, surface_count // 4, seed=rng))
+        parts.append(volume_samples(mesh, surface_count // 4, rng))
     return np.concatenate(parts, axis=0)
 
 

@@ -20,9 +20,14 @@ checked by the exact checker (``CollisionChecker.valid`` densely along every seg
 RRTConnect's paths are), shortcut to few waypoints, and returned as the same
 ``PlanResult`` RRTConnect returns; execution time-parametrises it with
 ``timing.time_parametrize`` like any plan. If no seed passes, an optional RRTConnect
-fallback gets the time left (cuRobo falls back to a graph planner). Starts the spheres
-call invalid are escaped first, as ``plan_rrtconnect`` does; a straight segment that is
-free is returned at once ("direct").
+fallback searches with the caller's collision-check budget (cuRobo falls back to a graph
+planner). Starts the spheres call invalid are escaped first, as ``plan_rrtconnect`` does; a
+straight segment that is free is returned at once ("direct").
+
+Budgets are counts, so a plan does not depend on the machine's speed or load: the seeds,
+particles and iterations of ``TrajoptConfig`` (the same on every device: CPU and CUDA run the
+same optimisation, up to their floating-point arithmetic) and the fallback's collision
+checks. The time limit is a safety net only: a plan it cuts short has status ``timeout``.
 """
 from __future__ import annotations
 
@@ -47,19 +52,19 @@ def default_device() -> str:
 
 @dataclass
 class TrajoptConfig:
-    """Defaults fit 2 CPU cores (about 0.5-1 s a problem); ``for_device("cuda")`` gives a
-    GPU's larger batch of seeds and particles."""
+    """The optimiser's work, in counts: the same on every device (the benchmark's rows must
+    not depend on whether a GPU was there). About 1-3 s a problem on one CPU core."""
 
-    n_waypoints: int = 16  # including start and goal
-    seeds: int = 4  # per problem: the straight line to each goal, then random via points
+    n_waypoints: int = 24  # including start and goal
+    seeds: int = 16  # per problem: the straight line to each goal, then random via points
     via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
     collision_substeps: int = 3  # collision cost at waypoints and between them
     check_substeps: int = 8  # the spheres' verdict on the result, before the exact check
     mppi_iters: int = 3
-    mppi_particles: int = 4  # per seed
+    mppi_particles: int = 8  # per seed
     mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
     mppi_temperature: float = 0.1
-    opt_iters: int = 40
+    opt_iters: int = 80
     converged: float = 0.005  # stop early when 10 iterations improve the summed cost less than this
     lr: float = 0.04
     eta: float = 0.03  # m: activation distance of the collision cost
@@ -81,10 +86,8 @@ class TrajoptConfig:
 
     @classmethod
     def for_device(cls, device: str | None = None, **overrides) -> "TrajoptConfig":
-        device = device or default_device()
-        if torch.device(device).type == "cuda":
-            overrides = dict(dict(n_waypoints=24, seeds=16, mppi_particles=8, opt_iters=80), **overrides)
-        return cls(device=device, **overrides)
+        """The same counts on ``device`` (default ``default_device()``)."""
+        return cls(device=device or default_device(), **overrides)
 
 
 @dataclass
@@ -187,11 +190,16 @@ def _seeds(problems: list[_Problem], cfg: TrajoptConfig, q_min, q_max) -> tuple[
     return out, goal_of
 
 
+class _OutOfTime(Exception):
+    """The wall-clock safety net stopped the optimisation (its result would depend on the machine)."""
+
+
 def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadline: float
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Seeds -> MPPI -> Adam for all problems at once. Returns trajectories (P, S, T, 7),
     their goal indices (P, S), total costs and smallest sphere clearance (P, S): self-
-    collision spheres count only beyond ``self_tolerance``."""
+    collision spheres count only beyond ``self_tolerance``. Raises ``_OutOfTime`` past
+    ``deadline`` (the safety net: a cut-short optimisation is not returned)."""
     device = torch.device(cfg.device or default_device())
     dd = dict(device=device, dtype=cfg.dtype)
     checkers = [pr.checker for pr in problems]
@@ -216,7 +224,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     with torch.no_grad():
         for _ in range(cfg.mppi_iters):
             if time.perf_counter() > deadline:
-                break
+                raise _OutOfTime
             knots = torch.stack([torch.randn((S, N, 4, 7), generator=g, **dd) for g in gens]) * cfg.mppi_noise
             knots[:, :, 0] = 0  # the current mean is a particle
             noise = torch.einsum("tk,psnkj->psntj", basis, knots)
@@ -236,7 +244,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     beta1, beta2, previous = 0.9, 0.999, float("inf")
     for it in range(cfg.opt_iters):
         if time.perf_counter() > deadline:
-            break
+            raise _OutOfTime
         x = interior.detach().requires_grad_(True)
         total, _ = costs(full(x))
         loss = total.sum()
@@ -322,42 +330,51 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
             return
 
 
-def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 10.0, config: TrajoptConfig | None = None,
-                       start_tolerance: float = 0.0) -> list[PlanResult]:
+def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 120.0, config: TrajoptConfig | None = None,
+                       start_tolerance: float = 0.0, seed: int = 0, max_checks: int = 30000) -> list[PlanResult]:
     """Plan every problem ``(checker, q_start, q_goals)`` (goals (K, 7) or (7,), best first)
-    with one batched optimisation; a ``PlanResult`` each, in order. ``time_limit`` is per
-    problem: it bounds the batch's optimisation, and each problem's RRT fallback gets what
-    the optimisation left of it."""
+    with one batched optimisation; a ``PlanResult`` each, in order. A problem no seed solves
+    goes to the RRTConnect fallback (``seed``, at most ``max_checks`` collision checks).
+    ``time_limit`` (s, per batch) is the safety net: past it, the unsolved problems end
+    ``timeout``."""
     cfg = config or TrajoptConfig.for_device()
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     prepared = [_prepare(c, q, g, start_tolerance, cfg.resolution) for c, q, g in problems]
     todo = [pr for pr in prepared if pr.result is None]
+    out_of_time = False
     if todo:
-        out = _optimise(todo, todo[0].checker.robot, cfg, deadline)
-        for p, pr in enumerate(todo):
-            _select(pr, *(a[p] for a in out), cfg)
-    fallback_time = deadline - time.perf_counter()
+        try:
+            out = _optimise(todo, todo[0].checker.robot, cfg, deadline)
+        except _OutOfTime:
+            out_of_time = True
+        else:
+            for p, pr in enumerate(todo):
+                _select(pr, *(a[p] for a in out), cfg)
     for pr in todo:
         if pr.result is not None:
             continue
-        left = fallback_time
-        if cfg.rrt_fallback and left > 0:
-            rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution)
+        left = deadline - time.perf_counter()
+        if cfg.rrt_fallback and not out_of_time and left > 0:
+            rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution, seed=seed,
+                                   max_checks=max_checks)
             path = None if rest.path is None else np.concatenate([pr.prefix, rest.path])
             goal_index = int(pr.goal_ids[rest.goal_index]) if rest.path is not None else -1
             pr.result = PlanResult(rest.status, path, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
                                    goal_index, start_escaped=len(pr.prefix) > 0, planner="trajopt+rrtconnect")
         else:
-            pr.result = PlanResult("timeout", None, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
+            status = "timeout" if out_of_time or left <= 0 else "budget"
+            pr.result = PlanResult(status, None, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
                                    start_escaped=len(pr.prefix) > 0, planner="trajopt")
     return [pr.result for pr in prepared]
 
 
-def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 10.0,
-                 start_tolerance: float = 0.0, config: TrajoptConfig | None = None) -> PlanResult:
+def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 120.0,
+                 start_tolerance: float = 0.0, config: TrajoptConfig | None = None, seed: int = 0,
+                 max_checks: int = 30000) -> PlanResult:
     """One problem; the signature of ``plan_rrtconnect``'s first arguments."""
-    return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance)[0]
+    return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance, seed,
+                              max_checks)[0]
 
 
 def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 10.0,

@@ -157,6 +157,7 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
             regrasp: bool = True, stride: int = 1) -> dict:
     """One end-to-end episode on an env already reset to its task; FetchBench's judge after."""
     from ..envs import settle_and_hold
+    from ..solutions.sense_plan_act import final_failure
 
     policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=regrasp))
     policy.reset(episode_seed=seed)
@@ -168,16 +169,17 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
     held = bool(u.agent.is_grasping(u.target)[0])
     failure = None
     if not success:
-        failure = "collision" if not bool(info["others_undisturbed"][0]) else "grasp_failure"
+        failure = final_failure(None, held_at_end=held, others_undisturbed=bool(info["others_undisturbed"][0]))
     return {
         "method": method,
         "success": success,
         "failure": failure,
         "computation_time": round(did["inference_time"], 4),
         "cspace_length": round(did["cspace_length"], 4),
-        # The funnel's stages (evaluation.metrics.FUNNEL) an end-to-end policy passes through.
+        # The funnel's stages (evaluation.metrics.FUNNEL) an end-to-end policy has: it plans
+        # nothing, so no plan stage; "retrieved": its retrieval ran to its end (termination).
         "phases": {"approach_reached": any(to == "close" for _, _, to in did["phase_log"]),
-                   "grasped": did["grasped"], "retrieval_plan": did["final_phase"] == "done", "held_at_end": held},
+                   "grasped": did["grasped"], "retrieved": did["final_phase"] == "done", "held_at_end": held},
         "regrasps": did["regrasps"],
         "policy_steps": did["steps"],
         "policy_stride": policy.stride,
@@ -212,23 +214,28 @@ def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX
         state.computation_time += did["inference_time"]
         state.notes.append(f"policy retrieval: {did['steps']} steps ({did['observations']} observed), ended "
                            f"{did['final_phase']} ({time.perf_counter() - t:.1f} s)")
+        # The policy plans nothing: its stage is "retrieved" (ran to its termination), and the
+        # planner's "retrieval_plan" is not a phase of this method.
+        state.phases.pop("retrieval_plan", None)
         state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
-        state.phases["retrieval_plan"] = did["final_phase"] == "done"
+        state.phases["retrieved"] = did["final_phase"] == "done"
         return None if state.phases["grasped"] else "grasp_failure"
 
     return retrieve
 
 
 def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retries: int = 1,
-               grasp_model: str = "pretrained", stride: int = 1) -> dict:
-    """CGN + planner approach (``hybrid_approach_method()``), then the policy's retrieval."""
+               grasp_model: str = "pretrained", stride: int = 1, improvements=()) -> dict:
+    """CGN + planner approach (``hybrid_approach_method()``, with the pipeline's
+    ``improvements``), then the policy's retrieval."""
     from ..solutions.sense_plan_act import SolveConfig, solve
 
     policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=False))
     approach = hybrid_approach_method()
     tally = {"steps": 0, "observations": 0}
     record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
-                   config=SolveConfig(retrieval=retrieval_by_policy(policy, seed, tally=tally)))
+                   config=SolveConfig(improvements=tuple(improvements),
+                                      retrieval=retrieval_by_policy(policy, seed, tally=tally)))
     record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint),
                   policy_stride=policy.stride, policy_steps=tally["steps"], observations=tally["observations"])
     return record

@@ -17,8 +17,8 @@ What differs from the evaluation baselines (``sense_plan_act.solve``):
 - the trajectory ends once the target is out and the env's success has held for
   ``confirm_steps`` control steps (ManiSkill's demos end at success), not after FetchBench's
   10 s settle-and-hold: those idle frames teach a policy nothing;
-- repeatable planning (``SolveConfig.repeatable_planning``): the same task and seed give
-  the same trajectory whatever the machine's load;
+- every improvement of our pipeline (``sense_plan_act.IMPROVEMENTS``: retreat, extra
+  lifts, start escape): the expert is ours, not a row of the paper;
 - one try: a failed try has moved the scene, and a demonstration with a failed grasp in it
   is not what imitation should copy. The generator resets and tries the next grasp.
 """
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .sense_plan_act import METHODS, STAGES, EpisodeState, SolveConfig, _attempt
+from .sense_plan_act import IMPROVEMENTS, METHODS, STAGES, EpisodeState, SolveConfig, _attempt
 
 #: The expert's planner set-up: the oracle mesh world and the best planner the project has
 #: (RRTConnect with path shortcutting); any METHODS entry with the mesh world and the
@@ -49,7 +49,7 @@ EXPERT_SPEEDS = dict(speed_scale=0.7, approach_speed_scale=0.2, close_seconds=1.
 
 
 def expert_config(**overrides) -> SolveConfig:
-    return dataclasses.replace(SolveConfig(grasp_order="clearance", repeatable_planning=True, **EXPERT_SPEEDS),
+    return dataclasses.replace(SolveConfig(grasp_order="clearance", improvements=IMPROVEMENTS, **EXPERT_SPEEDS),
                                **overrides)
 
 
@@ -94,7 +94,7 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     if reset:
         env.reset(seed=seed, options=reset_options)
     config = config or expert_config()
-    state = EpisodeState(config, planning_time_left=config.plan_time_total, via_env_step=True)
+    state = EpisodeState(config, checks_left=config.plan_checks_total, via_env_step=True)
     rng = np.random.default_rng(seed if seed is not None else 0)
     failure = _attempt(env, method, state, rng, tried if tried is not None else set())
     if failure is None:

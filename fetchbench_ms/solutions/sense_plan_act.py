@@ -7,6 +7,17 @@ close the gripper -> lift 2 cm -> attach the object to the hand -> RRTConnect to
 free-space pose (-0.2, +-0.25, 0.66) in the base frame -> execute; the env's 10 s
 settle-and-hold judges the episode.
 
+Two pipelines (``SolveConfig.improvements``, ``fetchbench eval --pipeline paper|ours``): ``paper``
+runs exactly the step list above, CGN's top 10 unfiltered; ``ours`` adds ``IMPROVEMENTS``
+(a straight retreat before the retrieval plan, extra lifts, escaping a start the spheres call
+in collision, dropping colliding CGN candidates), each of which can be switched off alone
+(``--without``). Every record names its variant (``pipeline``, ``improvements``).
+
+Budgets are counts (``plan_checks_per_try``, ``plan_checks_total``: collision checks; trajopt's
+iterations; MPPI's replans), every plan seeded from the episode's rng, so a task's outcome
+does not depend on the machine's speed or load. Wall-clock limits are safety nets: a plan one
+stops ends the episode as ``timeout``.
+
 Variants (``METHODS``): ``ga-mesh-rrt`` plans in the oracle mesh world, ``ga-ptd-rrt``
 in the segmented point clouds; both take the annotated grasps and, like the original
 release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-trajopt`` and
@@ -61,7 +72,12 @@ METHODS = {
     "ga-ptd-mppi": dict(world="pointcloud", grasps="oracle", planner="mppi", collision="network"),
     "ga-mesh-mppi": dict(world="mesh", grasps="oracle", planner="mppi", collision="distance"),
 }
-FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "collision")
+#: Why a task failed. ``grasp_failure``: the gripper closed on nothing, or the target slipped out
+#: before or while it was carried; ``retrieval_failure``: the target is held at the end but was
+#: not carried out (the retrieval stopped short); ``timeout``: a wall-clock safety net stopped a
+#: planner (the budgets are counts; a timeout is the machine's, reported, counted as a failure).
+FAILURE_CLASSES = ("no_grasp_candidate", "motion_planning_failure", "grasp_failure", "retrieval_failure",
+                   "collision", "timeout")
 GRIPPER_OPEN, GRIPPER_CLOSED = 1.0, -1.0  # normalised pd_joint_pos gripper action (0.04 m / -0.01 m)
 FREE_SPACE_POSITIONS = ((-0.2, 0.25, 0.66), (-0.2, -0.25, 0.66))
 PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval_plan", "held_at_end")
@@ -71,48 +87,82 @@ STAGES = ("approach", "close", "retrieve")
 GRASP_ORDERS = ("random", "clearance")
 
 
+#: Our additions to the original's step list, each switched on by name in
+#: ``SolveConfig.improvements`` (``--pipeline ours [--without NAME,...]``):
+#: - ``retreat``: after the lift, back the held object out along the reverse approach (the
+#:   first of ``retreat_distances`` whose straight line is free) before planning the retrieval
+#:   (the grasp pose sits millimetres from the furniture, and a planner often fails to leave
+#:   such a pocket within its budget);
+#: - ``extra_lifts``: if the carried object still touches its support after the 2 cm lift
+#:   (its balls bulge past its faces, or it slipped), lift more (the first of ``extra_lifts``
+#:   that frees it);
+#: - ``start_escape``: a plan start the conservative spheres call in collision, up to
+#:   ``start_tolerance`` deep, is escaped first (``planning.rrt.escape_start``, MoveIt's start
+#:   repair), instead of failing the plan as ``start_invalid``;
+#: - ``cgn_filter``: CGN predictions whose open hand collides are dropped before the top
+#:   ``cgn_grasps`` go to IK (the original takes the top 10 by score, unfiltered).
+IMPROVEMENTS = ("retreat", "extra_lifts", "start_escape", "cgn_filter")
+#: ``paper``: the original's step list (pre-grasp, approach, close, lift 2 cm, retrieval plan);
+#: ``ours``: with every improvement.
+PIPELINES = {"paper": (), "ours": IMPROVEMENTS}
+
+
+def pipeline_improvements(pipeline: str = "paper", without=()) -> tuple[str, ...]:
+    """The improvements of a named pipeline, less ``without`` (names of ``IMPROVEMENTS``)."""
+    if pipeline not in PIPELINES:
+        raise ValueError(f"unknown pipeline {pipeline!r}; valid: {', '.join(PIPELINES)}")
+    without = tuple(without)
+    unknown = [w for w in without if w not in IMPROVEMENTS]
+    if unknown:
+        raise ValueError(f"unknown improvement {unknown[0]!r}; valid: {', '.join(IMPROVEMENTS)}")
+    if without and pipeline != "ours":
+        raise ValueError(f"--without switches off improvements of the 'ours' pipeline; '{pipeline}' has none")
+    return tuple(i for i in PIPELINES[pipeline] if i not in without)
+
+
+def pipeline_label(improvements) -> str:
+    """``paper``, ``ours`` or ``ours-minus-retreat+start_escape``: the variant's name in records."""
+    improvements = tuple(improvements)
+    for name, on in PIPELINES.items():
+        if set(improvements) == set(on):
+            return name
+    return "ours-minus-" + "+".join(i for i in IMPROVEMENTS if i not in improvements)
+
+
 @dataclass
 class SolveConfig:
     pregrasp_distance: float = 0.04  # m back along the approach axis
     approach_overshoot: float = 1.05  # the approach goes 4 cm x 1.05
     lift_height: float = 0.02  # m, straight up after closing
-    # After the lift, back the held object out along the reverse approach (first of these
-    # distances whose straight line is free) before planning the retrieval. Not in the
-    # original's step list: the grasp pose sits millimetres from the furniture, and
-    # RRTConnect often fails to leave such a pocket within the budget. () = the original.
-    retreat_distances: tuple = (0.10, 0.06, 0.03)
-    # If the carried object still touches its support after the lift: lift this much more
-    # (first that frees it). () = the original.
-    extra_lifts: tuple = (0.02, 0.04, 0.06)
+    # Which of IMPROVEMENTS are on (the parameters below apply only to those that are).
+    improvements: tuple = ()
+    retreat_distances: tuple = (0.10, 0.06, 0.03)  # "retreat"
+    extra_lifts: tuple = (0.02, 0.04, 0.06)  # "extra_lifts"
+    # "start_escape": at rest, or holding an object on its support, the conservative spheres
+    # can overlap the furniture by a few cm while the simulated robot touches nothing.
+    start_tolerance: float = 0.05  # m of sphere overlap
     close_seconds: float = 1.5
     max_grasps: int = 128  # candidates drawn (annotated grasps, or antipodal stand-ins)
     grasp_model: str = "pretrained"  # CGN methods: weight set (fetchbench_ms.grasping.GRASP_MODELS)
-    # CGN methods: the best predictions by score whose open hand is free go to IK (the
-    # original's top 10; its predictions come without a collision check, and the best
-    # ones often sit a few mm into the support in the conservative sphere model).
-    cgn_grasps: int = 10
-    ik_grasps: int = 24  # candidates whose open hand is collision-free go to IK, at most
+    cgn_grasps: int = 10  # CGN methods: the best predictions by score that go to IK (the original's top 10)
+    ik_grasps: int = 24  # annotated grasps whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)
-    goal_set_size: int = 8  # IK solutions handed to RRTConnect at once
-    plan_time_per_try: float = 10.0  # s, RRTConnect per planning call
-    plan_time_total: float = 30.0  # s, all RRTConnect calls of one episode
+    goal_set_size: int = 8  # IK solutions handed to the planner at once
+    # Planning budgets are counts of collision checks, so a plan is the same on a busy or an
+    # idle machine, on any CPU (the original's 10 s a try and 30 s an episode at ~3,000 checks
+    # a second). Each plan is seeded from the episode's rng (planning.rrt's ``seed``).
+    plan_checks_per_try: int = 30000  # per planning call (RRTConnect's search, trajopt's RRT fallback)
+    plan_checks_total: int = 90000  # all planning calls of one episode
+    # Wall-clock safety net per planning call (s): a plan it stops is a ``timeout`` failure.
+    plan_safety_seconds: float = 120.0
     speed_scale: float = 0.4  # fraction of the Panda's velocity limits when executing
-    approach_speed_scale: float = 0.1
+    approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
-    # An invalid plan start up to this deep (m of sphere overlap) is escaped first (planning.rrt):
-    # at rest, or holding an object on its support, the conservative spheres can overlap the
-    # furniture by a few cm while the simulated robot touches nothing (43 of the first 600
-    # test tasks failed their first plan on that with no tolerance).
-    start_tolerance: float = 0.05
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
     # "random": the seeded order of choose_grasps (the baselines: no verified grasp is better
     # than another); "clearance": the open hand's clearance at pre-grasp and grasp, largest
     # first (the expert's "best first": roomier grasps plan and execute more reliably).
     grasp_order: str = "random"
-    # Repeatable planning (planning.rrt's ``seed``): each plan seeded from the episode's rng
-    # and bounded by collision checks rather than seconds, so the same task and seed give
-    # the same trajectory on a busy or an idle machine (the demonstration expert uses it).
-    repeatable_planning: bool = False
     retry_target_moved: float = 0.12  # a retry needs the target moved <= this
     retry_others_moved: float = 0.10  # and every other object moved < this
     # The hybrid methods (fetchbench_ms.policies.deploy): after the gripper closed, this
@@ -123,12 +173,30 @@ class SolveConfig:
     # world's distance fields); None: the method's own (METHODS[...]["collision"]).
     mppi_cost: str | None = None
 
+    def __post_init__(self):
+        unknown = [i for i in self.improvements if i not in IMPROVEMENTS]
+        if unknown:
+            raise ValueError(f"unknown improvement {unknown[0]!r}; valid: {', '.join(IMPROVEMENTS)}")
+        self.improvements = tuple(i for i in IMPROVEMENTS if i in self.improvements)
+
+    @property
+    def pipeline(self) -> str:
+        return pipeline_label(self.improvements)
+
+    def uses(self, improvement: str) -> bool:
+        return improvement in self.improvements
+
+    @property
+    def start_escape_depth(self) -> float:
+        """The planners' ``start_tolerance``: 0 (an invalid start fails) unless ``start_escape``."""
+        return self.start_tolerance if self.uses("start_escape") else 0.0
+
 
 @dataclass
 class EpisodeState:
     config: SolveConfig
     computation_time: float = 0.0  # grasp inference + IK + world building + planning, s
-    planning_time_left: float = 30.0
+    checks_left: int = 90000  # the episode's planning budget (collision checks) still unspent
     cspace_length: float = 0.0
     sim_steps: int = 0
     phases: dict = field(default_factory=lambda: {p: False for p in PHASES})
@@ -314,10 +382,15 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
     clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(T_pre_tcp @ to_hand),
                                                near_target.hand_clearance(T_grasp_tcp @ to_hand)))
-    order = np.flatnonzero(clearance > cfg.margin)
+    # Annotated grasps: the open hand must be free (what collision-aware IK over every grasp
+    # finds, as the original's IK filter does, at a fraction of its cost). CGN predictions:
+    # the original's top 10 by score as they are; ``cgn_filter`` drops the colliding ones first.
+    oracle = METHODS[method]["grasps"] == "oracle"
+    free = clearance > cfg.margin
+    order = np.flatnonzero(free) if (oracle or cfg.uses("cgn_filter")) else np.arange(len(clearance))
     if cfg.grasp_order == "clearance":
         order = order[np.argsort(-clearance[order], kind="stable")]
-    order = order[: cfg.ik_grasps if METHODS[method]["grasps"] == "oracle" else cfg.cgn_grasps]
+    order = order[: cfg.ik_grasps if oracle else cfg.cgn_grasps]
     keep = [keep[i] for i in order]
     T_grasp_tcp, T_pre_tcp = T_grasp_tcp[order], T_pre_tcp[order]
     if not keep:
@@ -338,13 +411,12 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return "no_grasp_candidate"
     state.phases["ik_found"] = True
 
-    budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), budget, method)
-    state.planning_time_left -= plan.planning_time
+    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), method)
     state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
-                       f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
+                       f"{plan.n_checked} checks {plan.planning_time:.2f}s"
+                       + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
-        return "motion_planning_failure"
+        return _plan_failure(plan)
     state.phases["pregrasp_plan"] = True
     chosen, _, approach_path = candidates[plan.goal_index]
     tried.add(keep[chosen])
@@ -394,7 +466,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         # its faces, or it slipped a little): lift further, checking the arm alone.
         arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
                                     ignore_links=("panda_leftfinger", "panda_rightfinger"))
-        for extra in cfg.extra_lifts:
+        for extra in (cfg.extra_lifts if cfg.uses("extra_lifts") else ()):
             T_up = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
             T_up[2, 3] += extra
             path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(
@@ -404,7 +476,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
                 state.notes.append(f"lifted {extra:.2f} m more")
                 break
     T_tcp = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy()
-    for distance in cfg.retreat_distances:
+    for distance in (cfg.retreat_distances if cfg.uses("retreat") else ()):
         path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(T_tcp, retreat(T_tcp, distance), 4),
                            carry)
         if path is not None and all(
@@ -413,28 +485,32 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
             state.notes.append(f"retreated {distance:.2f} m")
             break
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
-    budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if len(goals) == 0 or (budget <= 0 and _time_budgeted(method)):
-        state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning time left")
+    if len(goals) == 0 or (state.checks_left <= 0 and _check_budgeted(method)):
+        state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning budget left")
         return "motion_planning_failure"
-    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], budget, method)
-    state.planning_time_left -= plan.planning_time
-    state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.planning_time:.2f}s"
-                       + (" (start escaped)" if plan.start_escaped else ""))
+    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], method)
+    state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.n_checked} checks "
+                       f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
-        return "motion_planning_failure"
+        return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None
 
 
-def _time_budgeted(method: str) -> bool:
-    """Whether the method's planner works to the episode's planning time budget (RRTConnect's
-    10 s a call, 30 s in all; trajopt alike). MPPI is bounded by its replans per phase (the
-    original's 30), not by seconds: on a CPU its computation can pass 30 s in one phase."""
+def _check_budgeted(method: str) -> bool:
+    """Whether the method's planner draws on the episode's collision-check budget (RRTConnect;
+    trajopt's exact checks and RRT fallback). MPPI is bounded by its replans per phase (the
+    original's 30) and its rollouts, not by the episode's checks."""
     return METHODS[method]["planner"] != "mppi"
 
 
-def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, budget: float, method: str):
+def _plan_failure(plan) -> str:
+    """The failure class of a failed plan: a wall-clock safety net is ``timeout``, anything
+    else (budget spent, invalid start, no valid goal) ``motion_planning_failure``."""
+    return "timeout" if plan.status == "timeout" else "motion_planning_failure"
+
+
+def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, method: str):
     """Plan with the method's planner and move along the plan (when it succeeded). MPPI
     moves while it plans: every replan executes a second of its plan from where the robot
     really is (``planning.mppi``); its ``planning_time`` is its computation only."""
@@ -443,7 +519,7 @@ def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q
         from ..planning.mppi import MppiConfig, plan_mppi
 
         cost = cfg.mppi_cost or METHODS[method]["collision"]
-        mppi_cfg = MppiConfig(cost=cost, speed_scale=cfg.speed_scale, seed=int(rng.integers(2**31)) if rng is not None else 0)
+        mppi_cfg = MppiConfig(cost=cost, speed_scale=cfg.speed_scale, seed=int(rng.integers(2**31)))
 
         def execute(path):
             ex.follow(path, cfg.speed_scale, settle_steps=0)
@@ -452,28 +528,35 @@ def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q
         plan = plan_mppi(checker, q_start, q_goals, execute, mppi_cfg)
         state.computation_time += plan.planning_time
         return plan
-    plan = _plan(state, rng, checker, q_start, q_goals, budget, method)
+    plan = _plan(state, rng, checker, q_start, q_goals, method)
     if plan.success:
         ex.follow(plan.path, cfg.speed_scale)
     return plan
 
 
-def _plan(state: EpisodeState, rng, checker, q_start, q_goals, budget: float, method: str = "ga-mesh-rrt"):
+def _plan(state: EpisodeState, rng, checker, q_start, q_goals, method: str = "ga-mesh-rrt"):
     """The method's planner (``METHODS[method]["planner"]``): OMPL RRTConnect, or the batched
     torch trajectory optimiser (``planning.trajopt``: CUDA when available, else CPU, or
-    ``$FETCHBENCH_TRAJOPT_DEVICE``; repeatable unless its time limit cuts it short). Both return
-    a ``PlanResult``."""
+    ``$FETCHBENCH_TRAJOPT_DEVICE``). Both are seeded from the episode's rng and bounded by
+    collision checks (at most ``plan_checks_per_try``, and what the episode has left); the
+    checks spent are taken from the episode's budget. Both return a ``PlanResult``."""
     cfg = state.config
+    seed = int(rng.integers(2**31))
+    max_checks = max(0, min(cfg.plan_checks_per_try, state.checks_left))
     if METHODS[method].get("planner", "rrt") == "trajopt":
         from ..planning.trajopt import plan_trajopt
 
-        return state.timed(plan_trajopt, checker, q_start, q_goals, budget, start_tolerance=cfg.start_tolerance)
-    seed = int(rng.integers(2**31)) if cfg.repeatable_planning and rng is not None else None
-    return state.timed(plan_rrtconnect, checker, q_start, q_goals, budget, start_tolerance=cfg.start_tolerance,
-                       seed=seed)
+        plan = state.timed(plan_trajopt, checker, q_start, q_goals, cfg.plan_safety_seconds,
+                           start_tolerance=cfg.start_escape_depth, seed=seed, max_checks=max_checks)
+    else:
+        plan = state.timed(plan_rrtconnect, checker, q_start, q_goals, cfg.plan_safety_seconds,
+                           start_tolerance=cfg.start_escape_depth, seed=seed, max_checks=max_checks,
+                           restart_checks=max(1, min(max_checks, cfg.plan_checks_per_try // 2)))
+    state.checks_left -= plan.n_checked
+    return plan
 
 
-def _return_home(env, method: str, state: EpisodeState) -> bool:
+def _return_home(env, method: str, state: EpisodeState, rng) -> bool:
     """Open the gripper and go back to the task's start configuration (for a retry)."""
     cfg, robot, u = state.config, panda(), env.unwrapped
     ex = Executor(env, state)
@@ -481,12 +564,22 @@ def _return_home(env, method: str, state: EpisodeState) -> bool:
     world, _ = _world_model(env, method, state)
     checker = CollisionChecker(robot, world, margin=cfg.margin)
     q_home = np.asarray(u.tasks[0].robot_init_qpos[:7], float)
-    budget = min(cfg.plan_time_per_try, state.planning_time_left)
-    if budget <= 0 and _time_budgeted(method):
+    if state.checks_left <= 0 and _check_budgeted(method):
         return False
-    plan = _plan_and_move(state, ex, None, checker, ex.q, q_home, budget, method)
-    state.planning_time_left -= plan.planning_time
+    plan = _plan_and_move(state, ex, rng, checker, ex.q, q_home, method)
     return plan.success
+
+
+def final_failure(failure: str | None, held_at_end: bool, others_undisturbed: bool) -> str:
+    """The failure class of a failed episode, from the try's own verdict (None: every step
+    went through) and the judge's: another object pushed away is a ``collision``; a target
+    still held but not carried out a ``retrieval_failure``; one not held a ``grasp_failure``.
+    Planning failures and timeouts keep their class."""
+    if failure in (None, "grasp_failure"):
+        if not others_undisturbed:
+            return "collision"
+        return "retrieval_failure" if held_at_end else "grasp_failure"
+    return failure
 
 
 def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: int = 1,
@@ -515,7 +608,7 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
     if reset:
         env.reset(seed=seed)
     rng = np.random.default_rng(seed if seed is not None else 0)
-    state = EpisodeState(config, planning_time_left=config.plan_time_total)
+    state = EpisodeState(config, checks_left=config.plan_checks_total)
     tried: set = set()
     failure, attempts = None, 0
     for attempts in range(1, retries + 1):
@@ -527,15 +620,14 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         target_moved, others_moved = _moved(env)
         if target_moved > config.retry_target_moved or others_moved >= config.retry_others_moved:
             break
-        if not _return_home(env, method, state):
+        if not _return_home(env, method, state, rng):
             break
     info = settle_and_hold(env)
     success = bool(info["success"][0])
     state.phases["held_at_end"] = bool(env.unwrapped.agent.is_grasping(env.unwrapped.target)[0])
-    if not success and failure is None:
-        failure = "collision" if not bool(info["others_undisturbed"][0]) else "grasp_failure"
-    elif not success and not bool(info["others_undisturbed"][0]) and failure == "grasp_failure":
-        failure = "collision"
+    if not success:
+        failure = final_failure(failure, held_at_end=state.phases["held_at_end"],
+                                others_undisturbed=bool(info["others_undisturbed"][0]))
     task = env.unwrapped.tasks[0]
     return {
         "method": method,
@@ -549,6 +641,9 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         "computation_time": round(state.computation_time, 4),
         "cspace_length": round(state.cspace_length, 4),
         "attempts": attempts,
+        "pipeline": config.pipeline,
+        "improvements": list(config.improvements),
+        "planning_checks": config.plan_checks_total - state.checks_left,
         "phases": state.phases,
         "grasp_source": state.grasp_source,
         "target_moved": round(float(info["target_moved"][0]), 4),

@@ -9,7 +9,8 @@ every support surface (where objects sit), and count those that are inside both
 cameras' frusta and unobstructed from both eyes by the furniture, the robot table and
 the robot in its start configuration. Candidates are drawn on a sphere around the
 camera target (distance, azimuth beside the robot, elevation), the right camera the
-left's mirror image; the best-scoring of ``tries`` pairs wins.
+left's mirror image; the best-scoring of ``tries`` pairs wins. ``paper_camera_pair`` is
+the original's heuristic itself (the envs' ``camera_placement="paper"``).
 
 The score weights every support *label* equally (then every surface of a label), so a
 scene's two baskets count as much as its eight shelf boards: the suite needs targets in
@@ -161,6 +162,21 @@ def mirror_y(point, y_mirror: float) -> np.ndarray:
     return out
 
 
+def _draw_view(rng: np.random.Generator, center, half, ranges: "CameraRanges") -> tuple[np.ndarray, np.ndarray]:
+    """One left camera (eye, aim point): the aim jittered in the target region, the eye at a
+    drawn distance, azimuth and elevation from it (the draws in this order)."""
+    target = center + rng.uniform(-ranges.target_jitter, ranges.target_jitter, size=3) * half
+    distance = rng.uniform(*ranges.distance)
+    azimuth = rng.uniform(*ranges.azimuth)
+    elevation = rng.uniform(*ranges.elevation)
+    eye = target + distance * np.array([
+        -math.cos(elevation) * math.cos(azimuth),
+        math.cos(elevation) * math.sin(azimuth),
+        math.sin(elevation),
+    ])
+    return eye, target
+
+
 def sample_camera_pair(rng: np.random.Generator, scene, occluders: Occluders, fov_x: float, aspect: float,
                        tries: int, ranges: CameraRanges = CameraRanges(), label_weights: dict | None = None):
     """The best of ``tries`` mirrored pairs: ((eye_l, target_l), (eye_r, target_r)), its score,
@@ -170,15 +186,7 @@ def sample_camera_pair(rng: np.random.Generator, scene, occluders: Occluders, fo
     points, owners = support_points(scene)
     best = None
     for _ in range(tries):
-        target = center + rng.uniform(-ranges.target_jitter, ranges.target_jitter, size=3) * half
-        distance = rng.uniform(*ranges.distance)
-        azimuth = rng.uniform(*ranges.azimuth)
-        elevation = rng.uniform(*ranges.elevation)
-        eye = target + distance * np.array([
-            -math.cos(elevation) * math.cos(azimuth),
-            math.cos(elevation) * math.sin(azimuth),
-            math.sin(elevation),
-        ])
+        eye, target = _draw_view(rng, center, half, ranges)
         eye_right, target_right = mirror_y(eye, center[1]), mirror_y(target, center[1])
         seen_both = np.minimum(seen_points(eye, target, points, occluders, fov_x, aspect),
                                seen_points(eye_right, target_right, points, occluders, fov_x, aspect))
@@ -188,3 +196,39 @@ def sample_camera_pair(rng: np.random.Generator, scene, occluders: Occluders, fo
             covered = len(surfaces_seen) == len(scene.support_surfaces)
             best = (((eye, target), (eye_right, target_right)), score, covered)
     return best
+
+
+#: Draws of the original's camera heuristic (``paper_camera_pair``).
+PAPER_CAMERA_TRIES = 20
+
+
+def support_height_range(scene) -> tuple[float, float]:
+    """Lowest and highest of the points above the support surfaces (``support_points``):
+    the heights the original's cameras must span."""
+    z = support_points(scene)[0][:, 2]
+    return float(z.min()), float(z.max())
+
+
+def paper_camera_pair(rng: np.random.Generator, scene, fov_x: float, aspect: float,
+                      tries: int = PAPER_CAMERA_TRIES, ranges: CameraRanges = CameraRanges()):
+    """The original FetchBench's camera heuristic: ((eye_l, target_l), (eye_r, target_r))
+    and whether the pair passed its test.
+
+    Each draw aims the left camera at the camera target region's centre plus an offset,
+    from an eye drawn as ``sample_camera_pair`` draws them (``ranges``; the original's
+    ranges are not in its release), and mirrors it in y for the right camera. The first
+    draw whose vertical field of view spans the supports' heights
+    (``support_height_range``) at the aim point, for both cameras and within their depth
+    range, is kept; after ``tries`` failed draws, the last one. No occlusion scoring."""
+    center = np.asarray(scene.camera_target.center, float)
+    half = np.asarray(scene.camera_target.half_size, float)
+    z_lo, z_hi = support_height_range(scene)
+    pair = None
+    for _ in range(tries):
+        eye, target = _draw_view(rng, center, half, ranges)
+        pair = ((eye, target), (mirror_y(eye, center[1]), mirror_y(target, center[1])))
+        # The supports' lowest and highest heights above the aim point: in view?
+        if all(in_frustum(e, t, np.array([[t[0], t[1], z_lo], [t[0], t[1], z_hi]]), fov_x, aspect).all()
+               for e, t in pair):
+            return pair, True
+    return pair, False

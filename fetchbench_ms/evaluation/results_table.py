@@ -1,0 +1,332 @@
+"""The shipped evaluation records and the tables printed from them (``fetchbench results``).
+
+Every success figure in README.md and docs/ comes from a packed run in ``results/runs/<name>/``:
+``run.json`` (the run's manifest, as ``fetchbench eval`` wrote it) and ``results.jsonl.gz``
+(its records, one JSON line per task, sorted by task id, gzipped with mtime 0 so the same
+records always give the same bytes). ``pack`` makes such a folder from a results directory;
+``tables`` prints the Markdown tables of docs/results.md from every packed run.
+
+Runs whose ``method_options`` have no ``pipeline`` were made with the earlier code (the
+extended pipeline with wall-clock planning budgets): they are labelled ``legacy`` and get a
+table of their own. Functions take manifests and records and return strings.
+"""
+from __future__ import annotations
+
+import gzip
+import io
+import json
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json
+from .metrics import CATEGORIES, summarize
+from .store import MANIFEST_FILE, PACKED_RESULTS_FILE, ResultsStore
+
+BEGIN = "<!-- results-table:begin -->"
+END = "<!-- results-table:end -->"
+NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9._-]*")
+
+#: The paper's success rates (FetchBench, main table and ablation table), by our method name.
+PAPER = {
+    "ga-mesh-trajopt": 0.671,  # GA-Mesh-CuRobo
+    "ga-mesh-rrt": 0.529,  # GA-Mesh-RRTConnect
+    "ga-ptd-trajopt": 0.190,  # GA-Ptd-CuRobo
+    "ga-ptd-rrt": 0.306,  # GA-Ptd-RRTConnect
+    "cgn-mesh-trajopt": 0.336,  # CGN-Mesh-CuRobo
+    "cgn-mesh-rrt": 0.275,  # CGN-Mesh-RRTConnect
+    "cgn-ptd-trajopt": 0.094,  # CGN-CuRobo
+    "cgn-ptd-rrt": 0.131,  # CGN-RRTConnect
+    "cgn-ptd-mppi": 0.121,  # CGN-Cabinet
+    "cgn-imit-mlp": 0.200,  # CGN-CuRobo-Imit-MLP
+    "cgn-imit-transformer": 0.203,  # CGN-CuRobo-Imit-Transformer
+    "e2e-mlp": 0.082,  # E2EImit-MLP
+    "e2e-transformer": 0.099,  # E2EImit-Transformer
+}
+#: The ablation table's funnel: approach plan, approach execution, retrieval plan (None: not given).
+PAPER_FUNNEL = {
+    "ga-mesh-trajopt": (0.865, 0.861, 0.776),
+    "ga-mesh-rrt": (0.947, 0.903, 0.681),
+    "ga-ptd-trajopt": (0.792, 0.705, 0.321),
+    "ga-ptd-rrt": (0.949, 0.678, 0.502),
+    "cgn-mesh-trajopt": (0.611, 0.602, 0.546),
+    "cgn-mesh-rrt": (0.607, None, 0.478),
+}
+#: The paper's funnel stages: the record's phase that stands for each (the last is the verdict).
+FUNNEL = (("approach plan", "pregrasp_plan"), ("approach exec", "approach_reached"),
+          ("retrieval plan", "retrieval_plan"), ("final", "success"))
+HEADER = (["run", "method", "pipeline", "suite", "tasks", "success (95% CI)", "paper"] + list(CATEGORIES)
+          + [name for name, _ in FUNNEL]
+          + ["timeouts", "median computation time", "median C-space length (successes)", "failures"])
+
+
+@dataclass
+class Run:
+    name: str
+    manifest: dict
+    records: list
+
+
+# ------------------------------------------------------------------------------- packing
+def default_runs_dir() -> Path:
+    """``results/runs`` of the source checkout, else of the working directory."""
+    checkout = Path(__file__).resolve().parents[2] / "results" / "runs"
+    return checkout if checkout.is_dir() else Path("results") / "runs"
+
+
+def gzip_bytes(data: bytes) -> bytes:
+    """gzip with a fixed header (no file name, mtime 0, OS "unknown"): the same data give the
+    same bytes on every machine."""
+    buffer = io.BytesIO()
+    with gzip.GzipFile(filename="", mode="wb", compresslevel=9, fileobj=buffer, mtime=0) as f:
+        f.write(data)
+    return buffer.getvalue()
+
+
+def packed_bytes(manifest: dict, records: list[dict]) -> tuple[bytes, bytes]:
+    """(run.json, results.jsonl.gz) of a packed run: records sorted by task id, one canonical
+    JSON line each, gzipped with mtime 0 (the same records give the same bytes)."""
+    lines = "".join(canonical_json(r) + "\n" for r in sorted(records, key=lambda r: r["task_id"]))
+    return ((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode(),
+            gzip_bytes(lines.encode()))
+
+
+def pack(run_dir, name: str, runs_dir=None, force: bool = False) -> Path:
+    """Pack the results directory ``run_dir`` into ``runs_dir/name``; returns that folder.
+    Refuses a directory that is no run or has no record, a bad name, and a folder that holds
+    another run (unless ``force``). Packing the same run again changes nothing."""
+    run_dir, runs_dir = Path(run_dir), Path(runs_dir) if runs_dir is not None else default_runs_dir()
+    if not NAME_PATTERN.fullmatch(name):
+        raise ValueError(f"bad run name {name!r}: use lower-case letters, digits, '.', '_' and '-' "
+                         f"(e.g. cgn-ptd-rrt-pretrained-test600)")
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"{run_dir} is not a directory")
+    store = ResultsStore(run_dir)
+    manifest = store.manifest()  # raises: no run.json
+    if not isinstance(manifest, dict) or "method" not in manifest:
+        raise ValueError(f"{store.manifest_path} names no method: not a run of `fetchbench eval`")
+    records = store.records()
+    if not records:
+        raise ValueError(f"{run_dir} holds no finished task (no record to pack)")
+    bad = next((r for r in records if "success" not in r), None)
+    if bad is not None:
+        raise ValueError(f"{run_dir}: the record of {bad['task_id']} has no 'success': not a task record")
+    files = dict(zip((MANIFEST_FILE, PACKED_RESULTS_FILE), packed_bytes(manifest, records)))
+    target = runs_dir / name
+    if target.exists():
+        old = {f: (target / f).read_bytes() if (target / f).is_file() else None for f in files}
+        if old == files:
+            return target
+        if not force:
+            raise ValueError(f"{target} holds another run (its {' and '.join(f for f in files if old[f] != files[f])} "
+                             f"differ); choose another --name, or --force to replace it")
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=runs_dir))
+    try:
+        for file, data in files.items():
+            atomic_write_bytes(staging / file, data)
+        if target.exists():  # (--force) the old folder goes only once the new one is complete
+            trash = Path(tempfile.mkdtemp(prefix=f".{name}.old.", dir=runs_dir))
+            os.replace(target, trash / name)
+            os.replace(staging, target)
+            shutil.rmtree(trash)
+        else:
+            os.replace(staging, target)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+    return target
+
+
+def load_runs(runs_dir=None) -> list[Run]:
+    """Every run under ``runs_dir`` (default: results/runs; a packed run or a results
+    directory: a folder with a run.json), in folder-name order."""
+    runs_dir = Path(runs_dir) if runs_dir is not None else default_runs_dir()
+    folders = sorted(p for p in runs_dir.iterdir() if (p / MANIFEST_FILE).is_file()) if runs_dir.is_dir() else []
+    if not folders:
+        raise FileNotFoundError(f"no run in {runs_dir} (make one with `fetchbench results pack RUN_DIR --name NAME`)")
+    runs = []
+    for folder in folders:
+        store = ResultsStore(folder)
+        records = sorted(store.records(), key=lambda r: r["task_id"])
+        if not records:
+            raise ValueError(f"{folder} holds no record")
+        runs.append(Run(folder.name, store.manifest(), records))
+    return runs
+
+
+# ------------------------------------------------------------------------------- labels
+def options(manifest: dict) -> dict:
+    return manifest.get("method_options") or {}
+
+
+def is_legacy(manifest: dict) -> bool:
+    return "pipeline" not in options(manifest)
+
+
+def method_label(manifest: dict) -> str:
+    """The method, its grasp model (cgn-*), tries (xN) and policy stride (when not 1)."""
+    o, method = options(manifest), manifest["method"]
+    label = f"`{method}`"
+    if method.startswith("cgn-") and o.get("grasp_model"):
+        label += f" {o['grasp_model']}"
+    if (o.get("retries") or 1) > 1:
+        label += f" x{o['retries']}"
+    if (o.get("policy_stride") or 1) != 1:
+        label += f", policy stride {o['policy_stride']}"
+    return label
+
+
+def pipeline_label(manifest: dict) -> str:
+    """``legacy``, ``paper``, ``ours`` or ``ours minus X, Y``, then the env options."""
+    o = options(manifest)
+    pipeline = "legacy" if is_legacy(manifest) else str(o["pipeline"])
+    if pipeline.startswith("ours-minus-"):  # the runner's name: ours-minus-retreat+start_escape
+        pipeline = "ours minus " + ", ".join(pipeline[len("ours-minus-"):].split("+"))
+    elif pipeline == "ours" and o.get("improvements") is not None:
+        from ..solutions.sense_plan_act import IMPROVEMENTS
+
+        off = [i for i in IMPROVEMENTS if i not in o["improvements"]]
+        pipeline = "ours minus " + ", ".join(off) if off else "ours"
+    env = o.get("env_options") or {}
+    return pipeline + "".join(f" + {k}={env[k]}" for k in sorted(env))
+
+
+def selection_label(manifest: dict) -> str:
+    s = manifest.get("selection") or {}
+    if "suite" in s:
+        return f"{s['suite']} {s.get('tasks') or 'all'}"
+    if "env_id" in s:
+        return f"{s['env_id']} seeds {s['seed']}-{s['seed'] + s['episodes'] - 1}"
+    return "-"
+
+
+def _rate(v) -> str:
+    return "-" if v is None else f"{v:.3f}"
+
+
+def paper_label(method: str) -> str:
+    if method not in PAPER:
+        return "-"
+    funnel = PAPER_FUNNEL.get(method)
+    return f"{PAPER[method]:.3f}" + (f" (funnel {' / '.join(map(_rate, funnel))})" if funnel else "")
+
+
+# ------------------------------------------------------------------------------- tables
+def row(run: Run) -> str:
+    """One run's row of the runs table."""
+    s, records = summarize(run.records), run.records
+    a = s["all"]
+    lo, hi = a["success_ci95"]
+    success = f"**{a['success_rate']:.3f}** ({lo:.3f}-{hi:.3f})"
+    if (options(run.manifest).get("retries") or 1) > 1:
+        success += f"; first try {a['first_try_success_rate']:.3f}"
+    cats = [f"{c['success_rate']:.3f} ({c['tasks']})" if (c := s["by_category"].get(k)) else "-" for k in CATEGORIES]
+    funnel = [_rate(a["funnel"][key]) if key == "success" or any(key in (r.get("phases") or {}) for r in records)
+              else "-" for _, key in FUNNEL]
+    timeouts = sum(r.get("failure") == "timeout" for r in records)
+    time, clen = a["median_computation_time"], a["median_cspace_length_successes"]
+    failures = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["failures"].items() if v) or "-"
+    cells = ([run.name, method_label(run.manifest), pipeline_label(run.manifest), selection_label(run.manifest),
+              str(a["tasks"]), success, paper_label(run.manifest["method"])] + cats + funnel
+             + [str(timeouts), "-" if time is None else f"{time:.2f} s", "-" if clen is None else f"{clen:.2f} rad",
+                failures])
+    return "| " + " | ".join(cells) + " |"
+
+
+def runs_table(runs: list[Run]) -> str:
+    """The Markdown table of ``runs``: test-suite runs first, then by run name."""
+    runs = sorted(runs, key=lambda r: ((r.manifest.get("selection") or {}).get("suite") != "test", r.name))
+    lines = ["| " + " | ".join(HEADER) + " |", "|" + " --- |" * len(HEADER)]
+    return "\n".join(lines + [row(r) for r in runs])
+
+
+def _comparable(manifest: dict) -> str:
+    """What two runs must share to be compared: method, options other than the pipeline's, tasks."""
+    o = {k: v for k, v in options(manifest).items() if k not in ("pipeline", "improvements", "env_options")}
+    return canonical_json([manifest["method"], o, manifest.get("selection"), manifest.get("source_sha256")])
+
+
+def _points(d: float) -> str:
+    return f"{100 * d:+.1f}"
+
+
+def _share(num: float, den: float) -> str:
+    return "-" if abs(den) < 1e-9 else f"{100 * num / den:+.0f} %"
+
+
+def ablation_table(runs: list[Run]) -> str:
+    """Each run of a method beside its `paper`-variant run on the same tasks: the difference
+    in points and the share of the gap (see docs/results.md, "Ablations")."""
+    current = [r for r in runs if not is_legacy(r.manifest)]
+    lines = []
+    for base in sorted((r for r in current if pipeline_label(r.manifest) == "paper"), key=lambda r: r.name):
+        key, method = _comparable(base.manifest), base.manifest["method"]
+        rate = summarize(base.records)["all"]["success_rate"]
+        others = sorted((r for r in current if r is not base and _comparable(r.manifest) == key), key=lambda r: r.name)
+        ours = next((r for r in others if pipeline_label(r.manifest) == "ours"), None)
+        ours_rate = summarize(ours.records)["all"]["success_rate"] if ours else None
+        for run in others:
+            label, o = pipeline_label(run.manifest), options(run.manifest)
+            r = summarize(run.records)["all"]["success_rate"]
+            share = "-"
+            if method in PAPER and o["pipeline"] == "paper" and o.get("env_options"):
+                share = _share(r - rate, rate - PAPER[method])
+            elif method in PAPER and label.startswith("ours minus ") and ours_rate is not None:
+                share = _share(ours_rate - r, ours_rate - PAPER[method])
+            lines.append(f"| {method_label(base.manifest)} | {selection_label(base.manifest)} | {base.name} | "
+                         f"{rate:.3f} | {_rate(PAPER.get(method))} | {run.name} | {label} | {r:.3f} | "
+                         f"{_points(r - rate)} | {share} |")
+    if not lines:
+        return "No method has a `paper`-variant run and another run on the same tasks yet."
+    header = ["method", "suite", "`paper`-variant run", "its success", "paper", "run", "pipeline", "success",
+              "difference (points)", "share of the gap"]
+    return "\n".join(["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)] + lines)
+
+
+def tables(runs: list[Run]) -> str:
+    """The Markdown that docs/results.md holds between its results-table markers."""
+    current = [r for r in runs if not is_legacy(r.manifest)]
+    legacy = [r for r in runs if is_legacy(r.manifest)]
+    parts = ["### Runs", "", runs_table(current) if current else "No run of the current pipelines is shipped yet.",
+             "", "### Ablations", "", ablation_table(runs)]
+    if legacy:
+        parts += ["", "### Earlier runs (extended pipeline, wall-clock planning budgets)", "", runs_table(legacy)]
+    return "\n".join(parts) + "\n"
+
+
+# ------------------------------------------------------------------------------- the doc's copy
+def _split(text: str, path) -> tuple[str, str, str]:
+    if text.count(BEGIN) != 1 or text.count(END) != 1 or text.index(BEGIN) > text.index(END):
+        raise ValueError(f"{path} needs one '{BEGIN}' line and, after it, one '{END}' line")
+    head, rest = text.split(BEGIN, 1)
+    body, tail = rest.split(END, 1)
+    return head + BEGIN + "\n", body[1:] if body.startswith("\n") else body, END + tail
+
+
+def check_doc(path, output: str) -> str | None:
+    """None when ``path``'s tables are ``output``; else where they first differ (one line)."""
+    text = Path(path).read_text()
+    head, body, _ = _split(text, path)
+    first = head.count("\n") + 1  # the file's line number of the body's first line
+    have, want = body.splitlines(), output.splitlines()
+    for n in range(max(len(have), len(want))):
+        h = have[n] if n < len(have) else "<the end marker>"
+        w = want[n] if n < len(want) else "<the end marker>"
+        if h != w:
+            return (f"{path}:{first + n}: differs from `fetchbench results table`: has {h[:120]!r}, "
+                    f"the command prints {w[:120]!r} (rewrite with --write {path})")
+    return None
+
+
+def write_doc(path, output: str) -> bool:
+    """Put ``output`` between ``path``'s markers; True when the file changed."""
+    text = Path(path).read_text()
+    head, body, tail = _split(text, path)
+    new = head + output + tail
+    if new != text:
+        atomic_write_text(path, new)
+    return new != text

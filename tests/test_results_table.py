@@ -1,0 +1,141 @@
+"""The shipped records and their tables: docs/results.md holds exactly what `fetchbench results
+table` prints; pack + table on a small run give the expected figures; pack refuses bad input;
+the packed bytes are reproducible."""
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+from fetchbench_ms.cli import main
+from fetchbench_ms.evaluation import ResultsStore
+from fetchbench_ms.evaluation.results_table import BEGIN, END, load_runs, pack, pipeline_label, tables
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "results.md"
+PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval_plan", "held_at_end")
+
+
+def record(task_id: str, category: str, reached: int, success: bool, failure=None, time=1.0, clen=2.0):
+    return {"task_id": task_id, "seed": 1, "env_id": "FetchBench-v0", "method": "ga-mesh-rrt",
+            "scene_type": "Desk", "category": category, "target_object": "blob/1", "success": success,
+            "failure": None if success else failure, "computation_time": time, "cspace_length": clen,
+            "phases": {p: k < reached for k, p in enumerate(PHASES)}, "attempts": 1}
+
+
+def make_run(root: Path, records: list[dict], method="ga-mesh-rrt", options=None) -> Path:
+    store = ResultsStore(root)
+    store.open_run({"method": method, "source": "suite.json", "source_sha256": "ab" * 32,
+                    "method_options": options or {"retries": 1}, "selection": {"suite": "test", "tasks": "0:2"}})
+    for r in records:  # appended out of task order: the pack sorts them
+        store.append({**r, "method": method})
+    return root
+
+
+TWO = [record("test/0001", "on_shelf", 2, False, "motion_planning_failure", time=3.0, clen=0.5),
+       record("test/0000", "on_table", 6, True, time=1.0, clen=4.0)]
+
+
+def test_docs_table_is_the_commands_output(capsys):
+    """The check: docs/results.md's tables are `fetchbench results table`'s output."""
+    assert main(["results", "table"]) == 0
+    output = capsys.readouterr().out
+    text = DOC.read_text()
+    assert text.count(BEGIN) == 1 and text.count(END) == 1
+    assert text.split(BEGIN + "\n", 1)[1].split(END, 1)[0] == output
+    assert main(["results", "table", "--check", str(DOC)]) == 0
+
+
+def test_check_names_the_first_differing_line(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    pack(make_run(tmp_path / "a", TWO), "a-test2", runs)
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"# T\n\n{BEGIN}\nold\n{END}\nafter\n")
+    assert main(["results", "table", "--runs-dir", str(runs), "--check", str(doc)]) == 1
+    assert f"{doc}:4: differs" in capsys.readouterr().err
+    assert main(["results", "table", "--runs-dir", str(runs), "--write", str(doc)]) == 0
+    assert main(["results", "table", "--runs-dir", str(runs), "--check", str(doc)]) == 0
+    assert doc.read_text().startswith(f"# T\n\n{BEGIN}\n### Runs") and doc.read_text().endswith(f"{END}\nafter\n")
+
+
+def test_pack_and_table_round_trip(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    assert main(["results", "pack", str(make_run(tmp_path / "a", TWO)), "--name", "ga-mesh-rrt-test2-legacy",
+                 "--runs-dir", str(runs)]) == 0
+    folder = runs / "ga-mesh-rrt-test2-legacy"
+    assert sorted(p.name for p in folder.iterdir()) == ["results.jsonl.gz", "run.json"]
+    lines = gzip.decompress((folder / "results.jsonl.gz").read_bytes()).decode().splitlines()
+    assert [json.loads(line)["task_id"] for line in lines] == ["test/0000", "test/0001"]
+    capsys.readouterr()
+    assert main(["results", "table", "--runs-dir", str(runs)]) == 0
+    out = capsys.readouterr().out
+    assert "### Earlier runs (extended pipeline, wall-clock planning budgets)" in out
+    row = next(line for line in out.splitlines() if line.startswith("| ga-mesh-rrt-test2-legacy"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[:5] == ["ga-mesh-rrt-test2-legacy", "`ga-mesh-rrt`", "legacy", "test 0:2", "2"]
+    assert cells[5] == "**0.500** (0.095-0.905)"  # 1 of 2, 95% Wilson interval
+    assert cells[6].startswith("0.529 (funnel 0.947 / 0.903 / 0.681)")  # the paper's GA-Mesh-RRTConnect
+    assert cells[7:11] == ["1.000 (1)", "0.000 (1)", "-", "-"]
+    assert cells[11:15] == ["1.000", "0.500", "0.500", "0.500"]  # approach plan, exec, retrieval plan, final
+    assert cells[15:18] == ["0", "2.00 s", "4.00 rad"]
+    assert cells[18] == "motion planning failure 1"
+
+
+def test_current_runs_and_ablation(tmp_path):
+    """Runs with a pipeline get the main table; each variant is set beside the `paper` run."""
+    runs = tmp_path / "runs"
+    ok = [record(f"test/{i:04d}", "on_table", 6, True) for i in range(4)]
+    bad = [record(f"test/{i:04d}", "on_table", 1, False, "timeout") for i in range(4)]
+    variants = {"paper": (ok[:3] + bad[3:], {}),  # 0.75
+                "paper-60hz": (ok[:2] + bad[2:], {"env_options": {"sim_freq": 60}}),  # 0.50
+                "ours": (ok, {"improvements": ["retreat", "extra_lifts", "start_escape", "cgn_filter"]}),  # 1.00
+                "ours-minus-retreat": (ok[:1] + bad[1:], {"improvements": ["extra_lifts", "start_escape",
+                                                                           "cgn_filter"]})}
+    for name, (records, extra) in variants.items():
+        pipeline = "ours" if name.startswith("ours") else "paper"
+        pack(make_run(tmp_path / name, records, options={"retries": 1, "pipeline": pipeline, **extra}), name, runs)
+    # the runner's own name of a variant reads the same
+    assert pipeline_label({"method_options": {"pipeline": "ours-minus-retreat+cgn_filter"}}) == \
+        "ours minus retreat, cgn_filter"
+    out = tables(load_runs(runs))
+    assert "Earlier runs" not in out and "| ours minus retreat |" in out and "| paper + sim_freq=60 |" in out
+    assert "| 0.250 | 0.250 | 0.250 | 0.250 | 3 |" in out  # the timeouts column
+    ablation = out.split("### Ablations")[1]
+    # paper + env option: (0.50 - 0.75) / (0.75 - 0.529) of the gap
+    assert "| paper-60hz | paper + sim_freq=60 | 0.500 | -25.0 | -113 % |" in ablation
+    # ours minus X: its drop from ours, (1.00 - 0.25) / (1.00 - 0.529)
+    assert "| ours-minus-retreat | ours minus retreat | 0.250 | -50.0 | +159 % |" in ablation
+    assert "| ours | ours | 1.000 | +25.0 | - |" in ablation
+
+
+def test_pack_refuses_bad_input(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    (tmp_path / "empty").mkdir()
+    cases = [([str(tmp_path / "missing")], "is not a directory"),
+             ([str(tmp_path / "empty")], "not a results directory (no run.json)"),
+             ([str(make_run(tmp_path / "none", []))], "holds no finished task"),
+             ([str(make_run(tmp_path / "a", TWO)), "--name", "Bad Name"], "bad run name 'Bad Name'")]
+    for args, message in cases:
+        argv = ["results", "pack", *args] + ([] if "--name" in args else ["--name", "x"]) + ["--runs-dir", str(runs)]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not runs.exists() or not any(runs.iterdir())
+    # another run under a taken name: refused unless --force
+    pack(make_run(tmp_path / "b", TWO), "taken", runs)
+    assert pack(make_run(tmp_path / "b", TWO), "taken", runs) == runs / "taken"  # the same run: no change
+    other = make_run(tmp_path / "c", TWO[:1])
+    assert main(["results", "pack", str(other), "--name", "taken", "--runs-dir", str(runs)]) == 2
+    assert "holds another run (its results.jsonl.gz differ)" in capsys.readouterr().err
+    assert main(["results", "pack", str(other), "--name", "taken", "--runs-dir", str(runs), "--force"]) == 0
+    assert len(ResultsStore(runs / "taken").records()) == 1
+    assert [p.name for p in runs.iterdir()] == ["taken"]  # no staging folder left behind
+
+
+def test_packed_bytes_are_reproducible(tmp_path):
+    a = pack(make_run(tmp_path / "a", TWO), "r", tmp_path / "runs1")
+    b = pack(make_run(tmp_path / "b", TWO[::-1]), "r", tmp_path / "runs2")  # other append order, later mtime
+    for name in ("run.json", "results.jsonl.gz"):
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+    data = (a / "results.jsonl.gz").read_bytes()
+    assert data[3:10] == b"\0\0\0\0\0\x02\xff"  # no file name, mtime 0, level 9, OS "unknown"

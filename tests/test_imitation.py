@@ -837,7 +837,7 @@ def test_policy_stride_reaches_the_episode(monkeypatch):
     assert build_parser().parse_args(["eval"]).policy_stride == 1
     seen = {}
     monkeypatch.setattr(deploy, "run_e2e", lambda env, seed, name, checkpoint, regrasp, stride: seen.update(e2e=stride))
-    monkeypatch.setattr(deploy, "run_hybrid", lambda *args: seen.update(hybrid=args[-1]))
+    monkeypatch.setattr(deploy, "run_hybrid", lambda *args: seen.update(hybrid=args[6]))  # (..., stride, improvements)
     RunnerSpec("e2e-mlp", policy_stride=3).make().method.run(None, 0)
     RunnerSpec("cgn-imit-mlp", policy_stride=4).make().method.run(None, 0)
     assert seen == {"e2e": 3, "hybrid": 4}

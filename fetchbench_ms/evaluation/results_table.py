@@ -274,7 +274,7 @@ def ablation_table(runs: list[Run]) -> str:
             r = summarize(run.records)["all"]["success_rate"]
             share = "-"
             if method in PAPER and o["pipeline"] == "paper" and o.get("env_options"):
-                share = _share(r - rate, rate - PAPER[method])
+                share = _share(rate - r, rate - PAPER[method])  # > 0: the factor moves us toward the paper
             elif method in PAPER and label.startswith("ours minus ") and ours_rate is not None:
                 share = _share(ours_rate - r, ours_rate - PAPER[method])
             lines.append(f"| {method_label(base.manifest)} | {selection_label(base.manifest)} | {base.name} | "

@@ -377,7 +377,7 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
                               max_checks)[0]
 
 
-def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 10.0,
+def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 120.0,
                          start_tolerance: float = 0.0, config: TrajoptConfig | None = None, n_ik_seeds: int = 32,
                          goal_set_size: int = 8) -> PlanResult:
     """A pose goal (the TCP at ``T_base_tcp`` (4, 4), or any of (G, 4, 4), best first): its

@@ -127,3 +127,18 @@ def test_a_plan_stopped_by_the_safety_net_is_a_timeout():
     env.close()
     assert record["failure"] == "timeout" and not record["success"], record["notes"]
     assert record["pipeline"] == "paper" and record["improvements"] == []
+
+
+def test_cgn_with_an_unseen_target_has_no_grasp_candidate():
+    """Cameras that miss the target (e.g. the original's placement) leave CGN nothing to
+    predict on: a failed fetch of class no_grasp_candidate, not an error."""
+    import numpy as np
+
+    from fetchbench_ms.envs.pointcloud import FetchClouds
+    from fetchbench_ms.solutions.sense_plan_act import EpisodeState, SolveConfig, _grasp_candidates
+
+    state = EpisodeState(SolveConfig())
+    clouds = FetchClouds(scene=np.zeros((10, 3)), target=np.zeros((0, 3)), robot=np.zeros((0, 3)),
+                         scene_labels=np.zeros(10, int), target_segmentation_id=0)
+    assert _grasp_candidates(None, "cgn-ptd-rrt", state, np.random.default_rng(0), set(), np.eye(4), clouds) is None
+    assert state.notes == ["target not seen by the cameras"]

@@ -101,7 +101,7 @@ def escape_start(checker: CollisionChecker, q_start, tolerance: float, resolutio
     return None
 
 
-def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 120.0,
+def plan_rrtconnect(checker: CollisionChecker, q_start, q_goals, time_limit: float = 300.0,
                     resolution: float = 0.02, simplify: bool = True, try_direct: bool = True,
                     restart_after: float = 5.0, planner_range: float | None = None,
                     start_tolerance: float = 0.0, seed: int | None = 0, restart_checks: int = 15000,

@@ -330,7 +330,7 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
             return
 
 
-def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 120.0, config: TrajoptConfig | None = None,
+def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 300.0, config: TrajoptConfig | None = None,
                        start_tolerance: float = 0.0, seed: int = 0, max_checks: int = 30000) -> list[PlanResult]:
     """Plan every problem ``(checker, q_start, q_goals)`` (goals (K, 7) or (7,), best first)
     with one batched optimisation; a ``PlanResult`` each, in order. A problem no seed solves
@@ -369,7 +369,7 @@ def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 120.0, con
     return [pr.result for pr in prepared]
 
 
-def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 120.0,
+def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 300.0,
                  start_tolerance: float = 0.0, config: TrajoptConfig | None = None, seed: int = 0,
                  max_checks: int = 30000) -> PlanResult:
     """One problem; the signature of ``plan_rrtconnect``'s first arguments."""
@@ -377,7 +377,7 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
                               max_checks)[0]
 
 
-def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 120.0,
+def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 300.0,
                          start_tolerance: float = 0.0, config: TrajoptConfig | None = None, n_ik_seeds: int = 32,
                          goal_set_size: int = 8) -> PlanResult:
     """A pose goal (the TCP at ``T_base_tcp`` (4, 4), or any of (G, 4, 4), best first): its

@@ -154,7 +154,7 @@ class SolveConfig:
     plan_checks_per_try: int = 30000  # per planning call (RRTConnect's search, trajopt's RRT fallback)
     plan_checks_total: int = 90000  # all planning calls of one episode
     # Wall-clock safety net per planning call (s): a plan it stops is a ``timeout`` failure.
-    plan_safety_seconds: float = 120.0
+    plan_safety_seconds: float = 300.0
     speed_scale: float = 0.4  # fraction of the Panda's velocity limits when executing
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
@@ -343,11 +343,16 @@ def _world_model(env, method: str, state: EpisodeState):
 
 
 def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_base_object, clouds):
-    """The annotated grasps (a seeded random order), or the CGN predictions (best first)."""
+    """The annotated grasps (a seeded random order), or the CGN predictions (best first); None
+    when CGN has no target points to predict on."""
     cfg = state.config
     if METHODS[method]["grasps"] == "oracle":
         return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id), rng, cfg.max_grasps)
     clouds = clouds if clouds is not None else _observe(env)
+    if len(clouds.target) == 0:
+        # The cameras do not see the target: Contact-GraspNet has nothing to predict on.
+        state.notes.append("target not seen by the cameras")
+        return None
     # Fresh ids for this try's predictions: never among the grasps tried before.
     return state.timed(predicted_grasps, clouds, T_base_object, cfg.grasp_model, cfg.max_grasps, rng,
                        first_index=max(tried, default=-1) + 1)
@@ -364,6 +369,8 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_object = object_poses_base(env)[task.target_index]
     asset = load_object(task.target.object_id)
     grasps = _grasp_candidates(env, method, state, rng, tried, T_base_object, clouds)
+    if grasps is None:
+        return "no_grasp_candidate"
     state.grasp_source = grasps.source
     T_grasp_tcp = tcp_from_hand(_hand_poses_base(T_base_object, grasps.T_object_hand))  # (N, 4, 4)
     # ``keep``: ids (in the object's grasp list) of the candidates still in play; a grasp

@@ -4,6 +4,7 @@ improvement, and the environment's factors, as ``fetchbench eval`` runs side by 
     python scripts/ablation.py --suite test --tasks 0:600 --out runs/ablation --jobs 8 --workers 8
     python scripts/ablation.py --list                     # the runs, in the order they start
     python scripts/ablation.py --only core --out ...      # a group: core, minus, env, rows
+    python scripts/ablation.py --names ga-mesh-trajopt-paper,cgn-ptd-rrt-ours --out ...  # these runs, in this order
     fetchbench results table --runs-dir runs/ablation     # the tables (then `fetchbench results pack`)
 
 Groups, in the order they start (the first matter most):
@@ -71,6 +72,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="worker processes per run")
     ap.add_argument("--gpus", type=int, default=0, help="spread runs over this many GPUs (0: leave as is)")
     ap.add_argument("--only", default=None, help=f"comma-separated groups: {', '.join(GROUPS)}")
+    ap.add_argument("--names", default=None,
+                    help="comma-separated run names (see --list), started in the order given")
     ap.add_argument("--list", action="store_true", help="print the runs and their commands, run nothing")
     args = ap.parse_args(argv)
     only = set(GROUPS) if args.only is None else {g.strip() for g in args.only.split(",") if g.strip()}
@@ -81,6 +84,15 @@ def main(argv=None) -> int:
         print("error: --jobs and --workers must be >= 1, --gpus >= 0", file=sys.stderr)
         return 2
     todo = [(g, name, a) for g, name, a in runs() if g in only]
+    if args.names is not None:
+        by_name = {name: (g, name, a) for g, name, a in todo}
+        names = [n.strip() for n in args.names.split(",") if n.strip()]
+        unknown = [n for n in names if n not in by_name]
+        if not names or unknown:
+            print(f"error: unknown run name(s) in --names: {', '.join(unknown) or '(none given)'}; "
+                  f"valid: {', '.join(by_name)}", file=sys.stderr)
+            return 2
+        todo = [by_name[n] for n in dict.fromkeys(names)]
     commands = [(name, [sys.executable, "-m", "fetchbench_ms", "eval", *a, "--suite", args.suite, "--tasks",
                         args.tasks, "--workers", str(args.workers), "--out", str(args.out / name)])
                 for _, name, a in todo]

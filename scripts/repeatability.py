@@ -1,12 +1,13 @@
 """Per-task agreement of the same evaluation on other machines and loads.
 
     python scripts/repeatability.py                       # the shipped records, results/repeatability
-    python scripts/repeatability.py --root DIR --reference NAME
+    python scripts/repeatability.py --root DIR --reference NAME[,NAME...]
 
 ``--root`` holds one folder per condition (e.g. ``dev-1worker``, ``dev-2workers-6busy``,
 ``node-8workers``), each with one packed run per method (``fetchbench results pack RUN
 --name METHOD --runs-dir ROOT/CONDITION``). For every other condition and every method both
-have, the table gives the tasks they share and how many of them end the same: the same
+have and that share tasks (a ``smoke`` reference is compared with the other ``smoke``
+conditions, a test-slice reference with the test-slice ones), the table gives the tasks they share and how many of them end the same: the same
 outcome, the same outcome and failure class (the goal: >= 99 %), and the same executed
 C-space length to 1e-4 rad (the same motion, not only the same verdict).
 """
@@ -50,6 +51,8 @@ def table(root: Path, reference: str) -> str:
                 continue
             g = agreement(_records(ref_dir), _records(method_dir))
             n = g["tasks"]
+            if n == 0:
+                continue  # other tasks (a smoke run against a test slice): nothing to compare
             lines.append(f"| {condition} | `{method_dir.name}` | {n} | {g['same_outcome']} | "
                          f"{g['same_kind']} ({100 * g['same_kind'] / max(n, 1):.0f} %) | {g['same_motion']} | "
                          f"{', '.join(g['differ']) or '-'} |")
@@ -59,12 +62,13 @@ def table(root: Path, reference: str) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=DEFAULT_ROOT)
-    ap.add_argument("--reference", default="dev-1worker")
+    ap.add_argument("--reference", default="dev-1worker,dev-1worker-test100",
+                    help="comma-separated reference conditions, one table each")
     args = ap.parse_args(argv)
     if not args.root.is_dir():
         print(f"error: {args.root} is not a folder of conditions", file=sys.stderr)
         return 2
-    print(table(args.root, args.reference))
+    print("\n\n".join(table(args.root, ref.strip()) for ref in args.reference.split(",") if ref.strip()))
     return 0
 
 

@@ -183,7 +183,7 @@ def test_mppi_reaches_goals_a_cautious_cost_model_calls_in_contact(robot, shelf,
     assert checker.valid(goals).all() and (cautious < 0).all()  # free, and "in contact" for the cost model
     cfg = MppiConfig(cost="distance", device="cpu", max_replans=12)
     fenced = plan_mppi(checker, Q_DEFAULT, goals, config=dataclasses.replace(cfg, goal_region=0, exact_snap_distance=0))
-    assert fenced.status == "timeout"
+    assert fenced.status == "budget"  # replans ran out: a count budget, never "timeout"
     # Judged over three sampling seeds: whether one seed's particles stall in front of the
     # fence hangs on the last bits of the float arithmetic (seed 0 solves on the machine
     # this was written on and stalls on an AMD EPYC; seeds 1-11 solve on both).

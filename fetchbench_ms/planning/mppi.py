@@ -289,7 +289,9 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
         return goal + (coll + self_c).mean(dim=1) + smooth, clear
 
     mean = None
-    status, goal_index = "timeout", -1
+    # Running out of replans is the count budget's end ("budget", a planning failure), as
+    # for the other planners; MPPI has no wall-clock limit of its own.
+    status, goal_index = "budget", -1
     for replan in range(cfg.max_replans + 1):
         tc = time.perf_counter()
         q_now = torch.as_tensor(q, **dd)

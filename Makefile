@@ -24,16 +24,16 @@ test-slow: setup
 	@$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m slow
 
 bench: setup
-	@$(PY) scripts/bench_scenes.py
+	@$(PY) scripts/bench/bench_scenes.py
 
 gallery: setup
-	@$(PY) scripts/make_gallery.py
+	@$(PY) scripts/build/make_gallery.py
 
 # Not a dependency of setup: the lock changes only when someone means it to.
 lock:
-	@bash scripts/lock.sh
+	@bash scripts/maint/lock.sh
 
 # The GPU machine's kit (docs/gpu-machine.md): the offline install bundle in .whl/ and the
 # Vulkan/EGL loaders in .gl/; downloads only.
 bundle:
-	@bash scripts/device_kit.sh
+	@bash scripts/offline/kit.sh

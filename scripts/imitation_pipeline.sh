@@ -11,7 +11,7 @@
 #     STEPS  training steps per policy (default 30000)
 #
 # Checkpoints end in ROOT/export/imit_<kind>.{pt,json} (the JSON records the val choice); ship them
-# with scripts/ship_imitation.py.
+# with scripts/maint/ship_imitation.py.
 set -euo pipefail
 ROOT=${1:?usage: imitation_pipeline.sh ROOT [DEMOS] [STEPS]}
 DEMOS=${2:-5000}

@@ -1060,7 +1060,7 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     checkpoint's JSON only when its records name those exact bytes, and never takes test tasks."""
     import shutil
 
-    ship = _import(ROOT / "scripts/ship_imitation.py", "ship_imitation")
+    ship = _import(ROOT / "scripts/maint/ship_imitation.py", "ship_imitation")
     for kind in ship.KINDS:
         if kind == "act":  # left out here: the case of a kind without a shipped checkpoint, below
             continue

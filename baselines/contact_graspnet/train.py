@@ -9,7 +9,7 @@ of them (``holdout``: sha256 of the object id) is held out: the training views n
 them, and the validation views show only them. The validation figures (losses and the
 top-10 precision on those views) are what a run reports and what hyper-parameters may be
 chosen by. Test-split objects are never read here; their grasp quality is reported
-separately by ``scripts/bench_cgn.py quality`` (docs/grasping.md), and not used to choose
+separately by ``scripts/bench/bench_cgn.py quality`` (docs/grasping.md), and not used to choose
 anything.
 
 Data (made once per run folder, cached in ``<run>/data.npz``; the hash of its arrays goes

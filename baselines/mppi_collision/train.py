@@ -7,7 +7,7 @@ package's; only training lives here.
 
 Data: ``--data`` (train-suite tasks) for training, ``--val`` (held-out tasks: the ``val``
 suite, other scenes, train-split objects) for the validation figures and nothing else; the
-test suite is never read here (``scripts/bench_collision_net.py`` measures on it).
+test suite is never read here (``scripts/bench/bench_collision_net.py`` measures on it).
 Each step takes ``--scenes`` tasks, encodes their grids, and ``--queries`` of each task's
 labelled configurations (spheres by FK on the device).
 

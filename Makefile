@@ -33,7 +33,7 @@ gallery: setup
 lock:
 	@bash scripts/maint/lock.sh
 
-# The GPU machine's kit (docs/gpu-machine.md): the offline install bundle in .whl/ and the
+# The GPU machine's kit (docs/offline-install.md): the offline install bundle in .whl/ and the
 # Vulkan/EGL loaders in .gl/; downloads only.
 bundle:
 	@bash scripts/offline/kit.sh

@@ -264,7 +264,7 @@ def test_shipped_sample_replays(tmp_path):
 
 
 def test_transport_copy_keeps_what_conversion_needs(tmp_path):
-    """scripts/demos_transport.py (moving demos off the GPU machine, docs/gpu-machine.md):
+    """scripts/demos_transport.py (moving demos off the GPU machine, docs/offline-install.md):
     pack -> unpack keeps every array but the env states' middle rows, and the unpacked file
     converts to pd_joint_delta_pos and replays to success with ManiSkill's replay tool."""
     script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"

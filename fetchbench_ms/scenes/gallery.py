@@ -1,5 +1,5 @@
 """The scene gallery: one rendered picture per type and a Markdown page with each type's
-parameter table. Used by ``scripts/build/make_gallery.py`` (docs/scenes.md) and ``fetchbench demo``."""
+parameter table. Used by ``scripts/build/make_gallery.py`` (docs/scene-gallery.md) and ``fetchbench demo``."""
 from __future__ import annotations
 
 import os

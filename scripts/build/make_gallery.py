@@ -1,5 +1,5 @@
 """Regenerate the scene gallery: docs/img/scenes/<Type>.png (320x240, seed 0) and
-docs/scenes.md (pictures, colour key, each type's parameter table).
+docs/scene-gallery.md (pictures, colour key, each type's parameter table).
 
     python scripts/build/make_gallery.py [--seed 0] [--size 320x240] [--stat-seeds 8]
 
@@ -35,7 +35,7 @@ def main() -> int:
             old.unlink()
     images = render_gallery(image_dir, names, args.seed, width, height, progress=lambda n, p: print(f"rendered {p}"))
     stats = {n: type_stats(n, range(args.stat_seeds)) for n in names}
-    page = write_gallery_page(args.docs / "scenes.md", images, args.seed, stats)
+    page = write_gallery_page(args.docs / "scene-gallery.md", images, args.seed, stats)
     print(f"wrote {page} ({len(names)} types)")
     return 0
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Offline install bundle for the GPU machine (`make bundle`; docs/gpu-machine.md).
+"""Offline install bundle for the GPU machine (`make bundle`; docs/offline-install.md).
 
 The GPU machine has Python 3.12 on x86-64, no package index, and torch (CUDA build), numpy,
 scipy and h5py preinstalled at other versions. This script downloads, for that Python and

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Installs the offline bundle (scripts/offline/bundle.py) on the GPU machine; standard library
-only, since nothing else may be there yet. docs/gpu-machine.md shows the calls.
+only, since nothing else may be there yet. docs/offline-install.md shows the calls.
 
 Each call brings one transfer (.whl/<n>/, carried). This script copies what has arrived into a
 staging folder outside the repository (it survives between the calls while the machine stays

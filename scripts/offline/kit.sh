@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU machine's kit, in git-ignored folders of this checkout (docs/gpu-machine.md):
+# The GPU machine's kit, in git-ignored folders of this checkout (docs/offline-install.md):
 #   .whl/1..n  the locked wheels for its Python 3.12, in transfers that fit a call beside the
 #              working tree (scripts/offline/bundle.py; the packages FetchBench's jobs there never
 #              import are left out, and --slim drops the data files it never reads);

@@ -1,27 +1,27 @@
 #!/usr/bin/env python3
-"""Offline install bundle for the GPU machine (`make bundle`; docs/offline-install.md).
+"""Offline install bundle for an air-gapped node (`make bundle`; docs/offline-install.md).
 
-The GPU machine has Python 3.12 on x86-64, no package index, and torch (CUDA build), numpy,
-scipy and h5py preinstalled at other versions. This script downloads, for that Python and
-platform, the wheel of every package pinned in requirements.lock (and requirements-nodeps.txt:
-cgn-pytorch, for its pretrained checkpoint) except torch, its CUDA
-runtime (nvidia-*, triton) and the installer's own tools (pip, setuptools, wheel: the
-machine's Python has them), into the git-ignored folder .whl/:
+A cluster node without a package index still needs the exact versions of requirements.lock. This
+script downloads, for the node's Python and platform (CPython, manylinux x86-64; --python-version),
+the wheel of every package pinned in requirements.lock (and requirements-nodeps.txt:
+cgn-pytorch, for its pretrained checkpoint) except torch, its CUDA runtime (nvidia-*, triton)
+and the installer's own tools (pip, setuptools, wheel), which the node's Python is expected to
+have (torch in the build matching its GPU driver), into the git-ignored folder .whl/:
 
     .whl/cache/        the downloaded wheels (kept: a second run downloads only what is new;
                        wheels no longer in the lock are deleted, since two versions of one
                        package stop the whole install)
-    .whl/1/, .whl/2/   the transfers: each fits the device tool's 64 MiB per call together
-                       with the working tree that travels with it; wheels larger than
-                       --part-mib are split into parts (joined again on the machine)
-    .whl/<n>/manifest.json   the same in every transfer: each wheel's sha256, size, parts
+    .whl/1/            the bundle; with a size split (--split-mib, or --fit-beside-tree) the
+                       parts .whl/1/, .whl/2/, ..., each at most that size, wheels larger
+                       than --part-mib cut into pieces (joined again on the node)
+    .whl/<n>/manifest.json   the same in every part: each wheel's sha256, size, pieces
 
-On the GPU machine, scripts/offline/install.py collects the transfers as they arrive (one per
-call, while the machine stays warm), joins and checks the parts, and installs all the wheels
-with one `pip install --no-index --no-deps --target /tmp/site` once every transfer is in.
+On the node, scripts/offline/install.py collects the parts present (they may arrive one at a
+time), joins and checks the pieces, and installs all the wheels with one `pip install
+--no-index --no-deps --target /tmp/site` once every part is in.
 
-It says what it does, downloads nothing twice, prints the total size, the transfers and the
-wheels that could not be had for cp312 (exit status 1 when any is missing).
+It says what it does, downloads nothing twice, prints the total size, the parts and the
+wheels that could not be had for that Python (exit status 1 when any is missing).
 """
 from __future__ import annotations
 
@@ -37,13 +37,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 MIB = 1024 * 1024
-# The device tool's limit on what travels in one call (working tree + carried paths).
-CALL_LIMIT_MIB = 64
-# Never in the bundle: torch and its CUDA runtime are the machine's own (a CPU torch or a
+# Never in the bundle: torch and its CUDA runtime are the node's own (a CPU torch or a
 # second CUDA runtime would shadow them); pip/setuptools/wheel belong to its Python.
 ALWAYS_SKIPPED = {"torch", "triton", "pip", "setuptools", "wheel"}
-# Platform tags pip accepts for the machine (x86-64 glibc Linux; pip matches manylinux_2_N
-# exactly, so every N a wheel may carry is listed: the machine's Ubuntu 24.04 has glibc 2.39).
+# Platform tags pip accepts for the node (x86-64 glibc Linux; pip matches manylinux_2_N
+# exactly, so every N a wheel may carry is listed, up to Ubuntu 24.04's glibc 2.39).
 PLATFORMS = ([f"manylinux_2_{n}_x86_64" for n in range(39, 4, -1)]
              + ["manylinux2014_x86_64", "manylinux2010_x86_64", "manylinux1_x86_64"])
 
@@ -81,9 +79,9 @@ def wheel_key(filename: str) -> tuple[str, str]:
     return normalise(name), version
 
 
-def travelling_tree_mib() -> float:
-    """Size of what the device tool sends besides the carried paths: tracked and untracked,
-    not ignored files."""
+def working_tree_mib() -> float:
+    """Size of the working tree as a copy of it travels (tracked and untracked, not ignored
+    files): for --fit-beside-tree."""
     out = subprocess.run(["git", "ls-files", "-z", "-c", "-o", "--exclude-standard"], cwd=ROOT,
                          capture_output=True, check=True).stdout
     total = 0
@@ -156,9 +154,9 @@ def pure_wheel_from_sdist(name: str, version: str, cache: Path) -> str | None:
     return None
 
 
-# --slim: what the GPU machine's FetchBench runs never read. ManiSkill's wheel is 97 MiB,
-# mostly other robots' meshes and HDR environment maps; FetchBench uses the Panda alone and
-# its own lighting. Dropping them saves about two transfers (each costs a call's upload).
+# --slim: what FetchBench's runs never read. ManiSkill's wheel is 97 MiB, mostly other
+# robots' meshes and HDR environment maps; FetchBench uses the Panda alone and its own
+# lighting. Dropping them halves that wheel.
 SLIM_DROP = {
     "mani_skill": ("mani_skill/assets/environment_maps/", "mani_skill/assets/maniskill2-scene-2.glb",
                    *(f"mani_skill/assets/robots/{r}/" for r in (
@@ -166,7 +164,7 @@ SLIM_DROP = {
                        "googlerobot", "so100", "stompy", "trifinger", "unitree_g1", "unitree_go2", "unitree_h1",
                        "ur10e", "widowx", "xarm6", "xmate3"))),
 }
-# pybullet has no cp312 wheel anywhere we can reach (and its sdist is the Bullet engine), but
+# pybullet 3.2.7 has no cp312 wheel on PyPI (and its sdist is the Bullet engine), but
 # FetchBench reads only its data folder (the blob meshes, objects/blobs.py): --slim packs
 # that folder, from this machine's install, into a data-only wheel of the same package name.
 PYBULLET_DATA_WHEEL = "fetchbench_pybullet_data-{version}-py3-none-any.whl"
@@ -270,7 +268,7 @@ def pack(wheels: list[Path], out: Path, part_bytes: int, transfer_bytes: int) ->
                 manifest["wheels"][w.name]["parts"].append({"name": part, "transfer": n})
     for w in manifest["wheels"].values():
         w["parts"].sort(key=lambda p: p["name"])
-    # the bundle's identity: the wheels' contents (the machine re-installs when it changes)
+    # the bundle's identity: the wheels' contents (the node re-installs when it changes)
     manifest["id"] = hashlib.sha256(json.dumps(
         sorted((k, v["sha256"]) for k, v in manifest["wheels"].items())).encode()).hexdigest()[:16]
     for n in range(1, len(transfers) + 1):
@@ -283,15 +281,17 @@ def main(argv=None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--lock", default="requirements.lock", help="the lock file (default requirements.lock)")
     ap.add_argument("--out", default=".whl", help="output folder, git-ignored (default .whl)")
-    ap.add_argument("--python-version", default="3.12", help="the GPU machine's Python (default 3.12)")
+    ap.add_argument("--python-version", default="3.12", help="the node's Python version (default 3.12)")
     ap.add_argument("--skip", action="append", default=[], metavar="NAME",
                     help="leave a package out as well (repeatable; e.g. ray, only for --backend ray)")
+    ap.add_argument("--split-mib", type=float, default=None,
+                    help="size split: parts of at most this many MiB (default: one part, no split)")
+    ap.add_argument("--fit-beside-tree", type=float, default=None, metavar="LIMIT_MIB",
+                    help="size split for tools that copy the working tree with every command: parts of "
+                         "LIMIT_MIB less the working tree, less 2 MiB")
     ap.add_argument("--part-mib", type=float, default=None,
-                    help="split wheels larger than this (default: half a transfer, less 0.5 MiB, so that two "
-                         "parts fill one and small wheels the rest)")
-    ap.add_argument("--transfer-mib", type=float, default=None,
-                    help=f"size of one transfer (default: {CALL_LIMIT_MIB} MiB less the working tree that "
-                         "travels with it, less 2 MiB)")
+                    help="with a split, cut wheels larger than this (default: half a part, less 0.5 MiB, so "
+                         "that two pieces fill one and small wheels the rest)")
     ap.add_argument("--slim", action="store_true",
                     help="leave out what FetchBench never reads (other robots' meshes, environment maps) and "
                          "add pybullet's blob meshes as a data-only wheel (pybullet has no cp312 wheel)")
@@ -301,7 +301,7 @@ def main(argv=None) -> int:
     if not lock.is_file():
         ap.error(f"no lock file {lock} (make one with `make lock`)")
     pins = read_lock(lock)
-    nodeps = ROOT / "requirements-nodeps.txt"  # installed --no-deps on the machine like everything else
+    nodeps = ROOT / "requirements-nodeps.txt"  # installed --no-deps on the node like everything else
     if nodeps.is_file():
         pins += read_lock(nodeps)
     names = {normalise(n) for n, _ in pins}
@@ -339,21 +339,31 @@ def main(argv=None) -> int:
             missing = [m for m in missing if m[0] != "pybullet"]
             say(f"pybullet: its data folder as {data.name} ({data.stat().st_size / MIB:.1f} MiB)")
 
-    tree = travelling_tree_mib()
-    transfer_mib = args.transfer_mib or CALL_LIMIT_MIB - tree - 2
-    part_mib = args.part_mib or transfer_mib / 2 - 0.5
-    if transfer_mib < 4 or transfer_mib < part_mib:
-        sys.exit(f"[bundle] a transfer would hold {transfer_mib:.1f} MiB (the working tree is {tree:.1f} MiB "
-                 f"of the {CALL_LIMIT_MIB} MiB): too little, or less than a part ({part_mib:.1f} MiB); "
-                 "lower --part-mib or make the working tree smaller")
-    transfers = pack(wheels, out, int(part_mib * MIB), int(transfer_mib * MIB))
+    if args.split_mib and args.fit_beside_tree:
+        ap.error("--split-mib and --fit-beside-tree both set the part size: give one")
+    tree = None
+    if args.fit_beside_tree:
+        tree = working_tree_mib()
+        split_mib = args.fit_beside_tree - tree - 2
+    else:
+        split_mib = args.split_mib
+    if split_mib is None:
+        part_bytes = transfer_bytes = 1 << 62                    # one part, nothing cut
+    else:
+        part_mib = args.part_mib or split_mib / 2 - 0.5
+        if split_mib < 4 or split_mib < part_mib:
+            beside = f" (the working tree is {tree:.1f} MiB of {args.fit_beside_tree:g})" if tree is not None else ""
+            sys.exit(f"[bundle] a part would hold {split_mib:.1f} MiB{beside}: too little, or less than a "
+                     f"piece ({part_mib:.1f} MiB); lower --part-mib or raise the size")
+        part_bytes, transfer_bytes = int(part_mib * MIB), int(split_mib * MIB)
+    transfers = pack(wheels, out, part_bytes, transfer_bytes)
 
     total = sum(w.stat().st_size for w in wheels)
     say(f"{len(wheels)} wheels, {total / MIB:.1f} MiB in all; largest:")
     for w in sorted(wheels, key=lambda w: -w.stat().st_size)[:8]:
         say(f"  {w.stat().st_size / MIB:6.1f} MiB  {w.name}")
-    say(f"{len(transfers)} transfer(s) of at most {transfer_mib:.1f} MiB each (the working tree, "
-        f"{tree:.1f} MiB, travels with each):")
+    size = "" if split_mib is None else f" of at most {split_mib:.1f} MiB each"
+    say(f"{len(transfers)} part(s){size}:")
     for t in transfers:
         say(f"  {args.out}/{t['n']}: {t['bytes'] / MIB:5.1f} MiB, {t['files']} files")
     if missing:
@@ -361,9 +371,8 @@ def main(argv=None) -> int:
             + ", ".join(f"{n}=={v}" for n, v, _ in missing))
     else:
         say(f"no wheel missing for cp{args.python_version.replace('.', '')}")
-    say("on the GPU machine, one call per transfer n (carry "
-        f"{args.out}/n), the calls close enough together that the machine stays warm:")
-    say("  python3 scripts/offline/install.py          # collects transfer n; installs once all are in")
+    say(f"on the node, with this checkout and {args.out}/1 .. {args.out}/{len(transfers)} copied in:")
+    say("  python3 scripts/offline/install.py          # installs once every part is in (exit 3 until then)")
     say("then: export PYTHONPATH=/tmp/site:$PWD")
     return 1 if missing else 0
 

@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""Installs the offline bundle (scripts/offline/bundle.py) on the GPU machine; standard library
-only, since nothing else may be there yet. docs/offline-install.md shows the calls.
+"""Installs the offline bundle (scripts/offline/bundle.py) on an air-gapped node with `pip
+--no-index`; standard library only, since nothing else may be there yet (docs/offline-install.md).
 
-Each call brings one transfer (.whl/<n>/, carried). This script copies what has arrived into a
-staging folder outside the repository (it survives between the calls while the machine stays
-warm), joins split wheels once all their parts are in and checks every wheel's sha256 against
-the manifest. While transfers are missing it names them and exits 3. Once every wheel is in,
+The bundle is one part (.whl/1/) or, when made with a size split, several (.whl/1/, .whl/2/,
+...) that may arrive one at a time. This script copies the parts present into a staging
+folder outside the repository (so parts brought one by one add up), joins split wheels once
+all their parts are in and checks every wheel's sha256 against the manifest. While parts are
+missing it names them and exits 3. Once every wheel is in,
 it installs them all with one `pip install --no-index --no-deps --no-compile --upgrade --target
 /tmp/site` (one call: with --target, a second call would replace shared folders such as bin/),
 then prints the PYTHONPATH to export. Run again with the same bundle it does nothing.
@@ -37,7 +38,7 @@ def sha256(path: Path) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--bundle", default=".whl", help="folder holding the transfers 1/, 2/, ... (default .whl)")
+    ap.add_argument("--bundle", default=".whl", help="folder holding the bundle's parts 1/, 2/, ... (default .whl)")
     ap.add_argument("--stage", default="/tmp/fetchbench-wheels", help="staging folder (default /tmp/fetchbench-wheels)")
     ap.add_argument("--target", default="/tmp/site", help="where the packages go (default /tmp/site)")
     args = ap.parse_args(argv)
@@ -46,7 +47,7 @@ def main(argv=None) -> int:
     arrived = sorted((d for d in bundle.glob("*") if (d / "manifest.json").is_file()),
                      key=lambda d: d.name)
     if not arrived:
-        say(f"no transfer in {bundle} (carry {args.bundle}/<n>, made by scripts/offline/bundle.py)")
+        say(f"no bundle part in {bundle} (expected {args.bundle}/1/, made by scripts/offline/bundle.py)")
         return 2
     manifest = json.loads((arrived[-1] / "manifest.json").read_text())
     stage.mkdir(parents=True, exist_ok=True)
@@ -59,12 +60,12 @@ def main(argv=None) -> int:
 
     for d in arrived:
         if json.loads((d / "manifest.json").read_text())["id"] != manifest["id"]:
-            say(f"skipping {d}: it belongs to another bundle (make the bundle again and carry all its transfers)")
+            say(f"skipping {d}: it belongs to another bundle (make the bundle again and bring all its parts)")
             continue
         for f in d.iterdir():
             if f.name != "manifest.json" and not (stage / f.name).exists():
                 shutil.copyfile(f, stage / f.name)
-        say(f"transfer {d.name} staged")
+        say(f"part {d.name} staged")
 
     waiting = set()
     for name, w in manifest["wheels"].items():
@@ -85,11 +86,11 @@ def main(argv=None) -> int:
         elif wheel.stat().st_size != w["size"] or sha256(wheel) != w["sha256"]:
             wheel.unlink()
             sys.exit(f"[offline-install] {name}: damaged (size or sha256 differ from the manifest); "
-                     f"carry transfer(s) {w.get('transfer') or sorted({p['transfer'] for p in w['parts']})} again")
+                     f"bring part(s) {w.get('transfer') or sorted({p['transfer'] for p in w['parts']})} again")
     if waiting:
-        say(f"{len(manifest['wheels'])} wheels in {manifest['transfers']} transfers; still to come: "
+        say(f"{len(manifest['wheels'])} wheels in {manifest['transfers']} part(s); still to come: "
             + " ".join(str(n) for n in sorted(waiting))
-            + f" (next calls carry {args.bundle}/<n> while this machine is warm)")
+            + f" (bring them into {args.bundle}/<n> and run this again)")
         return 3
 
     stamp = target / ".fetchbench-bundle"

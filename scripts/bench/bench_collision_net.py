@@ -11,7 +11,7 @@ chooses anything; the checkpoint was fixed before), and its query throughput.
    spheres; with FK from joint angles and without), and the scene encoding time.
 
     python scripts/bench/bench_collision_net.py --suite test --tasks 0:60 --labels /tmp/mppi/test --device cuda --workers 4 \\
-        --json $OUT/bench_collision_net.json
+        --json runs/bench_collision_net.json
 """
 from __future__ import annotations
 

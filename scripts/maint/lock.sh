@@ -14,6 +14,7 @@
 # platform, which its header records), FETCHBENCH_TORCH_VERSION (default below),
 # FETCHBENCH_TORCH_INDEX (see scripts/torch_cpu.sh), FETCHBENCH_LOCK (output file).
 set -euo pipefail
+case "${1:-}" in -h|--help) sed -n '2,15p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 cd "$(dirname "$0")/../.."
 PY=${PYTHON:-python3}
 TORCH_VERSION=${FETCHBENCH_TORCH_VERSION:-2.13.0}

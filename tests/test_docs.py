@@ -126,10 +126,66 @@ def _run(args, timeout=300, **kw):
 
 
 _SCRIPT_HELP: dict[str, str | None] = {}
+# One interpreter answers every Python script's --help (runpy, as `python SCRIPT --help` /
+# `python -m MODULE --help` would run it): their imports are paid once, not once a script.
+_HELP_RUNNER = """
+import contextlib, io, json, os, runpy, sys
+results = {}
+for key in json.loads(sys.argv[1]):
+    kind, target = key.split(" ", 1)
+    sys.argv = [target, "--help"]
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+            if kind == "-m":
+                runpy.run_module(target, run_name="__main__", alter_sys=True)
+            else:  # as `python SCRIPT` does: the script's folder first on sys.path
+                sys.path.insert(0, os.path.dirname(target))
+                try:
+                    runpy.run_path(target, run_name="__main__")
+                finally:
+                    sys.path.pop(0)
+        code = 0
+    except SystemExit as e:
+        code = 0 if e.code is None else e.code if isinstance(e.code, int) else 1
+    except BaseException as e:
+        code, out = 1, io.StringIO(repr(e))
+    results[key] = [code, out.getvalue()[-400:]]
+print(json.dumps(results))
+"""
+
+
+def _python_help(keys: list[str]) -> None:
+    """Fills _SCRIPT_HELP for keys ("-m MODULE" or "path SCRIPT") not answered yet."""
+    import json
+
+    todo = [k for k in dict.fromkeys(keys) if k not in _SCRIPT_HELP]
+    if not todo:
+        return
+    done = _run([sys.executable, "-c", _HELP_RUNNER, json.dumps(todo)], timeout=600)
+    assert done.returncode == 0, f"the --help runner failed: {done.stderr[-2000:]}"
+    for key, (code, text) in json.loads(done.stdout.strip().splitlines()[-1]).items():
+        _SCRIPT_HELP[key] = None if code == 0 else f"`python {key.split(' ', 1)[1]} --help` exited {code}: {text}"
+
+
+def _python_keys(fences) -> list[str]:
+    keys = []
+    for fence in fences:
+        for c in _commands(fence.text):
+            if c[0] in ("python", "python3") and len(c) > 1:
+                if c[1] == "-m" and c[2] != "fetchbench_ms":
+                    keys.append(f"-m {c[2]}")
+                elif c[1] != "-m" and (ROOT / c[1]).is_file():
+                    keys.append(f"path {ROOT / c[1]}")
+    return keys
 
 
 def _script_help(argv: list[str]) -> str | None:
-    """None when ``argv --help`` exits 0 (cached per script), else the reason."""
+    """None when ``argv --help`` exits 0 (cached), else the reason."""
+    if argv[0] == sys.executable:
+        key = f"-m {argv[2]}" if argv[1] == "-m" else f"path {argv[1]}"
+        _python_help([key])
+        return _SCRIPT_HELP[key]
     key = " ".join(argv)
     if key not in _SCRIPT_HELP:
         done = _run([*argv, "--help"], timeout=180)
@@ -191,8 +247,26 @@ RUN = [f for f in FENCES if f.mode == "run"]
 SLOW = [f for f in FENCES if f.mode == "slow"]
 
 
+_FETCHBENCH_RUNNER = """
+import json, sys
+from fetchbench_ms.cli import main
+for args in json.loads(sys.argv[1]):
+    code = main(args)
+    if code:
+        sys.exit(f"fetchbench {' '.join(args)}: exit status {code}")
+"""
+
+
 def _run_fence(fence: Fence, timeout: int):
-    if fence.lang == "python":
+    import json
+
+    commands = _commands(fence.text)
+    if fence.lang == "bash" and commands and all(c[0] == "fetchbench" for c in commands) \
+            and not any(re.search(r"[|<>`$]", line.split(" #")[0]) for line in fence.text.splitlines()):
+        # only fetchbench commands joined by newlines or &&: the same calls in one interpreter
+        done = _run([sys.executable, "-c", _FETCHBENCH_RUNNER, json.dumps([c[1:] for c in commands])],
+                    timeout=timeout)
+    elif fence.lang == "python":
         done = _run([sys.executable, "-c", fence.text], timeout=timeout)
     else:
         prelude = (f'set -e\nPY="{sys.executable}"\nfetchbench() {{ "$PY" -m fetchbench_ms "$@"; }}\n'
@@ -202,8 +276,14 @@ def _run_fence(fence: Fence, timeout: int):
                                   f"{(done.stderr or done.stdout)[-2000:]}")
 
 
+@pytest.fixture(scope="module")
+def python_help_answers():
+    """Every Python script the docs and scripts/ name, answered in one interpreter."""
+    _python_help(_python_keys(HELP) + [f"path {p}" for p in SCRIPTS if p.suffix == ".py"])
+
+
 @pytest.mark.parametrize("fence", HELP, ids=_ids(HELP))
-def test_documented_commands_parse(fence):
+def test_documented_commands_parse(fence, python_help_answers):
     problems = [p for c in _commands(fence.text) if (p := _check_help(c))]
     assert not problems, f"{fence.id}:\n" + "\n".join(problems)
 
@@ -281,6 +361,6 @@ def test_every_script_is_in_the_scripts_readme():
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[str(p.relative_to(ROOT)) for p in SCRIPTS])
-def test_every_script_answers_help(script):
+def test_every_script_answers_help(script, python_help_answers):
     argv = ["bash", str(script)] if script.suffix == ".sh" else [sys.executable, str(script)]
     assert _script_help(argv) is None, _script_help(argv)

@@ -36,3 +36,10 @@ def test_tracked_tree_is_at_most_50_mb():
 def test_no_tracked_file_is_huge():
     big = {rel: size for rel, size in _tracked_sizes().items() if size > LARGEST_FILE_MB * 1e6}
     assert not big, f"tracked files over {LARGEST_FILE_MB} MB: {big}"
+
+
+def test_the_demo_sample_is_at_most_2_mb():
+    """The shipped demo sample (20 trajectories) is written with HDF5's latest file format, whose
+    metadata is a fraction of the default's (0.85 MB against 2.07 MB for the same datasets)."""
+    sample = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
+    assert sample.stat().st_size <= 2e6, f"{sample.relative_to(ROOT)}: {sample.stat().st_size / 1e6:.2f} MB"

@@ -66,7 +66,7 @@ class Args:
     val_queries: int = 2000  # per validation task
     export: bool = False  # when the last step is done: assets/checkpoints/collision_net.{pt,json} (and --export-dir)
     false_free_target: float = 0.02  # the decision margin is chosen on val for at most this false-free rate
-    export_dir: str = ""  # also copy the checkpoint, JSON and log here (e.g. $OUT)
+    export_dir: str = ""  # also copy the checkpoint, JSON and log here
 
 
 # -- data ---------------------------------------------------------------------------------

@@ -2,7 +2,7 @@
 # first (scripts/setup.sh: venv, editable install, software Vulkan if needed; idempotent).
 # FETCHBENCH_VENV picks another virtual environment (default .venv). setup installs the
 # exact versions in requirements.lock; `make lock` regenerates that file (after changing
-# dependencies in pyproject.toml); `make bundle` makes the GPU machine's offline wheels.
+# dependencies in pyproject.toml); `make bundle` makes the offline kit of an air-gapped node.
 .PHONY: setup demo test test-slow bench gallery lock bundle
 
 VENV ?= $(or $(FETCHBENCH_VENV),.venv)
@@ -24,16 +24,18 @@ test-slow: setup
 	@$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m slow
 
 bench: setup
-	@$(PY) scripts/bench_scenes.py
+	@$(PY) scripts/bench/bench_scenes.py
 
 gallery: setup
-	@$(PY) scripts/make_gallery.py
+	@$(PY) scripts/build/make_gallery.py
 
 # Not a dependency of setup: the lock changes only when someone means it to.
 lock:
-	@bash scripts/lock.sh
+	@bash scripts/maint/lock.sh
 
-# The GPU machine's kit (docs/gpu-machine.md): the offline install bundle in .whl/ and the
-# Vulkan/EGL loaders in .gl/; downloads only.
+# The offline kit of an air-gapped node (docs/offline-install.md): the locked wheels in .whl/
+# and the Vulkan/EGL loaders in .gl/; downloads only. BUNDLE_ARGS go to scripts/offline/bundle.py
+# (e.g. --python-version 3.11, or a size split: --split-mib 500).
+BUNDLE_ARGS ?=
 bundle:
-	@bash scripts/device_kit.sh
+	@bash scripts/offline/kit.sh $(BUNDLE_ARGS)

@@ -12,7 +12,7 @@ different bytes elsewhere. ``rebuild_sample`` regenerates, from their seeds and 
   against the shipped arrangement of that seed.
 
 It returns digests (to diff two machines' reports) and the mismatches with the shipped
-assets. ``scripts/check_determinism.py`` prints it; a test runs a small sample.
+assets. ``scripts/bench/check_determinism.py`` prints it; a test runs a small sample.
 """
 from __future__ import annotations
 

@@ -15,7 +15,7 @@ Converting ``pd_joint_pos`` demos to a joint-space controller (``-c pd_joint_del
 source actions beside the one it records, and reads nothing of it but its controller's action
 layout. Here it is not stepped (``_SourceControllerOnly``): the converted file is the same to
 the bit (``tests/test_envs_replay.py``), and a state-only conversion runs 1.51x as many steps
-a second (``scripts/bench_replay_conversion.py``). End-effector targets (``pd_ee_*``) read the stepped source
+a second (``scripts/bench/bench_replay_conversion.py``). End-effector targets (``pd_ee_*``) read the stepped source
 env's joint targets, so they run as ManiSkill wrote them.
 
 A demo recorded without a renderer (``render_backend="none"`` in its env kwargs, e.g.

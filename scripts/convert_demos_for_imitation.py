@@ -19,10 +19,10 @@ processes), so the costly rendering is a K-th (docs/imitation.md, "Frame stride"
 ``--overlap-replay`` (K > 1) starts the next chunk's replay in the background while a chunk
 renders (the same files).
 
-    # the GPU machine (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
+    # a 16-core GPU node (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
     python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
         --out data/imit --count 5000 --chunk 128 --num-envs 16 --device cuda --time-limit 540
-    # one shard per hold when the whole does not fit one (docs/imitation.md): demos 1,536 .. 3,071
+    # one shard of a run that goes over several (docs/imitation.md): demos 1,536 .. 3,071
     python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-s1 --start 1536 --count 1536 ...
     # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
     python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
@@ -176,13 +176,13 @@ def main(argv=None) -> int:
     p.add_argument("--out", required=True, help="folder of the training files (re-running resumes)")
     p.add_argument("--count", type=int, default=None, help="N demos from --start (default: all)")
     p.add_argument("--start", type=int, default=0,
-                   help="first demo (a multiple of --chunk): one shard of a dataset too large for one machine's "
-                        "hold; its chunks keep their numbers in the whole dataset")
+                   help="first demo (a multiple of --chunk): one shard of a dataset converted in several "
+                        "runs; its chunks keep their numbers in the whole dataset")
     p.add_argument("--chunk", type=int, default=128, help="demos per replay call / training file")
     p.add_argument("--num-envs", type=int, default=1, help="replay processes (one core each)")
     p.add_argument("--sizes", default=",".join(str(v) for v in POLICY_SIZES.values()),
                    help="points kept per segment: SCENE,TARGET,ROBOT")
-    p.add_argument("--device", default="cpu", help="farthest-point sampling on this torch device (cuda on the GPU machine)")
+    p.add_argument("--device", default="cpu", help="farthest-point sampling on this torch device (cuda on a GPU node)")
     p.add_argument("--time-limit", type=float, default=0.0,
                    help="s; > 0: start no chunk that would end after this, judged by the slowest so far (re-run to resume)")
     p.add_argument("--first-steps", type=int, default=None, help="keep only each demo's first steps (tests)")

@@ -1,11 +1,10 @@
-"""A compact copy of a demo file for moving it between machines (the GPU machine's holds).
+"""A compact copy of a demo file for moving it between machines.
 
     python scripts/demos_transport.py pack SRC.h5 DST.npz        # + DST.json
     python scripts/demos_transport.py unpack DST.npz OUT.h5      # + OUT.json
 
-The device tool brings back at most 64 MiB a call (16 MiB a file), and a dataset of 5,000
-demos is ~500 MB: env states, one row per step, and HDF5's per-dataset overhead (about
-25 small datasets a trajectory). The transport keeps, per trajectory, everything but the
+A dataset of 5,000 demos is ~500 MB: env states, one row per step, and HDF5's per-dataset
+overhead (about 25 small datasets a trajectory). The transport keeps, per trajectory, everything but the
 env states' middle rows (the actions, the stage labels, success / terminated / truncated,
 the first and the last env state), with every array of one name concatenated over the
 trajectories in one compressed ``.npz`` (~5 KB a trajectory).

@@ -11,8 +11,9 @@
 #     STEPS  training steps per policy (default 30000)
 #
 # Checkpoints end in ROOT/export/imit_<kind>.{pt,json} (the JSON records the val choice); ship them
-# with scripts/ship_imitation.py.
+# with scripts/maint/ship_imitation.py.
 set -euo pipefail
+case "${1:-}" in -h|--help) sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 ROOT=${1:?usage: imitation_pipeline.sh ROOT [DEMOS] [STEPS]}
 DEMOS=${2:-5000}
 STEPS=${3:-30000}

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# One GPU-machine hold of a sharded imitation run (docs/imitation.md, "Shards"). The training
-# files of the whole dataset (~15 GB) cannot leave the machine and their conversion takes
-# ~3 hours of it, so each hold converts the next demos while the three trainers learn from the
-# chunks finished so far:
+# One shard of an imitation run on one GPU node, within a fixed time (docs/imitation.md). The
+# training files of the whole dataset (~15 GB) take ~2-3 hours of a 16-core node to convert,
+# so a run can go over shards: each call converts the next demos while the trainers learn
+# from the chunks finished so far:
 #   - scripts/convert_demos_for_imitation.py converts demos [START, START+COUNT) of TRAJ into
 #     ROOT/data (a chunk of 128 demos at a time; the manifest is rewritten after each);
 #   - meanwhile the trainers run in rounds of ROUND seconds, each round resuming
@@ -10,7 +10,7 @@
 #     hash and the step it began at go into the checkpoint and the export's JSON) and exporting
 #     ROOT/export/imit_<kind>.pt (fp16) + .json at its end;
 #   - everything has stopped SECONDS after the start.
-# Restore ROOT/runs/<kind>/checkpoint.pt from the previous hold to go on with a run.
+# Keep (or restore) ROOT/runs/<kind>/checkpoint.pt from the previous shard to go on with a run.
 #
 #   bash scripts/imitation_shard.sh ROOT TRAJ START COUNT SECONDS
 #
@@ -32,12 +32,13 @@
 # checkpoints can still be arriving (one transfer a call) while the demos convert.
 # KINDS: the trainers to run (default "mlp transformer diffusion"; add act for ACT, whose
 # schedule is STEPS_ACT, default 16000). INIT_FROM=DIR: a trainer without a checkpoint in
-# ROOT/runs/<kind> starts from DIR/imit_<kind>.pt (an earlier hold's export: the trainers'
+# ROOT/runs/<kind> starts from DIR/imit_<kind>.pt (an earlier shard's export: the trainers'
 # --init-from, weights and step without the optimiser's state; ~15 MB for three against the
 # full checkpoints' 85 MB). SAVE_EVERY=STEPS: the trainers' --save-every (a candidate export every
 # STEPS steps in ROOT/runs/<kind>/candidates/, chosen from on val tasks afterwards by
 # scripts/select_checkpoint.py; docs/imitation.md "Choosing the checkpoint").
 set -euo pipefail
+case "${1:-}" in -h|--help) sed -n '2,39p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
 TRAJ=${2:?TRAJ: the demos h5}
 START=${3:?START: the first demo, a multiple of CHUNK (128)}

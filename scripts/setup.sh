@@ -9,6 +9,7 @@
 # comes from when it is reachable; default https://download.pytorch.org/whl/cpu; set it
 # empty to use the package index only), FETCHBENCH_UNLOCKED=1 (see step 2).
 set -euo pipefail
+case "${1:-}" in -h|--help) sed -n '2,10p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 cd "$(dirname "$0")/.."
 VENV=${FETCHBENCH_VENV:-.venv}
 PY=${PYTHON:-python3}

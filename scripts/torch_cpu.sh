@@ -1,4 +1,4 @@
-# Sourced by scripts/setup.sh and scripts/lock.sh (not run on its own).
+# Sourced by scripts/setup.sh and scripts/maint/lock.sh (not run on its own).
 # install_torch_cpu VENV VERSION: installs torch==VERSION into VENV, its CPU build where the
 # PyTorch CPU index is reachable, so that nothing pulls torch's CUDA wheels (several GB).
 # Where that index is not reachable (offline mirrors, this project's CI) the package index

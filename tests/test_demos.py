@@ -128,8 +128,8 @@ def test_merge_cuts_at_n(demos):
 
 def test_start_seed_runs_task_k_under_seed_k(demos, tmp_path, capsys):
     """``--start-seed K`` continues a run from 0: episode seed K is task K of the suite, with
-    the same bytes as the run from 0 made for it (the dataset is made in pieces on several
-    holds of the GPU machine and must be what one run would have made)."""
+    the same bytes as the run from 0 made for it (a dataset made in pieces on several
+    machines must be what one run would have made)."""
     done0 = done_parts(parts_dir(demos.parents[2], ENV_ID, "trajectory"))
     k = max(done0)  # the fixture's last task, k >= 1
     assert k >= 1
@@ -264,7 +264,7 @@ def test_shipped_sample_replays(tmp_path):
 
 
 def test_transport_copy_keeps_what_conversion_needs(tmp_path):
-    """scripts/demos_transport.py (moving demos off the GPU machine, docs/gpu-machine.md):
+    """scripts/demos_transport.py (moving demos between machines, docs/demos.md):
     pack -> unpack keeps every array but the env states' middle rows, and the unpacked file
     converts to pd_joint_delta_pos and replays to success with ManiSkill's replay tool."""
     script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"

@@ -91,7 +91,7 @@ def test_compact_pointcloud_obs_mode_matches_the_wrapper_on_raw_clouds():
 
 @pytest.mark.slow  # ~40 s: renders a point cloud per step
 def test_converted_compact_trajectory_is_at_most_150_kb_a_step(tmp_path):
-    from scripts.bench_compact_cloud import GOAL_BYTES, convert, per_step, record_demo
+    from scripts.bench.bench_compact_cloud import GOAL_BYTES, convert, per_step, record_demo
 
     demo = record_demo(tmp_path, steps=4, task_suite=SUITE)
     r = per_step(convert(demo, "compact_pointcloud"))

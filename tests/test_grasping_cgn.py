@@ -470,13 +470,13 @@ def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
 
 
 def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_path):
-    """scripts/bench_cgn.py speed: the saved target region (20k points of smoke/0003), medians
-    per device and batch size, printed as JSON (run on the GPU machine with --device cuda cpu)."""
+    """scripts/bench/bench_cgn.py speed: the saved target region (20k points of smoke/0003), medians
+    per device and batch size, printed as JSON (on a GPU: --device cuda cpu)."""
     import importlib.util
     import json
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "bench_cgn.py"
+    path = Path(__file__).resolve().parents[1] / "scripts" / "bench" / "bench_cgn.py"
     spec = importlib.util.spec_from_file_location("bench_cgn", path)
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)

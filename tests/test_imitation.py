@@ -187,7 +187,7 @@ def test_trainer_resumes_after_time_limit(sample_data, tmp_path):
 
 
 def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
-    """A dataset too large for one hold is trained shard by shard: the converter's --start
+    """A dataset too large for one run is trained shard by shard: the converter's --start
     numbers a shard's chunks as in the whole, --until-step stops a call, and --new-data
     resumes the checkpoint on the next shard (refused without it); the export records each
     shard's data hash and the step it began at."""
@@ -203,7 +203,7 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=8, until_step=4, export=True,
                        export_path=str(export), **TINY, **TRAINER_KW["mlp"])
     first = module.main(args)
-    # A stopped call exports what it has (a hold's share of a longer run) and says so.
+    # A stopped call exports what it has (one shard of a longer run) and says so.
     _, meta = load_model(export)
     assert first["stopped"] and first["step"] == 4 and meta["step"] == 4 and not meta["schedule_complete"]
     args.data, args.until_step = str(shard), 0
@@ -1060,7 +1060,7 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     checkpoint's JSON only when its records name those exact bytes, and never takes test tasks."""
     import shutil
 
-    ship = _import(ROOT / "scripts/ship_imitation.py", "ship_imitation")
+    ship = _import(ROOT / "scripts/maint/ship_imitation.py", "ship_imitation")
     for kind in ship.KINDS:
         if kind == "act":  # left out here: the case of a kind without a shipped checkpoint, below
             continue

@@ -345,7 +345,7 @@ def test_selection_cli_exits_2_on_test(tmp_path):
 
 
 def test_shipping_refuses_a_test_val_run(tmp_path, capsys, monkeypatch):
-    ship = _import(ROOT / "scripts/ship_imitation.py", "ship_imitation")
+    ship = _import(ROOT / "scripts/maint/ship_imitation.py", "ship_imitation")
     monkeypatch.setattr(ship, "default_checkpoint", lambda kind: tmp_path / "none" / f"imit_{kind}.pt")
     folder = tmp_path / "run"
     folder.mkdir()
@@ -417,7 +417,7 @@ def test_ppo_refuses_test_tasks(tmp_path, capsys):
 
 
 def test_bench_cgn_quality_refuses_test_unless_report_only(tmp_path, capsys):
-    bench = _load_script(ROOT / "scripts/bench_cgn.py", "bench_cgn")
+    bench = _load_script(ROOT / "scripts/bench/bench_cgn.py", "bench_cgn")
     for suite in ("test", "smoke"):
         with pytest.raises(SystemExit) as excinfo:
             bench.main(["quality", "--suite", suite, "--json", str(tmp_path / "q.json")])
@@ -449,7 +449,7 @@ def test_cgn_training_data_refuses_test_objects(tmp_path, capsys, test_objects_i
 
 
 def test_cgn_label_check_refuses_test_objects(capsys, monkeypatch, test_objects_in_the_catalog):
-    check = _load_script(ROOT / "scripts/check_cgn_labels.py", "check_cgn_labels")
+    check = _load_script(ROOT / "scripts/bench/check_cgn_labels.py", "check_cgn_labels")
     monkeypatch.setattr(sys, "argv", ["check_cgn_labels.py", "--views", "1"])
     with pytest.raises(SystemExit) as excinfo:
         check.main()
@@ -460,7 +460,7 @@ def test_cgn_training_gets_past_the_guard_on_train_objects(tmp_path, monkeypatch
     train = _load_script(ROOT / "baselines/contact_graspnet/train.py", "cgn_train_guard")
     with pytest.raises(ValueError, match="--init 'bogus'"):  # the first check after the guard
         train.main(train.Args(run=str(tmp_path / "run"), device="cpu", tiny=True, init="bogus"))
-    check = _load_script(ROOT / "scripts/check_cgn_labels.py", "check_cgn_labels")
+    check = _load_script(ROOT / "scripts/bench/check_cgn_labels.py", "check_cgn_labels")
     monkeypatch.setattr(sys, "argv", ["check_cgn_labels.py", "--model", str(tmp_path / "none.pt")])
     with pytest.raises(FileNotFoundError):  # past the guard: the model is loaded next
         check.main()

@@ -9,7 +9,7 @@ of them (``holdout``: sha256 of the object id) is held out: the training views n
 them, and the validation views show only them. The validation figures (losses and the
 top-10 precision on those views) are what a run reports and what hyper-parameters may be
 chosen by. Test-split objects are never read here; their grasp quality is reported
-separately by ``scripts/bench_cgn.py quality`` (docs/grasping.md), and not used to choose
+separately by ``scripts/bench/bench_cgn.py quality`` (docs/grasping.md), and not used to choose
 anything.
 
 Data (made once per run folder, cached in ``<run>/data.npz``; the hash of its arrays goes
@@ -40,7 +40,7 @@ points, weighted by the predicted confidence; width L1 for positive points.
     # call stops at --time-limit with a checkpoint and the same command resumes it (the run
     # folder must survive between calls); the last call validates and exports
     python baselines/contact_graspnet/train.py --run /tmp/cgn-ours-v3 --workers 14 --train-seconds 900 \
-        --time-limit 540 --export --export-dir $OUT
+        --time-limit 540 --export --export-dir runs/cgn/export
     # a CPU smoke run: tiny network, few points
     python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --val-views 2 --steps 5
 
@@ -105,7 +105,7 @@ class Args:
     positive_radius: float = 0.005  # m, cloud point to finger contact
     tiny: bool = False  # a small network (no pretrained init) and 1024 points: for CPU tests
     export: bool = False  # write cgn_ours.{pt,json,log} into --export-dir when done
-    export_dir: str = "assets/checkpoints"  # where --export writes (the repo's, or $OUT on the GPU machine)
+    export_dir: str = "assets/checkpoints"  # where --export writes (the repo's, or a folder to copy from)
     workers: int = 0  # data-generation processes (0: all cores)
 
 

@@ -61,8 +61,8 @@ class TrainArgs:
     eval_workers: int = 16
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
     until_step: int = 0  # > 0: checkpoint and stop at this step (re-run to resume; the LR schedule spans --steps)
-    # Resume the run's checkpoint on other data: the next shard of a dataset too large for
-    # one machine's hold (scripts/convert_demos_for_imitation.py --start). Each data hash and
+    # Resume the run's checkpoint on other data: the next shard of a dataset converted and
+    # trained in several runs (scripts/convert_demos_for_imitation.py --start). Each data hash and
     # the step it began at are recorded (checkpoint, export JSON).
     new_data: bool = False
     # Start a new run folder from an exported checkpoint (assets/checkpoints/imit_<kind>.pt or a
@@ -392,7 +392,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             evaluate_now()
         log(f"done: {step} steps")
     if args.export:
-        # Also a run stopped by --time-limit / --until-step exports (a hold's shard of a longer
+        # Also a run stopped by --time-limit / --until-step exports (one shard of a longer
         # run ships what it has); the JSON says whether the schedule was finished.
         export(model, kind, args, command, dhash, frames.frame_stride, step, history, last, log)
     return {"model": model, "step": step, "last": last, "history": history, "stopped": stopped}

@@ -1,7 +1,7 @@
 """Labelled queries for the scene-collision network (``fetchbench_ms.planning.collision_net``).
 
 Per task of a train-split suite (``train`` or ``val``; the test suite is refused: its
-scenes are for ``scripts/bench_collision_net.py`` only), one file ``<out>/<task>.npz``:
+scenes are for ``scripts/bench/bench_collision_net.py`` only), one file ``<out>/<task>.npz``:
 
 - the input: the env's real camera clouds (both cameras, robot points removed as the
   point-cloud planners remove them), as ``collision_net.scene_grid`` (uint8);

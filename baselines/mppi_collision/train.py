@@ -7,7 +7,7 @@ package's; only training lives here.
 
 Data: ``--data`` (train-suite tasks) for training, ``--val`` (held-out tasks: the ``val``
 suite, other scenes, train-split objects) for the validation figures and nothing else; the
-test suite is never read here (``scripts/bench_collision_net.py`` measures on it).
+test suite is never read here (``scripts/bench/bench_collision_net.py`` measures on it).
 Each step takes ``--scenes`` tasks, encodes their grids, and ``--queries`` of each task's
 labelled configurations (spheres by FK on the device).
 
@@ -66,7 +66,7 @@ class Args:
     val_queries: int = 2000  # per validation task
     export: bool = False  # when the last step is done: assets/checkpoints/collision_net.{pt,json} (and --export-dir)
     false_free_target: float = 0.02  # the decision margin is chosen on val for at most this false-free rate
-    export_dir: str = ""  # also copy the checkpoint, JSON and log here (e.g. $OUT)
+    export_dir: str = ""  # also copy the checkpoint, JSON and log here
 
 
 # -- data ---------------------------------------------------------------------------------

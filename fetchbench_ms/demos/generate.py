@@ -341,7 +341,7 @@ def _merge_quietly(tmp: Path, files: list) -> None:
 
 def merge_runs(paths: list, out) -> Path:
     """One dataset from runs over consecutive task ranges (``--start-seed``, e.g. one per
-    hold of a GPU machine): ``<out>.h5`` + ``.json``, with ManiSkill's ``merge_trajectories``
+    machine or per scheduled job): ``<out>.h5`` + ``.json``, with ManiSkill's ``merge_trajectories``
     (episode ids renumbered in order), as one run over all their tasks would have made it.
     Refused, with the reason, when the runs are not back to back (a gap or an overlap of
     tasks) or came from other env ids / settings. Transport copies stay marked as such."""

@@ -7,7 +7,7 @@ the recorded actions run out, the last action is repeated (the arm holds the tar
 where the demo left it) up to ``horizon`` steps, so demos of different lengths and
 policies that run the full horizon are compared over the same number of steps.
 ``policy_rollout`` does the same for a policy given as a function of the step.
-``scripts/bench_reward.py`` uses both (docs/rl.md).
+``scripts/bench/bench_reward.py`` uses both (docs/rl.md).
 """
 from __future__ import annotations
 

@@ -96,7 +96,7 @@ class Curriculum:
         return _apply_cached(self, task.content_hash(), _TaskBox(task))
 
 
-#: Presets: what ``scripts/bench_rl_env.py`` and ``baselines/ppo`` use (docs/rl.md).
+#: Presets: what ``scripts/bench/bench_rl_env.py`` and ``baselines/ppo`` use (docs/rl.md).
 CURRICULA = {
     # On-table targets among 3 other objects, the robot up to 15 cm closer, 32 tasks.
     "table-near": Curriculum(num_objects=4, target_labels=("on_table",), max_tasks=32, base_advance=0.15),

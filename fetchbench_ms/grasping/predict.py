@@ -33,7 +33,7 @@ PRETRAINED_PACKAGE = "cgn-pytorch==0.4.3"
 REGION_SIZE = (0.3, 0.6)  # m, side of the cube around the target (the original's min / max)
 
 # The network's gripper frame closes along x; the project's panda_hand closes along y
-# (docs/grasps.md): a quarter turn about the approach axis z.
+# (docs/objects.md): a quarter turn about the approach axis z.
 T_CGN_HAND = np.array([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
@@ -82,7 +82,7 @@ def load_model(name: str = "pretrained", device: str = "cpu") -> ContactGraspNet
 class PredictedGrasps:
     """Grasps on the target, best first, in the robot-base frame."""
 
-    T_base_hand: np.ndarray  # (N, 4, 4) panda_hand poses (docs/grasps.md convention)
+    T_base_hand: np.ndarray  # (N, 4, 4) panda_hand poses (docs/objects.md convention)
     scores: np.ndarray  # (N,) confidence in [0, 1]
     widths: np.ndarray  # (N,) predicted finger opening, m
     contacts: np.ndarray  # (N, 3) the contact point each grasp was predicted for

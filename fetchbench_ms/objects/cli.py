@@ -62,7 +62,7 @@ def add_commands(subparsers) -> None:
     sub = objects.add_subparsers(dest="objects_command", required=True, metavar="ACTION")
     b = sub.add_parser("build", help="rebuild the catalog (decompositions, stable poses, index); resumable")
     b.add_argument("--workers", type=int, default=max(1, min(os.cpu_count() or 1, 8)), help="worker processes")
-    b.add_argument("--ycb-raw", default=None, help="raw CoACD results (scripts/build_objects_ycb.py decompose)")
+    b.add_argument("--ycb-raw", default=None, help="raw CoACD results (scripts/build/build_objects_ycb.py decompose)")
     b.add_argument("--redo-ycb", action="store_true", help="recompute YCB decompositions (CoACD, slow) instead of reusing the shipped file")
     b.set_defaults(func=_build)
     v = sub.add_parser("verify", help="check shipped files against their recorded hashes")

@@ -1,7 +1,7 @@
 """Convex decomposition of scanned meshes with CoACD, and the compact form it is shipped in.
 
 Needs only numpy and coacd (no trimesh, no package imports), so the same file runs on a
-bare many-core machine for the one-off heavy job (see scripts/build_objects_ycb.py).
+bare many-core machine for the one-off heavy job (see scripts/build/build_objects_ycb.py).
 CoACD with a fixed seed is deterministic for the same input and parameters.
 """
 from __future__ import annotations

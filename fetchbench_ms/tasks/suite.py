@@ -135,7 +135,7 @@ def load_suite(name_or_path) -> TaskSuite:
         raise ValueError(f"{path} is not a {SUITE_FORMAT} file")
     if body.get("version") != SUITE_VERSION:
         raise ValueError(f"{path} is a version {body.get('version')!r} task suite; this install reads version "
-                         f"{SUITE_VERSION!r}: regenerate it (scripts/build_suite.py)")
+                         f"{SUITE_VERSION!r}: regenerate it (scripts/build/build_suite.py)")
     stored = body.pop("sha256", None)
     if stored != sha256_bytes(canonical_json(body).encode()):
         raise ValueError(f"task suite {path} is corrupt: its content does not match its sha256")

@@ -1,0 +1,223 @@
+"""RRTConnect vs the torch trajectory optimiser on the planning problems of suite tasks.
+
+Problems are recorded from the ``ga-mesh-rrt`` (or ``--world pointcloud``: ``ga-ptd-rrt``)
+pipeline itself: each task of the selection is reset, the pipeline runs up to its first
+plan call (the pre-grasp problem: start, IK goal set, world, checker) and stops; with
+``--full`` the episode runs on (with RRTConnect) and its retrieval problems are recorded
+too. Then every problem is planned by
+
+- RRTConnect (``plan_rrtconnect``, the pipelines' settings),
+- trajopt one problem at a time (``plan_trajopt``),
+- trajopt in batches of ``--batch`` problems (``plan_trajopt_batch``): time per problem
+  is the batch's time over its size,
+
+and the table gives success, plan time (median, p95), C-space length (L1 over the 7
+joints, on problems both planners solved), the fraction of returned paths valid under a
+finer re-check (0.005 rad), and how many trajopt plans needed the RRT fallback.
+
+Usage (val tasks: the test suite is for the final figures):
+  python scripts/bench/bench_trajopt.py --suite val --tasks 0:20 [--device cpu|cuda] [--batch 16] [--full]
+  python scripts/bench/bench_trajopt.py --suite test --tasks 0:500 --full --workers 14   # >= 1,000 problems
+"""
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import torch
+
+
+class _Recorded(Exception):
+    pass
+
+
+def record_problems(suite: str, tasks: str, world: str, full: bool) -> list[dict]:
+    from fetchbench_ms.evaluation.methods import TaskRunner
+    from fetchbench_ms.evaluation.runner import open_suite, parse_range, suite_items
+    from fetchbench_ms.solutions import sense_plan_act as spa
+
+    method = "ga-mesh-rrt" if world == "mesh" else "ga-ptd-rrt"
+    suite_obj, _, _ = open_suite(suite)
+    items = suite_items(suite_obj, parse_range(tasks, len(suite_obj.tasks)))
+    runner = TaskRunner(method)
+    problems, original = [], spa._plan
+
+    def recorder(state, rng, checker, q_start, q_goals, *args):
+        kind = "pre-grasp" if not any(p["task"] == item.task_id for p in problems) else "retrieval/home"
+        problems.append(dict(task=item.task_id, kind=kind, checker=checker, q_start=np.array(q_start, float),
+                             q_goals=np.array(q_goals, float).reshape(-1, 7),
+                             start_tolerance=state.config.start_escape_depth))
+        if not full:
+            raise _Recorded
+        return original(state, rng, checker, q_start, q_goals, *args)
+
+    spa._plan = recorder
+    try:
+        for item in items:
+            env = runner.env(item.env_id)
+            env.reset(seed=item.seed, options={"task": item.task})
+            try:
+                spa.solve(env, seed=item.seed, method=method, reset=False)
+            except _Recorded:
+                pass
+    finally:
+        spa._plan = original
+        runner.close()
+    return problems
+
+
+def cspace_length(path) -> float:
+    return float(np.abs(np.diff(path, axis=0)).sum()) if path is not None else float("nan")
+
+
+def run_planners(problems: list[dict], device: str, batch: int, time_limit: float) -> dict:
+    from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
+    from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
+
+    cfg = TrajoptConfig.for_device(device)
+    args = [(p["checker"], p["q_start"], p["q_goals"]) for p in problems]
+    plan_trajopt(*args[0], time_limit=time_limit, config=cfg)  # warm-up (CUDA context, caches)
+    rows = {"rrtconnect": [], "trajopt": [], f"trajopt batch {batch}": []}
+    def timed(fn, *a, **kw):
+        """The result, with ``cpu_time``: this process's CPU seconds (the machine may be shared)."""
+        t = time.process_time()
+        result = fn(*a, **kw)
+        result.cpu_time = time.process_time() - t
+        return result
+
+    for p, a in zip(problems, args):
+        rows["rrtconnect"].append(timed(plan_rrtconnect, *a, time_limit, start_tolerance=p["start_tolerance"]))
+        rows["trajopt"].append(timed(plan_trajopt, *a, time_limit, start_tolerance=p["start_tolerance"], config=cfg))
+    for i in range(0, len(args), batch):
+        chunk = problems[i: i + batch]
+        t, t_cpu = time.perf_counter(), time.process_time()
+        results = plan_trajopt_batch(args[i: i + batch], time_limit, cfg,
+                                     start_tolerance=chunk[0]["start_tolerance"])
+        per, per_cpu = (time.perf_counter() - t) / len(chunk), (time.process_time() - t_cpu) / len(chunk)
+        for r in results:
+            r.planning_time, r.cpu_time = per, per_cpu
+        rows[f"trajopt batch {batch}"] += results
+    recheck = {}
+    for name, results in rows.items():
+        ok = [bool(p["checker"].valid(densify(r.path, 0.005)).all()) if r.success and not r.start_escaped else
+              None for p, r in zip(problems, results)]
+        recheck[name] = ok
+    return rows, recheck
+
+
+def _bench_slice(job: tuple) -> tuple:
+    """One worker's share (``--workers``): record and plan the problems of a task slice;
+    the checkers stay here (they hold the worlds), the rows travel back."""
+    suite, tasks, world, full, device, batch, time_limit, threads = job
+    torch.set_num_threads(threads)
+    problems = record_problems(suite, tasks, world, full)
+    if not problems:
+        return [], {}, {}
+    rows, recheck = run_planners(problems, device, batch, time_limit)
+    return [{k: v for k, v in p.items() if k != "checker"} for p in problems], rows, recheck
+
+
+def bench_parallel(args, device: str) -> tuple:
+    """Split the task range into ``args.workers`` contiguous slices, one process each
+    (``spawn``: CUDA and the simulator do not survive a fork), and join their rows in task
+    order. Success, C-space length and validity do not depend on the split; times do (the
+    processes share the cores and the GPU), so timings come from a run with one worker."""
+    import multiprocessing as mp
+
+    from fetchbench_ms.evaluation.runner import open_suite, parse_range
+
+    ids = parse_range(args.tasks, len(open_suite(args.suite)[0].tasks))
+    bounds = np.linspace(0, len(ids), args.workers + 1).round().astype(int)
+    jobs = [(args.suite, f"{ids[a]}:{ids[b - 1] + 1}", args.world, args.full, device, args.batch, args.time_limit,
+             args.threads) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    problems, rows, recheck = [], {}, {}
+    with mp.get_context("spawn").Pool(len(jobs)) as pool:
+        for part_problems, part_rows, part_recheck in pool.imap(_bench_slice, jobs):
+            problems += part_problems
+            for name in part_rows:
+                rows.setdefault(name, []).extend(part_rows[name])
+                recheck.setdefault(name, []).extend(part_recheck[name])
+    return problems, rows, recheck
+
+
+def print_table(problems, rows, recheck, device) -> None:
+    rrt = rows["rrtconnect"]
+    print(f"{len(problems)} problems ({sum(p['kind'] == 'pre-grasp' for p in problems)} pre-grasp) from "
+          f"{len({p['task'] for p in problems})} tasks; trajopt on {device} "
+          f"(torch {torch.__version__}, {torch.get_num_threads()} threads)")
+    head = (f"{'planner':<20} {'success':>8} {'direct':>7} {'time med s':>10} {'time p95 s':>10} "
+            f"{'searched med s':>14} {'(CPU s)':>7} {'C-len med':>9} {'C-len/RRT':>9} {'valid':>6} {'fallback':>8}")
+    print(head)
+    print("-" * len(head))
+    for name, results in rows.items():
+        both = [(r, q) for r, q in zip(results, rrt) if r.success and q.success]
+        times = [r.planning_time for r in results]
+        ratio = (statistics.median([cspace_length(r.path) / max(cspace_length(q.path), 1e-9) for r, q in both
+                                    if q.status != "direct" or r.status != "direct"] or [float("nan")]))
+        ok = [v for v in recheck[name] if v is not None]
+        print(f"{name:<20} {sum(r.success for r in results) / len(results):>8.3f} "
+              f"{sum(r.status == 'direct' for r in results):>7d} {statistics.median(times):>10.3f} "
+              f"{np.percentile(times, 95):>10.3f} "
+              f"{statistics.median([t for t, r in zip(times, results) if r.status != 'direct'] or [np.nan]):>14.3f} "
+              f"{statistics.median([r.cpu_time for r in results if r.status != 'direct'] or [np.nan]):>7.3f} "
+              f"{statistics.median([cspace_length(r.path) for r, _ in both] or [float('nan')]):>9.2f} "
+              f"{ratio:>9.2f} {sum(ok) / max(len(ok), 1):>6.3f} "
+              f"{sum(r.planner == 'trajopt+rrtconnect' for r in results):>8d}")
+    for name, results in rows.items():
+        if name.startswith("trajopt batch"):
+            searched = [r for r in results if r.status != "direct"]
+            print(f"{name}: {len(results) / sum(r.planning_time for r in results):.1f} problems/s over all problems "
+                  f"(batch wall time; {len(searched)} of them needed the optimiser)")
+    statuses = {name: dict(sorted({r.status: sum(x.status == r.status for x in rs) for r in rs}.items()))
+                for name, rs in rows.items()}
+    print(f"statuses: {statuses}")
+    print("searched: problems the straight segment did not solve (wall s, and this process's CPU s); "
+          "C-len/RRT: median ratio of C-space lengths on problems both solved, leaving out those both solved "
+          "by the straight segment; batch times are the batch's time over its problems")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--suite", default="val")
+    parser.add_argument("--tasks", default="0:20")
+    parser.add_argument("--world", choices=("mesh", "pointcloud"), default="mesh")
+    parser.add_argument("--full", action="store_true", help="run whole episodes: retrieval problems too")
+    parser.add_argument("--device", default=None, help="trajopt device (default: cuda when available)")
+    parser.add_argument("--batch", type=int, default=16, help="problems per batched trajopt call")
+    parser.add_argument("--time-limit", type=float, default=10.0, help="s per problem, as the pipelines")
+    parser.add_argument("--verbose", action="store_true", help="a line per problem")
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes over contiguous task slices (success and lengths; take timings with 1)")
+    args = parser.parse_args()
+    if args.suite == "test":
+        print("note: the test suite is for final figures; planner tuning belongs on val")
+    torch.set_num_threads(args.threads)
+    from fetchbench_ms.planning.trajopt import default_device
+
+    device = args.device or default_device()
+    t = time.perf_counter()
+    if args.workers > 1:
+        problems, rows, recheck = bench_parallel(args, device)
+        print(f"recorded and planned {len(problems)} problems in {time.perf_counter() - t:.0f} s with "
+              f"{args.workers} workers (times below are under that load)")
+        if not problems:
+            return
+    else:
+        problems = record_problems(args.suite, args.tasks, args.world, args.full)
+        print(f"recorded {len(problems)} problems in {time.perf_counter() - t:.0f} s")
+        if not problems:
+            return
+        rows, recheck = run_planners(problems, device, args.batch, args.time_limit)
+    if args.verbose:
+        for i, p in enumerate(problems):
+            print(f"{p['task']} {p['kind']:<15} goals {len(p['q_goals'])}: " + "; ".join(
+                f"{name} {rs[i].status}/{rs[i].planner} {rs[i].planning_time:.2f}s len {cspace_length(rs[i].path):.2f}"
+                for name, rs in rows.items()))
+    print_table(problems, rows, recheck, device)
+
+
+if __name__ == "__main__":
+    main()

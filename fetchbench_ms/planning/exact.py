@@ -8,7 +8,7 @@ import fcl
 import numpy as np
 import trimesh
 
-from .robot import WORLD_LINKS, PandaModel
+from .robot import PandaModel
 
 
 def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
@@ -58,9 +58,9 @@ class ExactWorld:
 class ExactRobot:
     """The Panda's URDF collision meshes as fcl objects, posed by the planner's FK."""
 
-    def __init__(self, robot: PandaModel, links: tuple[str, ...] = WORLD_LINKS):
+    def __init__(self, robot: PandaModel, links: tuple[str, ...] | None = None):
         self.robot = robot
-        self.links = links
+        self.links = links = robot.world_links if links is None else links
         self.objects = {l: fcl.CollisionObject(_bvh(robot.collision_meshes[l]), fcl.Transform()) for l in links}
 
     def pose(self, q, finger: float) -> None:

@@ -86,6 +86,23 @@ def pipeline_fields(name: str, improvements=()) -> dict:
     return {"pipeline": pipeline_label(improvements), "improvements": [i for i in IMPROVEMENTS if i in improvements]}
 
 
+def check_robot(name: str, robot: str) -> str:
+    """``robot`` (a ``fetchbench_ms.robots`` uid) if method ``name`` can run on it; ValueError
+    otherwise. Every sense-plan-act method plans for any robot; the learned policies and the
+    learned scene-collision network were trained on the Panda only."""
+    from ..robots import check_robot_uid
+    from ..solutions.sense_plan_act import METHODS
+
+    robot = check_robot_uid(robot)
+    if robot == "panda" or name == IDLE:
+        return robot
+    spa = [m for m, parts in METHODS.items() if parts.get("collision") != "network"]
+    if name not in spa:
+        raise ValueError(f"{name} runs on the Panda only (its network was trained on the Panda); on robot "
+                         f"{robot!r} valid methods: {', '.join(spa)}")
+    return robot
+
+
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
                    policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=()) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
@@ -177,10 +194,11 @@ class RunnerSpec:
     policy_stride: int = 1  # imitation methods: control steps per observation
     improvements: tuple = ()  # sense-plan-act pipelines: our improvements that are on (none: the paper's)
     env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
+    robot: str = "panda"  # the env's robot_uids (fetchbench_ms.robots)
 
     def make(self) -> "TaskRunner":
         return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
-                          self.policy_stride, self.improvements, dict(self.env_options))
+                          self.policy_stride, self.improvements, dict(self.env_options), self.robot)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -192,7 +210,8 @@ class TaskRunner:
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
                  grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
-                 improvements=(), env_options: Optional[dict] = None):
+                 improvements=(), env_options: Optional[dict] = None, robot: str = "panda"):
+        self.robot = check_robot(method_name, robot)
         self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
                                      improvements)
         self.video_dir = video_dir
@@ -207,6 +226,8 @@ class TaskRunner:
         key = (env_id, self.method.obs_mode)
         if key not in self.envs:
             extra = {"render_mode": "rgb_array"} if self.video_dir else {}
+            if self.robot != "panda":  # (the Panda's envs are made as they always were)
+                extra["robot_uids"] = self.robot
             self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos",
                                   object_split=SAMPLED_TASK_SPLIT, **self.env_options, **extra)
         return self.envs[key]
@@ -252,6 +273,8 @@ class TaskRunner:
             record.setdefault(key, value)
         if self.env_options:
             record["env_options"] = self.env_options
+        if self.robot != "panda":  # no key: the Panda (records from before robots were an option)
+            record["robot"] = self.robot
         return record
 
 

@@ -104,7 +104,8 @@ def check_robot(name: str, robot: str) -> str:
 
 
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
-                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=()) -> Method:
+                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
+                   grasp_labels: Optional[str] = None) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
     ``policy_stride``: their control steps per observation (``ImitationPolicy``);
@@ -115,7 +116,14 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
     from ..solutions.sense_plan_act import METHODS, SolveConfig, needs_pointcloud, solve
 
     improvements = tuple(improvements)
-    config = SolveConfig(improvements=improvements)  # unknown names: a clear error here
+    config = SolveConfig(improvements=improvements, grasp_labels=grasp_labels)  # unknown names: a clear error here
+    if grasp_labels is not None:
+        if name not in METHODS or METHODS[name]["grasps"] != "oracle":
+            raise ValueError(f"--grasp-labels applies to the annotated-grasp methods "
+                             f"({', '.join(m for m, p in METHODS.items() if p['grasps'] == 'oracle')}), not {name}")
+        from ..grasps.store import GraspStore
+
+        GraspStore(grasp_labels)  # no manifest there: a clear error before any task runs
     if improvements and not has_pipeline(name):
         raise ValueError(f"{name} runs no sense-plan-act pipeline: --pipeline ours applies to "
                          f"{', '.join(METHODS)} and the cgn-imit-* hybrids")
@@ -195,10 +203,12 @@ class RunnerSpec:
     improvements: tuple = ()  # sense-plan-act pipelines: our improvements that are on (none: the paper's)
     env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
     robot: str = "panda"  # the env's robot_uids (fetchbench_ms.robots)
+    grasp_labels: Optional[str] = None  # the annotated grasps' store (None: the shipped labels)
 
     def make(self) -> "TaskRunner":
         return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
-                          self.policy_stride, self.improvements, dict(self.env_options), self.robot)
+                          self.policy_stride, self.improvements, dict(self.env_options), self.robot,
+                          self.grasp_labels)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -210,10 +220,12 @@ class TaskRunner:
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
                  grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
-                 improvements=(), env_options: Optional[dict] = None, robot: str = "panda"):
+                 improvements=(), env_options: Optional[dict] = None, robot: str = "panda",
+                 grasp_labels: Optional[str] = None):
         self.robot = check_robot(method_name, robot)
+        self.grasp_labels = grasp_labels
         self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
-                                     improvements)
+                                     improvements, grasp_labels)
         self.video_dir = video_dir
         self.env_options = dict(env_options or {})
         # Every record of a pipeline method names its variant (error records too).
@@ -275,6 +287,8 @@ class TaskRunner:
             record["env_options"] = self.env_options
         if self.robot != "panda":  # no key: the Panda (records from before robots were an option)
             record["robot"] = self.robot
+        if self.grasp_labels is not None:
+            record["grasp_labels"] = self.grasp_labels
         return record
 
 

@@ -49,6 +49,13 @@ def cmd_build(args) -> int:
     settings = LabelSettings(seed=args.seed, candidates_per_round=args.candidates)
     from .store import default_dir
 
+    if args.hand == "robotiq_2f_85":
+        # The Robotiq re-tries the Franka labels' candidates (grasps.robotiq): its own store.
+        from .robotiq import RobotiqLabelSettings
+
+        if not args.dir:
+            raise ValueError("--hand robotiq_2f_85 writes a store of its own: give --dir (e.g. assets/grasps_robotiq)")
+        settings = RobotiqLabelSettings(seed=args.seed, candidates_per_round=args.candidates)
     out = args.dir or os.fspath(default_dir())
     manifest = build(out, ids, loader=args.loader, settings=settings, workers=args.workers, shards=_parse_shards(args.shards), deadline_s=args.deadline)
     done = sum(e["objects"] for e in manifest["shards"].values())
@@ -112,6 +119,9 @@ def add_commands(subparsers) -> None:
                    help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasps.build:object_from_source needs no catalog index)")
     p.add_argument("--limit", type=int, default=0, help="only the first N object ids (sorted), for trials")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hand", default="franka_hand", choices=("franka_hand", "robotiq_2f_85"),
+                   help="robotiq_2f_85: re-try the shipped Franka labels' candidates with the Robotiq 2F-85 "
+                        "in physics (docs/robots.md); needs --dir")
     p.add_argument("--candidates", type=int, default=32, help="candidates per sampling round")
     p.add_argument("--deadline", type=float, default=None, help="seconds; start no shard that would end later")
     p.set_defaults(func=cmd_build)

@@ -136,6 +136,9 @@ class SolveConfig:
     lift_height: float = 0.02  # m, straight up after closing
     # Which of IMPROVEMENTS are on (the parameters below apply only to those that are).
     improvements: tuple = ()
+    # The annotated grasps' store (a directory; None: the shipped Franka-hand labels, which
+    # other hands use as the paper did: same TCP pose, approach axis and width).
+    grasp_labels: str | None = None
     retreat_distances: tuple = (0.10, 0.06, 0.03)  # "retreat"
     extra_lifts: tuple = (0.02, 0.04, 0.06)  # "extra_lifts"
     # "start_escape": at rest, or holding an object on its support, the conservative spheres
@@ -357,7 +360,8 @@ def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_
     when CGN has no target points to predict on."""
     cfg = state.config
     if METHODS[method]["grasps"] == "oracle":
-        return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id), rng, cfg.max_grasps)
+        return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id, cfg.grasp_labels), rng,
+                           cfg.max_grasps)
     clouds = clouds if clouds is not None else _observe(env)
     if len(clouds.target) == 0:
         # The cameras do not see the target: Contact-GraspNet has nothing to predict on.

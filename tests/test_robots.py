@@ -257,3 +257,38 @@ def test_eval_records_the_robot(tmp_path):
                               "kinova_gen3_robotiq", "--suite", "smoke", "--tasks", "0:1", "--out", str(tmp_path / "l")],
                              capture_output=True, text=True)
     assert learned.returncode == 2 and "runs on the Panda only" in learned.stderr
+
+
+def test_robotiq_labeller_tries_franka_candidates_in_physics():
+    """The Robotiq re-tries the shipped Franka-hand candidates (grasps.robotiq): poses where
+    its open hand cuts the object are dropped, the rest get physics verdicts, and some of
+    the Franka hand's successes hold in the Robotiq too."""
+    from fetchbench_ms.grasps.robotiq import RobotiqLabeller, collision_free, franka_candidates
+    from fetchbench_ms.grasps.store import load_grasps
+    from fetchbench_ms.objects.catalog import get_object
+
+    object_id = "blob/233"
+    asset = get_object(object_id)
+    franka = load_grasps(object_id)
+    poses = franka_candidates(object_id)[franka.success][:16]
+    free = collision_free(asset, poses)
+    assert free.any()
+    # A pose sunk 5 cm further along its approach puts the palm into the object.
+    sunk = poses[free][:1].copy()
+    sunk[0, :3, 3] += 0.05 * sunk[0, :3, 2]
+    assert not collision_free(asset, sunk)[0]
+    labeller = RobotiqLabeller(slots=8)
+    result = labeller.label(asset, poses[free][:8])
+    assert result.success.any()
+    held = result.width[result.success]
+    assert np.all((held > 0.005) & (held < 0.085))
+
+
+def test_grasp_labels_option_is_checked(tmp_path):
+    cmd = [sys.executable, "-m", "fetchbench_ms", "eval", "--method", "ga-mesh-rrt", "--robot", "kinova_gen3_robotiq",
+           "--grasp-labels", str(tmp_path / "none"), "--suite", "smoke", "--tasks", "0:1", "--out", str(tmp_path / "o")]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 2 and "no grasp manifest" in done.stderr
+    cmd[5] = "cgn-ptd-rrt"
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 2 and "--grasp-labels applies to the annotated-grasp methods" in done.stderr

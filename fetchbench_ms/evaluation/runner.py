@@ -125,6 +125,10 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
                       str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
                       improvements, tuple(sorted(env_options.items())), robot, grasp_labels)
+    if todo and robot != "panda":
+        from ..planning.robot import robot_model
+
+        robot_model(robot)  # fit and cache its collision spheres once here, not in every worker at once
     if todo:
         if backend == "local":
             from .local import run_local

@@ -98,8 +98,9 @@ def check_robot(name: str, robot: str) -> str:
         return robot
     spa = [m for m, parts in METHODS.items() if parts.get("collision") != "network"]
     if name not in spa:
-        raise ValueError(f"{name} runs on the Panda only (its network was trained on the Panda); on robot "
-                         f"{robot!r} valid methods: {', '.join(spa)}")
+        why = ("its network was trained on the Panda" if name in METHODS or "-" in name and ":" not in name
+               else "other robots run the sense-plan-act methods only")
+        raise ValueError(f"{name} runs on the Panda only ({why}); on robot {robot!r} valid methods: {', '.join(spa)}")
     return robot
 
 

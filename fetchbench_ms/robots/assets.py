@@ -262,12 +262,11 @@ def robotiq_hand(robot: ET.Element, flange: str) -> dict:
     pad = (xyz(f"{side}_outer_knuckle_joint") + rpy(f"{side}_outer_knuckle_joint") @ (
         xyz(f"{side}_outer_finger_joint") + xyz(f"{side}_inner_finger_joint") + xyz(f"{side}_inner_finger_pad_joint")))
     tcp_z = float(pad[2])
-    hand = _sub(robot, "link", name="robotiq_hand")
+    _sub(robot, "link", name="robotiq_hand")
     joint = _sub(robot, "joint", name="robotiq_hand_joint", type="fixed")
     _sub(joint, "origin", xyz=_fmt((0.0, 0.0, tcp_z - TCP_OFFSET)), rpy="0 0 0")
     _sub(joint, "parent", link=ROBOTIQ_PREFIX + "base_link_inertia")
     _sub(joint, "child", link="robotiq_hand")
-    del hand
     _sub(robot, "link", name="robotiq_tcp")
     joint = _sub(robot, "joint", name="robotiq_tcp_joint", type="fixed")
     _sub(joint, "origin", xyz=_fmt((0.0, 0.0, TCP_OFFSET)), rpy="0 0 0")
@@ -286,7 +285,7 @@ def robotiq_hand(robot: ET.Element, flange: str) -> dict:
     return dict(tcp_z=tcp_z, anchors=anchors)
 
 
-SETUPS_BUILT = {}
+_BUILT: dict = {}  # uid -> (URDF path, extra geometry), per process
 
 
 def build_urdf(uid: str) -> tuple[str, dict]:
@@ -308,15 +307,15 @@ def build_urdf(uid: str) -> tuple[str, dict]:
 
 def urdf_path(uid: str) -> str:
     """The generated URDF of ``uid``, written once per content to ``$FETCHBENCH_CACHE/robots``."""
-    if uid not in SETUPS_BUILT:
+    if uid not in _BUILT:
         text, extra = build_urdf(uid)
         path = cache_dir() / "robots" / f"{uid}_{sha256_bytes(text.encode())[:16]}.urdf"
         if not path.exists():
             atomic_write_text(path, text)
-        SETUPS_BUILT[uid] = (str(path), extra)
-    return SETUPS_BUILT[uid][0]
+        _BUILT[uid] = (str(path), extra)
+    return _BUILT[uid][0]
 
 
 def urdf_extra(uid: str) -> dict:
     urdf_path(uid)
-    return SETUPS_BUILT[uid][1]
+    return _BUILT[uid][1]

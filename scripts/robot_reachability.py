@@ -5,8 +5,9 @@ with a collision-free IK solution from the Panda's base. The other setups keep t
 tasks (same scene, objects, target, base pose and cameras), so that filter is judged
 again here for each robot, with the same check (``tasks.filters.FilterEnv.reachable``:
 the open hand free of the scene, then collision-aware IK over up to 32 grasps, 6 seeds
-each, in the oracle mesh world) and that robot's model; the tasks it fails are the
-ones the robot cannot fetch whatever the method.
+each drawn from the task's own seed as when the suite was built, in the oracle mesh
+world) and that robot's model; the tasks it fails are the ones the robot cannot fetch
+whatever the method.
 
     python scripts/robot_reachability.py --suite test --tasks 0:60 [--robots panda,kinova_gen3_robotiq] [--out FILE]
 
@@ -48,7 +49,10 @@ def main() -> int:
             for task_id in selection:
                 task = suite.get(task_id)
                 filt.load(task)
-                verdicts[robot][task_id] = bool(filt.reachable([task.target_index])[task.target_index])
+                # The IK seeds the suite builder drew for this task (its arrangement seed), so
+                # the Panda's verdicts reproduce the suite's filter.
+                reachable = filt.reachable([task.target_index], seed=task.seed)
+                verdicts[robot][task_id] = bool(reachable[task.target_index])
         finally:
             filt.close()
         by_type = defaultdict(lambda: [0, 0])

@@ -60,8 +60,10 @@ def _origin_matrix(element) -> np.ndarray:
     return T
 
 
-def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
-    """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link frame."""
+def link_collision_meshes(urdf_path: str, convex: bool = False) -> dict[str, trimesh.Trimesh]:
+    """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link
+    frame; ``convex``: each mesh as its convex hull, the shape SAPIEN simulates for a mesh
+    of a moving link (and a few hundred faces where the Gen3's scans have ten thousand)."""
     root = ET.parse(urdf_path).getroot()
     base = os.path.dirname(urdf_path)
     meshes = {}
@@ -75,6 +77,8 @@ def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
                 piece = trimesh.load(os.path.join(base, mesh.get("filename")), force="mesh")
                 if mesh.get("scale") is not None:
                     piece.apply_scale([float(v) for v in mesh.get("scale").split()])
+                if convex:
+                    piece = piece.convex_hull
             elif geom.find("box") is not None:
                 piece = trimesh.creation.box([float(v) for v in geom.find("box").get("size").split()])
             else:
@@ -236,7 +240,9 @@ class RobotModel:
         self.q_max = np.asarray(high[: self.n_arm], dtype=float)
         self.velocity_limits = joint_velocity_limits(self.urdf_path, self.arm_joints)
         self.acceleration_limits = np.asarray(setup.acceleration_limits, dtype=float)
-        self.collision_meshes = link_collision_meshes(self.urdf_path)
+        # The Panda: its URDF's meshes as they are (convex pieces already); the generated
+        # URDFs point at detailed scans, which the simulation turns into their hulls.
+        self.collision_meshes = link_collision_meshes(self.urdf_path, convex=setup.uid != "panda")
         self._init_gripper()
         self.spheres = self._fit(margin, seed)
         if setup.uid == "panda":
@@ -326,8 +332,8 @@ class RobotModel:
             files = sorted({m.get("filename") for c in root.iter("collision") for m in c.iter("mesh")})
         base = os.path.dirname(self.urdf_path)
         data = [Path(self.urdf_path).read_bytes()] + [Path(base, f).read_bytes() for f in files]
-        if self.uid != "panda":  # meshes read with their URDF scale (the Panda's have none)
-            data.insert(0, b"mesh-scale")
+        if self.uid != "panda":  # meshes read with their URDF scale (the Panda's have none), as hulls
+            data.insert(0, b"mesh-scale|convex-hull")
         return b"|".join(data)
 
     def _self_pairs(self, srdf_path: str) -> np.ndarray:

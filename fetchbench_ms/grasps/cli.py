@@ -36,7 +36,14 @@ def cmd_build(args) -> int:
 
     if args.source and args.source not in SOURCES:
         raise ValueError(f"unknown source {args.source!r}; valid: {', '.join(SOURCES)}")
-    if args.ids_file:
+    if args.ids_file and args.targets_of:
+        raise ValueError("give --ids-file or --targets-of, not both")
+    if args.targets_of:
+        from ..tasks.suite import load_suite
+
+        ids = sorted({t.target.object_id for t in load_suite(args.targets_of).tasks.values()})
+        ids = [i for i in ids if not args.source or i.split("/")[0] == args.source]
+    elif args.ids_file:
         ids = [line.strip() for line in Path(args.ids_file).read_text().splitlines() if line.strip()]
         ids = [i for i in ids if not args.source or i.split("/")[0] == args.source]
     else:
@@ -115,6 +122,8 @@ def add_commands(subparsers) -> None:
     p.add_argument("--shards", default=None, help="only these shard indices, e.g. '0-15' or '3,7'")
     p.add_argument("--source", default=None, help="only objects of this source (ycb, blob, procedural)")
     p.add_argument("--ids-file", default=None, help="label the ids listed in this file (one a line) instead of the catalog's")
+    p.add_argument("--targets-of", default=None, metavar="SUITE",
+                   help="label the target objects of a task suite's tasks (test, val, smoke, or a suite file)")
     p.add_argument("--loader", default="fetchbench_ms.objects.catalog:get_object",
                    help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasps.build:object_from_source needs no catalog index)")
     p.add_argument("--limit", type=int, default=0, help="only the first N object ids (sorted), for trials")

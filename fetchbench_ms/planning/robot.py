@@ -60,10 +60,10 @@ def _origin_matrix(element) -> np.ndarray:
     return T
 
 
-def link_collision_meshes(urdf_path: str, convex: bool = False) -> dict[str, trimesh.Trimesh]:
+def link_collision_meshes(urdf_path: str, convex_links=()) -> dict[str, trimesh.Trimesh]:
     """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link
-    frame; ``convex``: each mesh as its convex hull, the shape SAPIEN simulates for a mesh
-    of a moving link (and a few hundred faces where the Gen3's scans have ten thousand)."""
+    frame; the meshes of ``convex_links`` as their convex hulls, the shape SAPIEN simulates
+    for a mesh of a moving link (a few hundred faces where the Gen3's scans have ten thousand)."""
     root = ET.parse(urdf_path).getroot()
     base = os.path.dirname(urdf_path)
     meshes = {}
@@ -77,7 +77,7 @@ def link_collision_meshes(urdf_path: str, convex: bool = False) -> dict[str, tri
                 piece = trimesh.load(os.path.join(base, mesh.get("filename")), force="mesh")
                 if mesh.get("scale") is not None:
                     piece.apply_scale([float(v) for v in mesh.get("scale").split()])
-                if convex:
+                if link.get("name") in convex_links:
                     piece = piece.convex_hull
             elif geom.find("box") is not None:
                 piece = trimesh.creation.box([float(v) for v in geom.find("box").get("size").split()])
@@ -87,6 +87,17 @@ def link_collision_meshes(urdf_path: str, convex: bool = False) -> dict[str, tri
         if pieces:
             meshes[link.get("name")] = trimesh.util.concatenate(pieces)
     return meshes
+
+
+def hull_links(setup: RobotSetup) -> tuple[str, ...]:
+    """Links whose collision meshes the planner takes as convex hulls: none on the Panda,
+    and none of the Franka hand on any arm (its meshes as on the Panda, so the hand is the
+    same hand everywhere); the Gen3's and the Robotiq's meshes are detailed scans, which
+    the simulation turns into their hulls."""
+    if setup.uid == "panda":
+        return ()
+    franka = set(SETUPS["panda"].world_links) | {SETUPS["panda"].base_link}
+    return tuple(l for l in (setup.base_link,) + setup.world_links if l not in franka)
 
 
 def joint_velocity_limits(urdf_path: str, joints: tuple[str, ...] = ARM_JOINTS) -> np.ndarray:
@@ -240,9 +251,7 @@ class RobotModel:
         self.q_max = np.asarray(high[: self.n_arm], dtype=float)
         self.velocity_limits = joint_velocity_limits(self.urdf_path, self.arm_joints)
         self.acceleration_limits = np.asarray(setup.acceleration_limits, dtype=float)
-        # The Panda: its URDF's meshes as they are (convex pieces already); the generated
-        # URDFs point at detailed scans, which the simulation turns into their hulls.
-        self.collision_meshes = link_collision_meshes(self.urdf_path, convex=setup.uid != "panda")
+        self.collision_meshes = link_collision_meshes(self.urdf_path, hull_links(setup))
         self._init_gripper()
         self.spheres = self._fit(margin, seed)
         if setup.uid == "panda":
@@ -333,7 +342,7 @@ class RobotModel:
         base = os.path.dirname(self.urdf_path)
         data = [Path(self.urdf_path).read_bytes()] + [Path(base, f).read_bytes() for f in files]
         if self.uid != "panda":  # meshes read with their URDF scale (the Panda's have none), as hulls
-            data.insert(0, b"mesh-scale|convex-hull")
+            data.insert(0, b"mesh-scale|convex-hull:" + ",".join(hull_links(self.setup)).encode())
         return b"|".join(data)
 
     def _self_pairs(self, srdf_path: str) -> np.ndarray:

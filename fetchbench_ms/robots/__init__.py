@@ -63,8 +63,9 @@ _FRANKA_HAND_FIT = {"panda_leftfinger": (10, 0.002), "panda_rightfinger": (10, 0
 _GEN3_ARM = tuple(f"joint_{i}" for i in range(1, 8))
 _GEN3_LINKS = ("shoulder_link", "half_arm_1_link", "half_arm_2_link", "forearm_link", "spherical_wrist_1_link",
                "spherical_wrist_2_link", "bracelet_link")
-#: Kinova's published acceleration limit for the Gen3's actuators is not in its URDF; the
-#: ROS driver (ros_kortex, gen3 joint_limits.yaml) uses 5.2 rad/s^2 for every joint.
+#: The Gen3's models carry no acceleration limits; 5.2 rad/s^2 for every joint is an
+#: assumption (the order of what Kinova's ROS driver configures), below the Panda's
+#: 7.5-20: the executor's time parametrisation is the only reader.
 _GEN3_ACCELERATION = (5.2,) * 7
 #: The Gen3's start configurations, printed by ``scripts/robot_home.py``: the IK solution
 #: that puts the TCP where the Panda's start configuration puts the Panda's (with the

@@ -38,10 +38,10 @@ GENERATOR_VERSION = "1"
 #: The Franka hand's TCP offset (panda_hand -> panda_hand_tcp), the grasp convention of
 #: every hand here (docs/grasps.md).
 TCP_OFFSET = 0.1034
-#: Kinova Gen3 datasheet (user guide UG-014, "Technical specifications"): maximum joint
-#: speeds (rad/s) of the large (joints 1-4) and small (5-7) actuators, and torques (N m).
+#: Kinova Gen3 user guide (UG-014, technical specifications): maximum joint speeds (rad/s)
+#: of the large (joints 1-4) and small (5-7) actuators; the MuJoCo model has none. (Torque
+#: limits come from the model's actuators, which cite the same guide.)
 GEN3_VELOCITY = (1.3963,) * 4 + (1.2218,) * 3
-GEN3_EFFORT = (39.0,) * 4 + (9.0,) * 3
 #: Range given to the Gen3's continuous joints (1, 3, 5, 7): one turn either way is all a
 #: planner needs, and a bounded box keeps RRT sampling and IK seeding uniform.
 CONTINUOUS_RANGE = math.pi
@@ -118,6 +118,7 @@ def gen3_arm(robot: ET.Element) -> str:
     path = gen3_mjcf_path()
     root = ET.parse(path).getroot()
     meshes = {m.get("name"): str(path.parent / m.get("file")) for m in root.iter("mesh")}
+    effort = {m.get("joint"): max(abs(v) for v in _floats(m.get("ctrlrange"), "0 0")) for m in root.iter("motor")}
     body = root.find("worldbody").find("body").find("body")  # base -> fixed_base_link
     parent_name, k = None, 0
     while body is not None:
@@ -146,7 +147,7 @@ def gen3_arm(robot: ET.Element) -> str:
             _sub(joint, "child", link=name)
             _sub(joint, "axis", xyz=_fmt(_floats(mj.get("axis"), "0 0 1")))
             lo, hi = _floats(mj.get("range"), "0 0") if limited else (-CONTINUOUS_RANGE, CONTINUOUS_RANGE)
-            _sub(joint, "limit", lower=repr(float(lo)), upper=repr(float(hi)), effort=repr(GEN3_EFFORT[k - 1]),
+            _sub(joint, "limit", lower=repr(float(lo)), upper=repr(float(hi)), effort=repr(effort[mj.get("name")]),
                  velocity=repr(GEN3_VELOCITY[k - 1]))
             _sub(joint, "dynamics", damping=mj.get("damping", "0.1"), friction="0")
         parent_name = name

@@ -1,4 +1,5 @@
-"""FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm."""
+"""FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm
+(or another robot of ``fetchbench_ms.robots``: ``robot_uids``, docs/robots.md)."""
 from __future__ import annotations
 
 import copy

@@ -13,6 +13,7 @@ those kwargs.
 """
 from mani_skill.utils.registration import register_env
 
+from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' agents)
 from ..scenes import SCENE_TYPES
 from ..tasks.spec import CATEGORY_LABELS
 from .fetchbench import FetchBenchEnv, control_modes, settle_and_hold

@@ -1,4 +1,5 @@
-"""FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm."""
+"""FetchBench-*-v0: fetch one object out of cluttered procedural furniture with a Franka arm
+(or another robot of ``fetchbench_ms.robots``: ``robot_uids``, docs/robots.md)."""
 from __future__ import annotations
 
 import copy
@@ -23,6 +24,7 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
+from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
 from ..scenes import SCENE_TYPES
 from ..tasks.camera_views import paper_camera_pair
 from ..tasks.objects import check_object_source
@@ -90,7 +92,8 @@ MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "dep
 
 
 def control_modes() -> tuple[str, ...]:
-    """The Panda's control modes (its controller configs are class-level, no robot needed)."""
+    """The Panda's control modes (its controller configs are class-level, no robot needed);
+    every robot of ``fetchbench_ms.robots`` has the same ones."""
     return tuple(Panda._controller_configs.fget(Panda))
 
 
@@ -296,7 +299,7 @@ class FetchBenchEnv(BaseEnv):
     (see ``fetchbench_ms.envs.bodies`` and ``fetchbench_ms.envs.options``).
     """
 
-    SUPPORTED_ROBOTS = ["panda"]
+    SUPPORTED_ROBOTS = list(ROBOT_UIDS)
     # gymnasium's render check wants a frame rate; videos play at the control rate.
     metadata = {**BaseEnv.metadata, "render_fps": default_sim_config().control_freq}
     SUPPORTED_REWARD_MODES = ("normalized_dense", "dense", "sparse", "none")
@@ -334,8 +337,7 @@ class FetchBenchEnv(BaseEnv):
         if (camera_width, camera_height) not in CAMERA_RESOLUTIONS:
             valid = ", ".join(f"{w}x{h}" for w, h in CAMERA_RESOLUTIONS)
             raise ValueError(f"camera resolution {camera_width}x{camera_height} is not supported; valid: {valid}")
-        if robot_uids != "panda":
-            raise ValueError(f"robot {robot_uids!r} is not supported; valid: panda")
+        self.robot_setup = robot_setup(check_robot_uid(robot_uids))
         if object_split not in OBJECT_SPLITS:
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
         if task_source is not None and task_source not in TASK_SOURCES:
@@ -644,7 +646,7 @@ class FetchBenchEnv(BaseEnv):
         query holds every (link, furniture / robot table) pair of every sub-scene; on the
         CPU the contact list is walked once a step (``_contact_forces_cpu``)."""
         b = self.built
-        links = [link for link in self.agent.robot.links if link.name != "panda_link0"]
+        links = [link for link in self.agent.robot.links if link.name != self.robot_setup.base_link]
         if self.gpu_sim_enabled:
             # Made on first use (as ManiSkill's own pairwise queries), after the GPU system is set up.
             self._furniture_query = None
@@ -663,12 +665,23 @@ class FetchBenchEnv(BaseEnv):
         with torch.device(self.device):
             b = self.built
             initialize_tasks(b, env_idx)
-            qpos = torch.tensor([list(self._tasks[int(i)].robot_init_qpos) for i in env_idx], dtype=torch.float32)
+            if self.robot_setup.uid == "panda":
+                qpos = torch.tensor([list(self._tasks[int(i)].robot_init_qpos) for i in env_idx], dtype=torch.float32)
+            else:  # the robot's own start configuration (its TCP where the Panda's starts)
+                rest = self.agent.keyframes["rest"].qpos
+                qpos = torch.tensor(np.tile(rest, (len(env_idx), 1)), dtype=torch.float32)
             if self.robot_init_qpos_noise > 0:
                 noise = self._batched_episode_rng[common.to_numpy(env_idx)].normal(0, self.robot_init_qpos_noise, 7)
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
+
+    def start_arm_qpos(self, env_idx: int = 0) -> np.ndarray:
+        """The arm's start configuration of sub-scene ``env_idx`` (7,): the task's on the
+        Panda, the robot's own start (``RobotSetup.q_home``) on the others."""
+        if self.robot_setup.uid == "panda":
+            return np.asarray(self._tasks[env_idx].robot_init_qpos[:7], dtype=float)
+        return np.asarray(self.robot_setup.q_home, dtype=float)
 
     # ------------------------------------------------------------------ evaluation
     def _com_world(self, raw_pose: torch.Tensor) -> torch.Tensor:
@@ -707,8 +720,9 @@ class FetchBenchEnv(BaseEnv):
         if not (bool(l_force.any()) and bool(r_force.any())):
             return not_grasping
         agent = self.agent
-        l_open = agent.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # direction that opens the finger
-        r_open = -agent.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
+        l_sign, r_sign = self.robot_setup.finger_open_signs
+        l_open = l_sign * agent.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # direction that opens the finger
+        r_open = r_sign * agent.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
         flags = []
         for force, direction in ((l_force, l_open), (r_force, r_open)):
             angle = common.compute_angle_between(direction, force)
@@ -966,8 +980,14 @@ def settle_and_hold(env, seconds: float = HOLD_SECONDS) -> dict:
     robot = base.agent.robot
     joints = robot.active_joints
     targets = robot.get_qpos().clone()
-    is_finger = torch.tensor(["finger" in j.name for j in joints], device=base.device)
-    targets[:, is_finger] = -0.01  # below fully closed (0): the fingers keep squeezing
+    squeeze = getattr(base.agent, "squeeze_targets", None)
+    if squeeze is None:  # the Franka hand
+        is_finger = torch.tensor(["finger" in j.name for j in joints], device=base.device)
+        targets[:, is_finger] = -0.01  # below fully closed (0): the fingers keep squeezing
+    else:
+        for k, joint in enumerate(joints):
+            if joint.name in squeeze:
+                targets[:, k] = squeeze[joint.name]
     robot.set_joint_drive_targets(targets, joints=joints, joint_indices=torch.arange(len(joints), device=base.device))
     if base.gpu_sim_enabled:
         base.scene._gpu_apply_all()

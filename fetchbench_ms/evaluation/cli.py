@@ -27,13 +27,18 @@ def cmd_eval(args) -> int:
     if has_pipeline(args.method):
         default_out += f"-{pipeline_label(improvements)}"
     default_out += "".join(f"-{k}={v}" for k, v in sorted(env_options.items()))
+    if args.robot != "panda":
+        default_out += f"-robot={args.robot}"
+    if args.grasp_labels is not None:
+        default_out += f"-labels={os.path.basename(os.path.normpath(args.grasp_labels))}"
     out = args.out or os.path.join("out", "eval", default_out)
     records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
                        episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
                        address=args.address, task_timeout=args.task_timeout, retries=args.retries,
                        retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
                        policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride,
-                       improvements=improvements, env_options=env_options)
+                       improvements=improvements, env_options=env_options, robot=args.robot,
+                       grasp_labels=args.grasp_labels)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -78,6 +83,14 @@ def add_commands(subparsers) -> None:
     p.add_argument("--env-option", action="append", default=None, metavar="KEY=VALUE",
                    help="an env option of the ablation, e.g. sim_freq=60 or camera_placement=paper "
                         "(repeatable; recorded in run.json and every record)")
+    from ..robots import DEFAULT_ROBOT, ROBOT_UIDS
+
+    p.add_argument("--robot", default=DEFAULT_ROBOT, choices=ROBOT_UIDS,
+                   help="the hardware setup (the env's robot_uids; docs/robots.md): the sense-plan-act methods "
+                        "run on every one; recorded in run.json and every record unless the Panda")
+    p.add_argument("--grasp-labels", default=None, metavar="DIR",
+                   help="ga-* methods: the annotated grasps' store (default: the shipped Franka-hand labels; "
+                        "e.g. the Robotiq's, built by `fetchbench grasps build --hand robotiq_2f_85`); recorded")
     p.add_argument("--suite", default=None, help="task suite: test, val, smoke, or a suite file")
     p.add_argument("--tasks", default=None, help="START:END slice of the suite's tasks, e.g. 0:600")
     p.add_argument("--env", default=None,

@@ -86,8 +86,27 @@ def pipeline_fields(name: str, improvements=()) -> dict:
     return {"pipeline": pipeline_label(improvements), "improvements": [i for i in IMPROVEMENTS if i in improvements]}
 
 
+def check_robot(name: str, robot: str) -> str:
+    """``robot`` (a ``fetchbench_ms.robots`` uid) if method ``name`` can run on it; ValueError
+    otherwise. Every sense-plan-act method plans for any robot; the learned policies and the
+    learned scene-collision network were trained on the Panda only."""
+    from ..robots import check_robot_uid
+    from ..solutions.sense_plan_act import METHODS
+
+    robot = check_robot_uid(robot)
+    if robot == "panda" or name == IDLE:
+        return robot
+    spa = [m for m, parts in METHODS.items() if parts.get("collision") != "network"]
+    if name not in spa:
+        why = ("its network was trained on the Panda" if name in METHODS or "-" in name and ":" not in name
+               else "other robots run the sense-plan-act methods only")
+        raise ValueError(f"{name} runs on the Panda only ({why}); on robot {robot!r} valid methods: {', '.join(spa)}")
+    return robot
+
+
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
-                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=()) -> Method:
+                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
+                   grasp_labels: Optional[str] = None) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
     ``policy_stride``: their control steps per observation (``ImitationPolicy``);
@@ -98,7 +117,14 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
     from ..solutions.sense_plan_act import METHODS, SolveConfig, needs_pointcloud, solve
 
     improvements = tuple(improvements)
-    config = SolveConfig(improvements=improvements)  # unknown names: a clear error here
+    config = SolveConfig(improvements=improvements, grasp_labels=grasp_labels)  # unknown names: a clear error here
+    if grasp_labels is not None:
+        if name not in METHODS or METHODS[name]["grasps"] != "oracle":
+            raise ValueError(f"--grasp-labels applies to the annotated-grasp methods "
+                             f"({', '.join(m for m, p in METHODS.items() if p['grasps'] == 'oracle')}), not {name}")
+        from ..grasps.store import GraspStore
+
+        GraspStore(grasp_labels)  # no manifest there: a clear error before any task runs
     if improvements and not has_pipeline(name):
         raise ValueError(f"{name} runs no sense-plan-act pipeline: --pipeline ours applies to "
                          f"{', '.join(METHODS)} and the cgn-imit-* hybrids")
@@ -177,10 +203,13 @@ class RunnerSpec:
     policy_stride: int = 1  # imitation methods: control steps per observation
     improvements: tuple = ()  # sense-plan-act pipelines: our improvements that are on (none: the paper's)
     env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
+    robot: str = "panda"  # the env's robot_uids (fetchbench_ms.robots)
+    grasp_labels: Optional[str] = None  # the annotated grasps' store (None: the shipped labels)
 
     def make(self) -> "TaskRunner":
         return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
-                          self.policy_stride, self.improvements, dict(self.env_options))
+                          self.policy_stride, self.improvements, dict(self.env_options), self.robot,
+                          self.grasp_labels)
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -192,9 +221,12 @@ class TaskRunner:
 
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
                  grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
-                 improvements=(), env_options: Optional[dict] = None):
+                 improvements=(), env_options: Optional[dict] = None, robot: str = "panda",
+                 grasp_labels: Optional[str] = None):
+        self.robot = check_robot(method_name, robot)
+        self.grasp_labels = grasp_labels
         self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
-                                     improvements)
+                                     improvements, grasp_labels)
         self.video_dir = video_dir
         self.env_options = dict(env_options or {})
         # Every record of a pipeline method names its variant (error records too).
@@ -207,6 +239,8 @@ class TaskRunner:
         key = (env_id, self.method.obs_mode)
         if key not in self.envs:
             extra = {"render_mode": "rgb_array"} if self.video_dir else {}
+            if self.robot != "panda":  # (the Panda's envs are made as they always were)
+                extra["robot_uids"] = self.robot
             self.envs[key] = make(env_id, obs_mode=self.method.obs_mode, control_mode="pd_joint_pos",
                                   object_split=SAMPLED_TASK_SPLIT, **self.env_options, **extra)
         return self.envs[key]
@@ -252,6 +286,10 @@ class TaskRunner:
             record.setdefault(key, value)
         if self.env_options:
             record["env_options"] = self.env_options
+        if self.robot != "panda":  # no key: the Panda (records from before robots were an option)
+            record["robot"] = self.robot
+        if self.grasp_labels is not None:
+            record["grasp_labels"] = self.grasp_labels
         return record
 
 

@@ -6,7 +6,8 @@ from pathlib import Path
 from typing import Optional
 
 from ..utils.io import sha256_bytes
-from .methods import SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, pipeline_fields, resolve_method, task_seed
+from .methods import (SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, check_robot, pipeline_fields, resolve_method,
+                      task_seed)
 from .store import VIDEO_DIR, ResultsStore
 
 BACKENDS = ("local", "ray")
@@ -59,18 +60,23 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
              retries: int = 1, retry_errors: bool = False, videos: bool = False,
              progress: bool = True, grasp_model: str = "pretrained",
              policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
-             env_options: Optional[dict] = None) -> list[dict]:
+             env_options: Optional[dict] = None, robot: str = "panda",
+             grasp_labels: Optional[str] = None) -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
     selection (old and new), in task order. ``grasp_model``: the weight set of ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint; ``policy_stride``: their control
     steps per observation; ``improvements``: the pipeline's (none: the paper's pipeline);
-    ``env_options``: env kwargs of the ablation (``fetchbench_ms.envs.parse_env_options``)."""
+    ``env_options``: env kwargs of the ablation (``fetchbench_ms.envs.parse_env_options``);
+    ``robot``: the hardware setup (``fetchbench_ms.robots``; recorded unless the Panda);
+    ``grasp_labels``: the annotated grasps' store (None: the shipped Franka-hand labels)."""
     from .metrics import summarize
 
     improvements = tuple(improvements)
     env_options = dict(env_options or {})
     # unknown method or options: fail before anything is written
-    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements)
+    grasp_labels = str(Path(grasp_labels).resolve()) if grasp_labels is not None else None
+    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels)
+    robot = check_robot(method, robot)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:
@@ -94,6 +100,10 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     options.update(pipeline_fields(method, improvements))
     if env_options:
         options["env_options"] = env_options
+    if robot != "panda":  # (the Panda's stores keep their options as they were)
+        options["robot"] = robot
+    if grasp_labels is not None:
+        options["grasp_labels"] = grasp_labels
     store.open_run({"method": method, "source": source, "source_sha256": source_sha,
                     "method_options": options, "selection": selection})
     done = {r["task_id"]: r for r in store.records()}
@@ -114,7 +124,11 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
                       str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
-                      improvements, tuple(sorted(env_options.items())))
+                      improvements, tuple(sorted(env_options.items())), robot, grasp_labels)
+    if todo and robot != "panda":
+        from ..planning.robot import robot_model
+
+        robot_model(robot)  # fit and cache its collision spheres once here, not in every worker at once
     if todo:
         if backend == "local":
             from .local import run_local

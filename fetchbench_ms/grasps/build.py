@@ -79,6 +79,10 @@ def label_object(asset, settings: LabelSettings) -> ObjectTrials:
 
     Each object gets a fresh scene (40 ms), so its labels are a function of the object
     and the settings alone, whatever was labelled before in the same process."""
+    if getattr(settings, "hand", "franka_hand") != "franka_hand":
+        from .robotiq import label_object_robotiq
+
+        return label_object_robotiq(asset, settings)
     rng = object_rng(settings.seed, asset.object_id)
     labeller = physics.GraspLabeller(slots=settings.slots, config=settings.trial, object_friction=settings.object_friction)
     labeller.set_object(asset, density=settings.density)

@@ -36,7 +36,14 @@ def cmd_build(args) -> int:
 
     if args.source and args.source not in SOURCES:
         raise ValueError(f"unknown source {args.source!r}; valid: {', '.join(SOURCES)}")
-    if args.ids_file:
+    if args.ids_file and args.targets_of:
+        raise ValueError("give --ids-file or --targets-of, not both")
+    if args.targets_of:
+        from ..tasks.suite import load_suite
+
+        ids = sorted({t.target.object_id for t in load_suite(args.targets_of).tasks.values()})
+        ids = [i for i in ids if not args.source or i.split("/")[0] == args.source]
+    elif args.ids_file:
         ids = [line.strip() for line in Path(args.ids_file).read_text().splitlines() if line.strip()]
         ids = [i for i in ids if not args.source or i.split("/")[0] == args.source]
     else:
@@ -49,6 +56,13 @@ def cmd_build(args) -> int:
     settings = LabelSettings(seed=args.seed, candidates_per_round=args.candidates)
     from .store import default_dir
 
+    if args.hand == "robotiq_2f_85":
+        # The Robotiq re-tries the Franka labels' candidates (grasps.robotiq): its own store.
+        from .robotiq import RobotiqLabelSettings
+
+        if not args.dir:
+            raise ValueError("--hand robotiq_2f_85 writes a store of its own: give --dir (e.g. assets/grasps_robotiq)")
+        settings = RobotiqLabelSettings(seed=args.seed, candidates_per_round=args.candidates)
     out = args.dir or os.fspath(default_dir())
     manifest = build(out, ids, loader=args.loader, settings=settings, workers=args.workers, shards=_parse_shards(args.shards), deadline_s=args.deadline)
     done = sum(e["objects"] for e in manifest["shards"].values())
@@ -108,10 +122,15 @@ def add_commands(subparsers) -> None:
     p.add_argument("--shards", default=None, help="only these shard indices, e.g. '0-15' or '3,7'")
     p.add_argument("--source", default=None, help="only objects of this source (ycb, blob, procedural)")
     p.add_argument("--ids-file", default=None, help="label the ids listed in this file (one a line) instead of the catalog's")
+    p.add_argument("--targets-of", default=None, metavar="SUITE",
+                   help="label the target objects of a task suite's tasks (test, val, smoke, or a suite file)")
     p.add_argument("--loader", default="fetchbench_ms.objects.catalog:get_object",
                    help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasps.build:object_from_source needs no catalog index)")
     p.add_argument("--limit", type=int, default=0, help="only the first N object ids (sorted), for trials")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hand", default="franka_hand", choices=("franka_hand", "robotiq_2f_85"),
+                   help="robotiq_2f_85: re-try the shipped Franka labels' candidates with the Robotiq 2F-85 "
+                        "in physics (docs/robots.md); needs --dir")
     p.add_argument("--candidates", type=int, default=32, help="candidates per sampling round")
     p.add_argument("--deadline", type=float, default=None, help="seconds; start no shard that would end later")
     p.set_defaults(func=cmd_build)

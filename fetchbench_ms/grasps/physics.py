@@ -87,6 +87,13 @@ class GraspLabeller:
         self.scene.set_timestep(1.0 / SIM_FREQ)
         side = int(np.ceil(np.sqrt(slots)))
         self.slot_origins = np.array([[spacing * (i % side), spacing * (i // side), 1.0] for i in range(slots)])
+        self._load_grippers(slots, config)
+        self.objects: list = []
+        self._object_id = None
+        self.object_material = sapien.physx.PhysxMaterial(object_friction, object_friction, 0.0)
+
+    def _load_grippers(self, slots: int, config: TrialConfig) -> None:
+        """The floating Franka hands (``grasps.robotiq.RobotiqLabeller`` loads Robotiqs)."""
         loader = self.scene.create_urdf_loader()
         loader.fix_root_link = True
         for link in franka.FINGER_LINKS:
@@ -116,9 +123,26 @@ class GraspLabeller:
         self._finger_owner = {
             link.entity.per_scene_id: i for i, g in enumerate(self.grippers) for link in g.links if link.name in franka.FINGER_LINKS
         }
-        self.objects: list = []
-        self._object_id = None
-        self.object_material = sapien.physx.PhysxMaterial(object_friction, object_friction, 0.0)
+
+    # The hand's gripper, in four hooks (the Franka hand's here).
+    def _open_gripper(self, i: int, qpos: np.ndarray) -> None:
+        """Set slot ``i``'s fingers open in ``qpos`` and their drive targets open."""
+        qpos[self._finger_idx] = franka.FINGER_TRAVEL
+
+    def _open_targets(self, i: int) -> None:
+        for k in self._finger_idx:
+            self._joints[i][k].set_drive_target(franka.FINGER_TRAVEL)
+
+    def _close(self, i: int) -> None:
+        for k in self._finger_idx:
+            self._joints[i][k].set_drive_target(franka.GRIPPER_CLOSED_TARGET)
+
+    def _width(self, qpos: np.ndarray) -> float:
+        """Finger gap (m) from the gripper's joint positions."""
+        return qpos[self._finger_idx].sum()
+
+    def _open_enough(self, qpos: np.ndarray) -> bool:
+        return bool(np.all(qpos[self._finger_idx] > self.config.min_finger_q))
 
     @property
     def slots(self) -> int:
@@ -148,14 +172,13 @@ class GraspLabeller:
         T_world_hand[:3, 3] = T_object_hand[:3, 3] + self.slot_origins[i]
         gripper.set_root_pose(sapien.Pose(T_world_hand))
         qpos = np.zeros(gripper.dof)
-        qpos[self._finger_idx] = franka.FINGER_TRAVEL
+        self._open_gripper(i, qpos)
         gripper.set_qpos(qpos)
         gripper.set_qvel(np.zeros(gripper.dof))
         for joint in self._joints[i]:
             joint.set_drive_target(0.0)
             joint.set_drive_velocity_target(0.0)
-        for k in self._finger_idx:
-            self._joints[i][k].set_drive_target(franka.FINGER_TRAVEL)
+        self._open_targets(i)
         body = entity.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
         entity.set_pose(sapien.Pose(p=self.slot_origins[i]))
         body.set_linear_velocity([0, 0, 0])
@@ -196,15 +219,14 @@ class GraspLabeller:
             self.objects[i].set_pose(sapien.Pose(p=self.slot_origins[i] + [0, 0, 10.0]))
             self.objects[i].find_component_by_type(sapien.physx.PhysxRigidDynamicComponent).disable_gravity = True
         for i in active:
-            for k in self._finger_idx:
-                self._joints[i][k].set_drive_target(franka.GRIPPER_CLOSED_TARGET)
+            self._close(i)
         for _ in range(int(round(c.close_s * SIM_FREQ))):
             self.scene.step()
         width = np.zeros(n)
         p_object_tcp = np.zeros((n, 3))
         for i in active:
             qpos = self.grippers[i].get_qpos()
-            width[i] = qpos[self._finger_idx].sum()
+            width[i] = self._width(qpos)
             T_world_object = self.objects[i].get_pose().to_transformation_matrix()
             p_world_tcp = self._tcp_world(i)
             p_object_tcp[i] = np.linalg.solve(T_world_object, np.append(p_world_tcp, 1.0))[:3]
@@ -224,7 +246,7 @@ class GraspLabeller:
         success = np.zeros(n, dtype=bool)
         for i in active:
             qpos = self.grippers[i].get_qpos()
-            open_enough = bool(np.all(qpos[self._finger_idx] > c.min_finger_q))
+            open_enough = self._open_enough(qpos)
             T_world_object = self.objects[i].get_pose().to_transformation_matrix()
             drift = np.linalg.norm(T_world_object[:3, :3] @ p_object_tcp[i] + T_world_object[:3, 3] - self._tcp_world(i))
             success[i] = open_enough and touching[i] and drift < c.max_drift

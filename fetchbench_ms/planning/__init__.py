@@ -1,6 +1,8 @@
 """Planning stack, all in the robot base frame:
 
-- ``robot``: the Panda from ManiSkill's URDF, batched FK, fitted collision spheres, self pairs;
+- ``robot``: a robot setup's model (the Panda from ManiSkill's URDF by default, the others of
+  ``fetchbench_ms.robots`` from their generated URDFs), batched FK, fitted collision
+  spheres, self pairs;
 - ``world``: collision worlds answering batched signed distances (exact primitives, convex
   parts as half-spaces, point clouds as a 5 mm distance field), in named groups;
 - ``checker``: configuration validity (limits, self, world, a carried object);
@@ -18,12 +20,13 @@
 """
 from .checker import Attachment, CollisionChecker
 from .ik import IKResult, solve_ik
-from .robot import Q_DEFAULT, PandaModel, panda
+from .robot import Q_DEFAULT, PandaModel, RobotModel, panda, robot_for_env, robot_model
 from .rrt import PlanResult, plan_rrtconnect
 from .timing import time_parametrize
 from .trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch, plan_trajopt_to_pose
 from .world import CollisionWorld, PointCloudField
 
 __all__ = ["Attachment", "CollisionChecker", "CollisionWorld", "IKResult", "PandaModel", "PlanResult",
-           "PointCloudField", "Q_DEFAULT", "TrajoptConfig", "panda", "plan_rrtconnect", "plan_trajopt",
-           "plan_trajopt_batch", "plan_trajopt_to_pose", "solve_ik", "time_parametrize"]
+           "PointCloudField", "Q_DEFAULT", "RobotModel", "TrajoptConfig", "panda", "plan_rrtconnect", "plan_trajopt",
+           "plan_trajopt_batch", "plan_trajopt_to_pose", "robot_for_env", "robot_model", "solve_ik",
+           "time_parametrize"]

@@ -8,7 +8,7 @@ import torch
 import trimesh
 
 from .spheres import fit_balls, volume_samples
-from .robot import FINGER_OPEN, HAND_LINKS, WORLD_LINKS, PandaModel
+from .robot import PandaModel
 from .world import CollisionWorld
 
 
@@ -53,12 +53,14 @@ class CollisionChecker:
     it). ``margin`` is extra clearance on top of the spheres' own fitting margin.
     """
 
-    def __init__(self, robot: PandaModel, world: CollisionWorld, finger: float = FINGER_OPEN,
+    def __init__(self, robot: PandaModel, world: CollisionWorld, finger: float | None = None,
                  exclude: tuple[str, ...] = (), attachment: Attachment | None = None, margin: float = 0.0,
                  ignore_links: tuple[str, ...] = (), exact_self_collision: bool = True):
-        self.robot, self.world, self.finger = robot, world, finger
+        # None: the open hand (0.04 m per finger on the Franka hand).
+        self.robot, self.world = robot, world
+        self.finger = robot.finger_open if finger is None else finger
         self.exclude, self.attachment, self.margin = tuple(exclude), attachment, margin
-        world_links = tuple(l for l in WORLD_LINKS if l not in ignore_links)
+        world_links = tuple(l for l in robot.world_links if l not in ignore_links)
         self.world_mask = torch.as_tensor(robot.sphere_mask(world_links))
         self.radii = torch.as_tensor(robot.spheres.radii)
         self._init_self_pairs(robot)
@@ -73,8 +75,7 @@ class CollisionChecker:
             self.att_c = torch.as_tensor(attachment.centers_hand, dtype=torch.float64)
             self.att_r = torch.as_tensor(attachment.radii, dtype=torch.float64)
             # The carried object may touch the hand and fingers, not the rest of the arm.
-            self.att_arm_mask = torch.as_tensor(robot.sphere_mask(("panda_link0", "panda_link1", "panda_link2",
-                                                                   "panda_link3", "panda_link4")))
+            self.att_arm_mask = torch.as_tensor(robot.sphere_mask(robot.proximal_links))
 
     def _init_self_pairs(self, robot: PandaModel) -> None:
         """Self-collision pairs grouped by link pair, with a bounding sphere per link so
@@ -136,7 +137,7 @@ class CollisionChecker:
             self_clear = self._exact_self_clearance(poses, pair_clear, self_clear)
         clear = torch.minimum(clear, self_clear)
         if self.attachment is not None:
-            T = poses["panda_hand"]
+            T = poses[self.robot.hand_link]
             att = torch.einsum("bij,mj->bmi", T[:, :3, :3], self.att_c) + T[:, None, :3, 3]  # (B, M, 3)
             d_att = self.world.distance(att.reshape(-1, 3), float(self.att_r.max()) + 0.02, self.exclude)
             d_att = (d_att.reshape(B, -1) - self.att_r).amin(dim=1)
@@ -152,9 +153,9 @@ class CollisionChecker:
         T_base_hand = torch.as_tensor(np.asarray(T_base_hand, float)).reshape(-1, 4, 4)
         if len(T_base_hand) == 0:
             return np.zeros(0)
-        links = ("panda_link7",) + HAND_LINKS
+        links = (self.robot.wrist_link,) + self.robot.hand_links
         poses = self.robot.link_poses(torch.zeros(1, 7, dtype=torch.float64), self.finger)
-        T_hand_base = torch.linalg.inv(poses["panda_hand"][0])
+        T_hand_base = torch.linalg.inv(poses[self.robot.hand_link][0])
         mask = torch.as_tensor(self.robot.sphere_mask(links)) & self.world_mask
         idx = torch.nonzero(mask, as_tuple=True)[0]
         link_of = self.robot.spheres.link_index[idx.numpy()]

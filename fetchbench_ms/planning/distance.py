@@ -319,20 +319,21 @@ class TorchRobot:
         self.att_c = torch.as_tensor(_pad([a.centers_hand if a else np.zeros((0, 3)) for a in atts], 0.0, (3,)), **dd)
         self.att_r = torch.as_tensor(_pad([a.radii if a else np.zeros(0) for a in atts], -1.0, ()), **dd)
         self.has_attachment = any(a is not None for a in atts)
-        arm = robot.sphere_mask(("panda_link0", "panda_link1", "panda_link2", "panda_link3", "panda_link4"))
+        arm = robot.sphere_mask(robot.proximal_links)
         self.att_arm = torch.as_tensor(np.flatnonzero(arm), device=self.device)
 
     def spheres(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Robot sphere centres (P, B, S, 3) and carried-object centres (P, B, M, 3) or None,
         for configurations ``q`` (P, B, 7)."""
         P, B, _ = q.shape
-        finger = self.finger[:, None, None].expand(P, B, 2)
-        poses = self.fk.forward(torch.cat([q, finger], dim=2).reshape(P * B, 9))
+        gripper = self.robot.gripper_q(self.finger).to(q)  # (P, G)
+        G = gripper.shape[1]
+        poses = self.fk.forward(torch.cat([q, gripper[:, None].expand(P, B, G)], dim=2).reshape(P * B, 7 + G))
         T = torch.stack([poses[l] for l in self.links], dim=1)[:, self.link_index]  # (PB, S, 4, 4)
         centers = torch.einsum("nsij,sj->nsi", T[..., :3, :3], self.centers_link) + T[..., :3, 3]
         att = None
         if self.has_attachment:
-            H = poses["panda_hand"].reshape(P, B, 4, 4)
+            H = poses[self.robot.hand_link].reshape(P, B, 4, 4)
             att = torch.einsum("pbij,pmj->pbmi", H[..., :3, :3], self.att_c) + H[..., None, :3, 3]
         return centers.reshape(P, B, -1, 3), att
 

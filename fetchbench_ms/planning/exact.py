@@ -1,14 +1,16 @@
-"""Exact collision checks with python-fcl: the Panda's own collision meshes against
+"""Exact collision checks with python-fcl: the robot's own collision meshes against
 boxes, cylinders and convex meshes. Slow (one configuration at a time) and used to
 validate what the sphere model plans: by tests, and by callers that want a final check.
 """
 from __future__ import annotations
 
+import weakref
+
 import fcl
 import numpy as np
 import trimesh
 
-from .robot import WORLD_LINKS, PandaModel
+from .robot import PandaModel
 
 
 def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
@@ -55,13 +57,22 @@ class ExactWorld:
         return self
 
 
+#: Each robot model's link BVHs, built once: checkers are made per planning call, and the
+#: same (immutable) geometry serves every collision object posed from it.
+_LINK_GEOMETRY: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
 class ExactRobot:
     """The Panda's URDF collision meshes as fcl objects, posed by the planner's FK."""
 
-    def __init__(self, robot: PandaModel, links: tuple[str, ...] = WORLD_LINKS):
+    def __init__(self, robot: PandaModel, links: tuple[str, ...] | None = None):
         self.robot = robot
-        self.links = links
-        self.objects = {l: fcl.CollisionObject(_bvh(robot.collision_meshes[l]), fcl.Transform()) for l in links}
+        self.links = links = robot.world_links if links is None else links
+        geometry = _LINK_GEOMETRY.setdefault(robot, {})
+        for l in links:
+            if l not in geometry:
+                geometry[l] = _bvh(robot.collision_meshes[l])
+        self.objects = {l: fcl.CollisionObject(geometry[l], fcl.Transform()) for l in links}
 
     def pose(self, q, finger: float) -> None:
         poses = self.robot.link_poses(np.asarray(q, float).reshape(1, 7), finger)

@@ -1,4 +1,4 @@
-"""Batched, multi-seed, collision-aware inverse kinematics for the Panda TCP.
+"""Batched, multi-seed, collision-aware inverse kinematics for the robot's TCP.
 
 Damped least squares on pytorch_kinematics' geometric Jacobian, run for every
 (target, seed) pair at once. A solution counts only when it reaches the target within
@@ -49,7 +49,7 @@ def rotation_error(R_target: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
 
 def pose_errors(robot: PandaModel, q: torch.Tensor, T_target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Position error (m) and rotation error (rad) of the TCP, each (B,)."""
-    T = robot.link_poses(q)["panda_hand_tcp"]
+    T = robot.link_poses(q)[robot.tcp_link]
     return (T_target[:, :3, 3] - T[:, :3, 3]).norm(dim=1), rotation_error(T_target[:, :3, :3], T[:, :3, :3]).norm(dim=1)
 
 
@@ -87,7 +87,7 @@ def solve_ik(robot: PandaModel, T_base_tcp, checker=None, q_seed=None, n_seeds: 
             break
         qa = q[idx]
         poses = robot.link_poses(qa)
-        T = poses["panda_hand_tcp"]
+        T = poses[robot.tcp_link]
         e_pos = T_t[idx, :3, 3] - T[:, :3, 3]
         e_rot = rotation_error(T_t[idx, :3, :3], T[:, :3, :3])
         done = (e_pos.norm(dim=1) < pos_tol * 0.5) & (e_rot.norm(dim=1) < rot_tol * 0.5)

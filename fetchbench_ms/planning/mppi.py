@@ -49,7 +49,6 @@ import torch
 
 from .checker import CollisionChecker
 from .distance import TorchRobot, TorchWorld, collision_cost
-from .robot import WORLD_LINKS
 from .rrt import PlanResult, densify
 from .world import PointCloudField
 
@@ -137,7 +136,7 @@ class SceneClearance:
             with torch.no_grad():
                 cache[key] = self.net.encode(torch.as_tensor(scene_grid(points)))
         self.scene = cache[key]
-        world_links = [l for l in WORLD_LINKS if l in checker.robot.spheres.links]
+        world_links = [l for l in checker.robot.world_links if l in checker.robot.spheres.links]
         arm_checked = checker.world_mask.numpy()[checker.robot.sphere_mask(tuple(world_links))]
         att = checker.attachment
         self.att_c = None if att is None else torch.as_tensor(att.centers_hand, device=self.device, dtype=torch.float32)
@@ -198,10 +197,11 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
     tc = time.perf_counter()
     scene = SceneClearance(checker, cfg.cost, device, cfg.checkpoint)
     goals = torch.as_tensor(goals_np, **dd)
-    finger = torch.full((1, 2), float(checker.finger), **dd)
+    gripper = checker.robot.gripper_q(float(checker.finger)).to(**dd)  # (1, G)
+    tcp_link = checker.robot.tcp_link
 
     def tcp(x: torch.Tensor) -> torch.Tensor:
-        return scene.robot.fk.forward(torch.cat([x, finger.expand(len(x), 2)], 1))["panda_hand_tcp"][:, :3, 3]
+        return scene.robot.fk.forward(torch.cat([x, gripper.expand(len(x), -1)], 1))[tcp_link][:, :3, 3]
 
     goal_tcp = tcp(goals)
     # What each goal's clearance lacks of the collision cost's activation distance: the

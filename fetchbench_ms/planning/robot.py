@@ -1,10 +1,13 @@
-"""The Panda as the planner sees it: ManiSkill's URDF, batched forward kinematics
+"""A robot as the planner sees it: its URDF, batched forward kinematics
 (pytorch_kinematics) and a conservative collision-sphere model with the
-self-collision pairs that matter.
+self-collision pairs that matter. The Panda (ManiSkill's URDF, ``panda()``) and the
+other setups of ``fetchbench_ms.robots`` (their generated URDFs, ``robot_model(uid)``).
 
-Everything is in the robot base frame (``panda_link0``). Joint vectors ``q`` are the
-7 arm joints; the two finger joints are given separately as a finger opening per
-finger (0..0.04 m), because the planner never moves them.
+Everything is in the robot base frame (``panda_link0`` on the Panda). Joint vectors
+``q`` are the 7 arm joints; the gripper's joints are given separately as a finger
+opening per finger (0..0.04 m on the Franka hand), because the planner never moves
+them: the model turns an opening into the gripper's joint values (the Robotiq's six
+coupled joints follow one knuckle angle, looked up from its kinematics).
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from ..utils.mesh_cache import cache_dir
+from ..robots import SETUPS, RobotSetup, robot_setup
 from .spheres import DEFAULT_MARGIN, FIT_VERSION, load_or_fit
 
 ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
@@ -56,8 +60,10 @@ def _origin_matrix(element) -> np.ndarray:
     return T
 
 
-def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
-    """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link frame."""
+def link_collision_meshes(urdf_path: str, convex_links=()) -> dict[str, trimesh.Trimesh]:
+    """Each link's collision geometry (meshes and boxes of the URDF) as one mesh in the link
+    frame; the meshes of ``convex_links`` as their convex hulls, the shape SAPIEN simulates
+    for a mesh of a moving link (a few hundred faces where the Gen3's scans have ten thousand)."""
     root = ET.parse(urdf_path).getroot()
     base = os.path.dirname(urdf_path)
     meshes = {}
@@ -67,7 +73,12 @@ def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
             geom = col.find("geometry")
             T = _origin_matrix(col)
             if geom.find("mesh") is not None:
-                piece = trimesh.load(os.path.join(base, geom.find("mesh").get("filename")), force="mesh")
+                mesh = geom.find("mesh")
+                piece = trimesh.load(os.path.join(base, mesh.get("filename")), force="mesh")
+                if mesh.get("scale") is not None:
+                    piece.apply_scale([float(v) for v in mesh.get("scale").split()])
+                if link.get("name") in convex_links:
+                    piece = piece.convex_hull
             elif geom.find("box") is not None:
                 piece = trimesh.creation.box([float(v) for v in geom.find("box").get("size").split()])
             else:
@@ -78,10 +89,21 @@ def link_collision_meshes(urdf_path: str) -> dict[str, trimesh.Trimesh]:
     return meshes
 
 
-def joint_velocity_limits(urdf_path: str) -> np.ndarray:
+def hull_links(setup: RobotSetup) -> tuple[str, ...]:
+    """Links whose collision meshes the planner takes as convex hulls: none on the Panda,
+    and none of the Franka hand on any arm (its meshes as on the Panda, so the hand is the
+    same hand everywhere); the Gen3's and the Robotiq's meshes are detailed scans, which
+    the simulation turns into their hulls."""
+    if setup.uid == "panda":
+        return ()
+    franka = set(SETUPS["panda"].world_links) | {SETUPS["panda"].base_link}
+    return tuple(l for l in (setup.base_link,) + setup.world_links if l not in franka)
+
+
+def joint_velocity_limits(urdf_path: str, joints: tuple[str, ...] = ARM_JOINTS) -> np.ndarray:
     root = ET.parse(urdf_path).getroot()
     by_name = {j.get("name"): j for j in root.findall("joint")}
-    return np.array([float(by_name[n].find("limit").get("velocity")) for n in ARM_JOINTS])
+    return np.array([float(by_name[n].find("limit").get("velocity")) for n in joints])
 
 
 @dataclass(frozen=True)
@@ -190,36 +212,117 @@ class SphereModel:
     version: str
 
 
-class PandaModel:
-    """Batched FK and collision spheres of ManiSkill's Panda (float64, CPU torch)."""
+class RobotModel:
+    """Batched FK and collision spheres of a robot setup (float64, CPU torch); the
+    Panda's by default (ManiSkill's URDF and SRDF)."""
 
-    def __init__(self, margin: float = DEFAULT_MARGIN, seed: int = 0):
+    def __init__(self, margin: float = DEFAULT_MARGIN, seed: int = 0, setup: RobotSetup | str = "panda"):
         import pytorch_kinematics as pk
 
-        self.urdf_path = panda_urdf_path()
+        self.setup = setup = robot_setup(setup) if isinstance(setup, str) else setup
+        self.uid = setup.uid
+        self.arm_joints, self.gripper_joints = setup.arm_joints, setup.gripper_joints
+        self.n_arm = setup.n_arm
+        self.hand_link, self.tcp_link = setup.hand_link, setup.tcp_link
+        self.world_links, self.hand_links = setup.world_links, setup.hand_links
+        self.finger_links, self.proximal_links = setup.finger_links, setup.proximal_links
+        self.wrist_link = setup.wrist_link
+        self.finger_open = setup.finger_open
+        self.q_home = np.asarray(setup.q_home, dtype=float)
+        if setup.uid == "panda":
+            self.urdf_path = panda_urdf_path()
+        else:
+            from ..robots.assets import urdf_path
+
+            self.urdf_path = urdf_path(setup.uid)
         with open(self.urdf_path, "rb") as f:
             urdf = f.read()
         # The URDF parser prints a warning per unknown dynamics attribute; they are noise here.
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
             self.chain = pk.build_chain_from_urdf(urdf).to(dtype=torch.float64)
-            self.arm_chain = pk.build_serial_chain_from_urdf(urdf, "panda_hand_tcp").to(dtype=torch.float64)
+            self.arm_chain = pk.build_serial_chain_from_urdf(urdf, self.tcp_link).to(dtype=torch.float64)
         names = self.chain.get_joint_parameter_names()
-        if tuple(names) != ARM_JOINTS + FINGER_JOINTS:
-            raise ValueError(f"unexpected Panda joint order {names}")
-        self.fk = UrdfTreeFK(self.urdf_path, ARM_JOINTS + FINGER_JOINTS)
+        if sorted(names) != sorted(self.arm_joints + self.gripper_joints) \
+                or tuple(names[: self.n_arm]) != self.arm_joints:
+            raise ValueError(f"unexpected {self.uid} joint order {names}")
+        self.fk = UrdfTreeFK(self.urdf_path, self.arm_joints + self.gripper_joints)
         low, high = self.chain.get_joint_limits()
-        self.q_min = np.asarray(low[:7], dtype=float)
-        self.q_max = np.asarray(high[:7], dtype=float)
-        self.velocity_limits = joint_velocity_limits(self.urdf_path)
-        self.acceleration_limits = ACCELERATION_LIMITS.copy()
-        self.collision_meshes = link_collision_meshes(self.urdf_path)
+        self.q_min = np.asarray(low[: self.n_arm], dtype=float)
+        self.q_max = np.asarray(high[: self.n_arm], dtype=float)
+        self.velocity_limits = joint_velocity_limits(self.urdf_path, self.arm_joints)
+        self.acceleration_limits = np.asarray(setup.acceleration_limits, dtype=float)
+        self.collision_meshes = link_collision_meshes(self.urdf_path, hull_links(setup))
+        self._init_gripper()
         self.spheres = self._fit(margin, seed)
-        self.self_collision_pairs = self._self_pairs(self.urdf_path.replace(".urdf", ".srdf"))
+        if setup.uid == "panda":
+            self.self_collision_pairs = self._self_pairs(self.urdf_path.replace(".urdf", ".srdf"))
+        else:
+            self.self_collision_pairs = self._self_pairs_generated(seed)
+
+    # -- gripper ------------------------------------------------------------------------
+    def _init_gripper(self) -> None:
+        """How a finger opening (m per finger) sets the gripper's joints: the Franka hand's
+        two prismatic joints take it as it is; a revolute linkage (the Robotiq) is coupled
+        to its driving joint as its URDF's mimic tags say, and the driving angle for an
+        opening is read off a table of its own kinematics (the pads' distance from the
+        grasp plane, less half a pad, over the joint's range)."""
+        self._coupling = None
+        if self.setup.hand == "franka_hand":
+            return
+        from ..robots.assets import robotiq_mimic
+
+        mimic = robotiq_mimic()
+        driver = self.gripper_joints[0]
+        self._coupling = torch.as_tensor([1.0 if j == driver else mimic[j][1] for j in self.gripper_joints],
+                                         dtype=torch.float64)
+        root = ET.parse(self.urdf_path).getroot()
+        limit = next(j for j in root.findall("joint") if j.get("name") == driver).find("limit")
+        angles = torch.linspace(float(limit.get("lower")), float(limit.get("upper")), 161, dtype=torch.float64)
+        q = torch.cat([torch.as_tensor(self.q_home).expand(len(angles), self.n_arm),
+                       angles[:, None] * self._coupling], dim=1)
+        poses = self.fk.forward(q)
+        pad = self.finger_links[1]
+        T_hand_pad = torch.linalg.inv(poses[self.hand_link]) @ poses[pad]
+        half_pad = float(self.collision_meshes[pad].extents[1]) / 2
+        opening = T_hand_pad[:, :3, 3].abs()[:, 1] - half_pad
+        if not bool((opening[1:] < opening[:-1]).all()):
+            raise ValueError(f"{self.uid}: finger opening is not monotonic in {driver}")
+        # Increasing openings for interpolation.
+        self._open_table = opening.flip(0)
+        self._angle_table = angles.flip(0)
+
+    def gripper_q(self, finger) -> torch.Tensor:
+        """Gripper joint values (N, G) for per-finger openings ``finger`` (scalar or (N,) / (N, 1))."""
+        f = torch.as_tensor(finger, dtype=torch.float64).reshape(-1, 1)
+        if self._coupling is None:
+            return f.expand(len(f), len(self.gripper_joints))
+        table_f, table_a = self._open_table.to(f), self._angle_table.to(f)
+        x = f[:, 0].clamp(float(table_f[0]), float(table_f[-1]))
+        i = torch.searchsorted(table_f, x.contiguous()).clamp(1, len(table_f) - 1)
+        w = (x - table_f[i - 1]) / (table_f[i] - table_f[i - 1])
+        angle = table_a[i - 1] + w * (table_a[i] - table_a[i - 1])
+        return angle[:, None] * self._coupling.to(f)
+
+    def finger_from_gripper_q(self, gripper_q) -> float:
+        """Per-finger opening (m) of the gripper joint values (in ``gripper_joints`` order)."""
+        gripper_q = np.asarray(gripper_q, dtype=float).reshape(-1)
+        if self._coupling is None:
+            return float(gripper_q[0])
+        return float(np.interp(gripper_q[0], self._angle_table.flip(0).numpy(), self._open_table.flip(0).numpy()))
+
+    def full_q(self, q, finger) -> torch.Tensor:
+        """(B, n_arm + G) joint vectors of the FK from arm configurations and finger openings
+        (one, or one per configuration)."""
+        q = torch.as_tensor(q).reshape(-1, self.n_arm)
+        g = self.gripper_q(torch.as_tensor(finger, dtype=torch.float64)).to(q)
+        return torch.cat([q, g.expand(q.shape[0], g.shape[1])], dim=1)
 
     # -- spheres ------------------------------------------------------------------------
     def _fit(self, margin: float, seed: int) -> SphereModel:
         links = tuple(sorted(self.collision_meshes))
-        fitted = load_or_fit(self.collision_meshes, self._input_bytes(), cache_dir(), margin, seed)
+        name = "panda" if self.uid == "panda" else self.uid
+        fitted = load_or_fit(self.collision_meshes, self._input_bytes(), cache_dir(), margin, seed,
+                             link_fit=self.setup.link_fit, name=name)
         return SphereModel(
             links=links,
             link_index=np.concatenate([np.full(len(s.radii), i) for i, s in enumerate(fitted)]),
@@ -232,9 +335,14 @@ class PandaModel:
     def _input_bytes(self) -> bytes:
         """URDF + collision mesh bytes: what the fitted spheres depend on."""
         root = ET.parse(self.urdf_path).getroot()
-        files = sorted({m.get("filename") for m in root.iter("mesh") if "collision" in m.get("filename")})
+        if self.uid == "panda":
+            files = sorted({m.get("filename") for m in root.iter("mesh") if "collision" in m.get("filename")})
+        else:
+            files = sorted({m.get("filename") for c in root.iter("collision") for m in c.iter("mesh")})
         base = os.path.dirname(self.urdf_path)
         data = [Path(self.urdf_path).read_bytes()] + [Path(base, f).read_bytes() for f in files]
+        if self.uid != "panda":  # meshes read with their URDF scale (the Panda's have none), as hulls
+            data.insert(0, b"mesh-scale|convex-hull:" + ",".join(hull_links(self.setup)).encode())
         return b"|".join(data)
 
     def _self_pairs(self, srdf_path: str) -> np.ndarray:
@@ -251,15 +359,64 @@ class PandaModel:
                 pairs.append(np.stack(np.meshgrid(ia, ib, indexing="ij"), -1).reshape(-1, 2))
         return np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=int)
 
+    def _self_pairs_generated(self, seed: int, samples: int = 256) -> np.ndarray:
+        """Sphere index pairs (P, 2) of link pairs that can touch, for a URDF without an
+        SRDF, by MoveIt's setup-assistant rules: skip links adjacent in the tree or one
+        link apart (counting links with geometry only), pairs within the hand (they move
+        together or by the linkage) and pairs whose spheres overlap in every one of
+        ``samples`` random configurations (always touching: spheres are conservative)."""
+        root = ET.parse(self.urdf_path).getroot()
+        parent = {j.find("child").get("link"): j.find("parent").get("link") for j in root.findall("joint")}
+        links = self.spheres.links
+
+        def geometric_ancestors(link):
+            out, cur = [], parent.get(link)
+            while cur is not None:
+                if cur in self.collision_meshes:
+                    out.append(cur)
+                cur = parent.get(cur)
+            return out
+
+        near = set()
+        for l in links:
+            up = geometric_ancestors(l)
+            for k, a in enumerate(up[:2]):
+                near.add(frozenset((l, a)))
+        hand = set(self.hand_links) | {self.wrist_link}
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(self.q_min, self.q_max, size=(samples, self.n_arm))
+        centers = self.sphere_centers(q, self.finger_open)
+        always = set()
+        for a in range(len(links)):
+            for b in range(a + 1, len(links)):
+                ia = np.flatnonzero(self.spheres.link_index == a)
+                ib = np.flatnonzero(self.spheres.link_index == b)
+                d = (torch.cdist(centers[:, ia], centers[:, ib]) - torch.as_tensor(self.spheres.radii[ia])[:, None]
+                     - torch.as_tensor(self.spheres.radii[ib])[None]).amin(dim=(1, 2))
+                if bool((d < 0).all()):
+                    always.add(frozenset((links[a], links[b])))
+        pairs = []
+        for a in range(len(links)):
+            for b in range(a + 1, len(links)):
+                key = frozenset((links[a], links[b]))
+                if key in near or key in always or (links[a] in hand and links[b] in hand):
+                    continue
+                ia = np.flatnonzero(self.spheres.link_index == a)
+                ib = np.flatnonzero(self.spheres.link_index == b)
+                pairs.append(np.stack(np.meshgrid(ia, ib, indexing="ij"), -1).reshape(-1, 2))
+        return np.concatenate(pairs) if pairs else np.zeros((0, 2), dtype=int)
+
     def sphere_mask(self, links: tuple[str, ...]) -> np.ndarray:
         idx = [self.spheres.links.index(l) for l in links]
         return np.isin(self.spheres.link_index, idx)
 
     # -- kinematics ---------------------------------------------------------------------
     def _full_q(self, q: torch.Tensor, finger: float | torch.Tensor) -> torch.Tensor:
-        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
-        f = torch.as_tensor(finger, dtype=torch.float64).reshape(-1, 1).expand(q.shape[0], 1)
-        return torch.cat([q, f, f], dim=1)
+        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, self.n_arm)
+        if self._coupling is None:
+            f = torch.as_tensor(finger, dtype=torch.float64).reshape(-1, 1).expand(q.shape[0], 1)
+            return torch.cat([q, f, f], dim=1)
+        return self.full_q(q, finger)
 
     def link_poses(self, q, finger=FINGER_OPEN) -> dict[str, torch.Tensor]:
         """T_base_link for every link, each (B, 4, 4)."""
@@ -275,7 +432,7 @@ class PandaModel:
 
     def tcp_pose(self, q) -> torch.Tensor:
         """T_base_tcp (B, 4, 4): the point between the finger pads (ManiSkill's panda_hand_tcp)."""
-        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, 7)
+        q = torch.as_tensor(q, dtype=torch.float64).reshape(-1, self.n_arm)
         return self.arm_chain.forward_kinematics(q).get_matrix()
 
     def tcp_jacobian(self, q, poses: dict | None = None) -> torch.Tensor:
@@ -286,18 +443,35 @@ class PandaModel:
         (a test checks) but recomputes its own FK at several times the cost.
         """
         poses = poses if poses is not None else self.link_poses(q)
-        frames = torch.stack([poses[self.fk.joint_child[j]] for j in ARM_JOINTS], dim=1)  # (B, 7, 4, 4)
-        axes = torch.einsum("bjik,jk->bji", frames[..., :3, :3], self.fk.joint_axis(ARM_JOINTS))
-        p_tcp = poses["panda_hand_tcp"][:, None, :3, 3]
+        frames = torch.stack([poses[self.fk.joint_child[j]] for j in self.arm_joints], dim=1)  # (B, 7, 4, 4)
+        axes = torch.einsum("bjik,jk->bji", frames[..., :3, :3], self.fk.joint_axis(self.arm_joints))
+        p_tcp = poses[self.tcp_link][:, None, :3, 3]
         linear = torch.cross(axes, p_tcp - frames[..., :3, 3], dim=2)
         return torch.cat([linear, axes], dim=2).transpose(1, 2)
 
     def within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        q = np.asarray(q).reshape(-1, 7)
+        q = np.asarray(q).reshape(-1, self.n_arm)
         return np.all((q >= self.q_min - tol) & (q <= self.q_max + tol), axis=1)
 
 
+#: The Panda's model class under its old name (``RobotModel()`` is the Panda).
+PandaModel = RobotModel
+
+
 @lru_cache(maxsize=4)
-def panda(margin: float = DEFAULT_MARGIN, seed: int = 0) -> PandaModel:
+def panda(margin: float = DEFAULT_MARGIN, seed: int = 0) -> RobotModel:
     """The shared Panda model (fitting spheres once per process)."""
-    return PandaModel(margin, seed)
+    return RobotModel(margin, seed)
+
+
+def robot_for_env(env) -> RobotModel:
+    """The model of the robot a FetchBench env runs (``robot_uids``)."""
+    setup = getattr(env.unwrapped, "robot_setup", None)
+    return robot_model(None if setup is None else setup.uid)
+
+
+@lru_cache(maxsize=8)
+def robot_model(uid: str | None = None, margin: float = DEFAULT_MARGIN, seed: int = 0) -> RobotModel:
+    """The shared model of a robot setup (``fetchbench_ms.robots``; None: the Panda)."""
+    uid = robot_setup(uid).uid
+    return panda(margin, seed) if uid == "panda" else RobotModel(margin, seed, setup=uid)

@@ -149,15 +149,19 @@ def _to_json(fitted: list[LinkSpheres]) -> dict:
 
 
 def load_or_fit(meshes: dict[str, trimesh.Trimesh], input_bytes: bytes, cache_root: Path,
-                margin: float = DEFAULT_MARGIN, seed: int = 0) -> list[LinkSpheres]:
+                margin: float = DEFAULT_MARGIN, seed: int = 0, link_fit: dict | None = None,
+                name: str = "panda") -> list[LinkSpheres]:
     """Spheres for every link in ``meshes`` (sorted by link name), from the cache or fitted now.
 
     ``input_bytes`` are the bytes the meshes came from (URDF + mesh files): part of the key.
+    ``link_fit``: per-link (spheres, margin) overrides (the Panda's ``LINK_FIT`` by default);
+    ``name`` names the robot in the cache file's name.
     """
+    link_fit = LINK_FIT if link_fit is None else {k: tuple(v) for k, v in link_fit.items()}
     key = sha256_bytes(canonical_json({"version": FIT_VERSION, "margin": margin, "seed": seed,
-                                       "link_fit": LINK_FIT}).encode()
+                                       "link_fit": link_fit}).encode()
                        + input_bytes)[:24]
-    path = Path(cache_root) / "planning" / f"panda_spheres_{key}.json"
+    path = Path(cache_root) / "planning" / f"{name}_spheres_{key}.json"
     if path.exists():
         record = json.loads(path.read_text())
         body = record.get("links")
@@ -165,8 +169,8 @@ def load_or_fit(meshes: dict[str, trimesh.Trimesh], input_bytes: bytes, cache_ro
                 or sha256_bytes(canonical_json(body).encode()) != record.get("content_sha256"):
             raise ValueError(f"corrupt or stale sphere cache {path}: delete it to refit")
     else:
-        body = _to_json([fit_spheres(l, meshes[l], LINK_FIT.get(l, (None, margin))[1], seed,
-                                     n_spheres=LINK_FIT.get(l, (None, margin))[0]) for l in sorted(meshes)])
+        body = _to_json([fit_spheres(l, meshes[l], link_fit.get(l, (None, margin))[1], seed,
+                                     n_spheres=link_fit.get(l, (None, margin))[0]) for l in sorted(meshes)])
         record = {"version": FIT_VERSION, "key": key, "margin": margin, "seed": seed, "links": body,
                   "content_sha256": sha256_bytes(canonical_json(body).encode())}
         atomic_write_text(path, canonical_json(record))

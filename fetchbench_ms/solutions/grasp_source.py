@@ -29,12 +29,13 @@ class GraspCandidates:
 
 
 @functools.lru_cache(maxsize=256)
-def object_grasps(object_id: str) -> GraspCandidates:
-    """All grasps of an object (cached per process)."""
+def object_grasps(object_id: str, directory: str | None = None) -> GraspCandidates:
+    """All grasps of an object (cached per process); ``directory``: another grasp store
+    than the shipped Franka-hand labels (e.g. the Robotiq's, docs/robots.md)."""
     from ..grasps import load_grasps
 
     try:
-        return GraspCandidates(load_grasps(object_id).successful.T_object_hand, "annotated")
+        return GraspCandidates(load_grasps(object_id, directory).successful.T_object_hand, "annotated")
     except (KeyError, FileNotFoundError):  # no store, or no labels for this object (stale/corrupt stores raise)
         from ..grasps.sampler import sample_candidates
         from ..tasks.objects import load_object

@@ -50,7 +50,7 @@ import torch
 
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
-from ..planning.robot import panda
+from ..planning.robot import robot_for_env
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
 from ..planning.world import pose_matrix
@@ -136,6 +136,9 @@ class SolveConfig:
     lift_height: float = 0.02  # m, straight up after closing
     # Which of IMPROVEMENTS are on (the parameters below apply only to those that are).
     improvements: tuple = ()
+    # The annotated grasps' store (a directory; None: the shipped Franka-hand labels, which
+    # other hands use as the paper did: same TCP pose, approach axis and width).
+    grasp_labels: str | None = None
     retreat_distances: tuple = (0.10, 0.06, 0.03)  # "retreat"
     extra_lifts: tuple = (0.02, 0.04, 0.06)  # "extra_lifts"
     # "start_escape": at rest, or holding an object on its support, the conservative spheres
@@ -226,6 +229,10 @@ class Executor:
             raise ValueError(f"the sense-plan-act solver drives pd_joint_pos; the env uses "
                              f"{self.u.agent.control_mode!r} (make it with control_mode='pd_joint_pos')")
         self.dt = 1.0 / self.u.control_freq
+        self.robot = robot_for_env(env)
+        # GRIPPER_OPEN / GRIPPER_CLOSED are the Franka hand's normalised actions; a hand
+        # whose action runs the other way (the Robotiq: +1 closes) flips them.
+        self.gripper_sign = float(getattr(self.u.agent, "gripper_action_sign", 1.0))
         self.gripper = GRIPPER_OPEN
         self.last_qpos = self.qpos_full()
 
@@ -236,10 +243,14 @@ class Executor:
     def q(self) -> np.ndarray:
         return self.qpos_full()[:7]
 
+    def finger_opening(self) -> float:
+        """Per-finger opening (m) now (the gripper's driving joint is right after the arm's)."""
+        return self.robot.finger_from_gripper_q(self.qpos_full()[7:8])
+
     def step(self, q_arm: np.ndarray, gripper: float | None = None) -> None:
         if gripper is not None:
             self.gripper = gripper
-        action = np.concatenate([q_arm, [self.gripper]]).astype(np.float32)
+        action = np.concatenate([q_arm, [self.gripper_sign * self.gripper]]).astype(np.float32)
         self.state.last_arm_target = np.asarray(q_arm, float)
         if self.state.via_env_step:
             self.state.last_step = self.env.step(action)
@@ -253,7 +264,7 @@ class Executor:
         self.state.sim_steps += 1
 
     def follow(self, path: np.ndarray, speed_scale: float, settle_steps: int = 6) -> None:
-        robot = panda()
+        robot = self.robot
         for q in time_parametrize(path, self.dt, robot.velocity_limits, robot.acceleration_limits, speed_scale):
             self.step(q)
         for _ in range(settle_steps):
@@ -292,7 +303,7 @@ def _follow_cartesian(robot, q_start: np.ndarray, targets: list[np.ndarray], che
 
 def _retrieval_goals(robot, checker, q_now: np.ndarray, rng) -> np.ndarray:
     """IK solutions for the free-space pose: hand down or sideways, the nearer side first."""
-    T_tcp_now = robot.link_poses(q_now[None])["panda_hand_tcp"][0].numpy()
+    T_tcp_now = robot.link_poses(q_now[None])[robot.tcp_link][0].numpy()
     positions = sorted(FREE_SPACE_POSITIONS, key=lambda p: abs(p[1] - T_tcp_now[1, 3]))
     targets = []
     for position in positions:
@@ -338,8 +349,10 @@ def _world_model(env, method: str, state: EpisodeState):
     if METHODS[method]["world"] == "mesh":
         return state.timed(mesh_world, env), None
     clouds = _observe(env)
-    q_full = env.unwrapped.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
-    return state.timed(pointcloud_world, clouds, q_full), clouds
+    robot = robot_for_env(env)
+    qpos = env.unwrapped.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
+    q_full = np.concatenate([qpos[:7], [robot.finger_from_gripper_q(qpos[7:8])]])  # arm + finger opening
+    return state.timed(pointcloud_world, clouds, q_full, robot=robot), clouds
 
 
 def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_base_object, clouds):
@@ -347,7 +360,8 @@ def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_
     when CGN has no target points to predict on."""
     cfg = state.config
     if METHODS[method]["grasps"] == "oracle":
-        return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id), rng, cfg.max_grasps)
+        return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id, cfg.grasp_labels), rng,
+                           cfg.max_grasps)
     clouds = clouds if clouds is not None else _observe(env)
     if len(clouds.target) == 0:
         # The cameras do not see the target: Contact-GraspNet has nothing to predict on.
@@ -362,7 +376,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     """One try; returns the failure class, or None when the target was carried out."""
     from ..tasks.objects import load_object
 
-    cfg, robot, u = state.config, panda(), env.unwrapped
+    cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
     ex = Executor(env, state)
     task = u.tasks[0]
     world, clouds = _world_model(env, method, state)
@@ -439,20 +453,20 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     state.stage = "retrieve"
     if cfg.retrieval is not None:
         return cfg.retrieval(env, state, ex)
-    T_lift = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
+    T_lift = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
     T_lift[2, 3] += cfg.lift_height  # the base is upright: base z is world z
     lift = state.timed(_follow_cartesian, robot, ex.q, [T_lift], None)
     if lift is not None:
         ex.follow(lift, cfg.approach_speed_scale)
     state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
-    state.notes.append(f"finger gap after close {2 * ex.qpos_full()[7]:.4f} m, tcp error "
+    state.notes.append(f"finger gap after close {2 * ex.finger_opening():.4f} m, tcp error "
                        f"{np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]):.4f} m")
     if not state.phases["grasped"]:
         return "grasp_failure"
 
     # Attach the object in the hand frame: its convex parts at the simulated pose (mesh
     # world), or its observed points carried along with the planned grasp (point clouds).
-    T_base_hand = robot.link_poses(ex.q[None])["panda_hand"][0].numpy()
+    T_base_hand = robot.link_poses(ex.q[None])[robot.hand_link][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
         parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
@@ -464,25 +478,25 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         if len(points_hand) == 0:  # target not seen: a ball between the fingers
             points_hand = np.array([[0.0, 0.0, 0.1034]])
         attachment = Attachment.from_points(points_hand, seed=int(rng.integers(2**31)))
-    finger = float(ex.qpos_full()[7])
+    finger = ex.finger_opening()
     # The fingers wrap the object: the attachment spheres stand for both there.
     carry = CollisionChecker(robot, world, finger=finger, exclude=("target",), attachment=attachment,
-                             margin=cfg.margin, ignore_links=("panda_leftfinger", "panda_rightfinger"))
+                             margin=cfg.margin, ignore_links=robot.finger_links)
     if not carry.valid(ex.q)[0]:
         # The carried object's balls still touch what it stood on (they bulge ~1 cm past
         # its faces, or it slipped a little): lift further, checking the arm alone.
         arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
-                                    ignore_links=("panda_leftfinger", "panda_rightfinger"))
+                                    ignore_links=robot.finger_links)
         for extra in (cfg.extra_lifts if cfg.uses("extra_lifts") else ()):
-            T_up = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy().copy()
+            T_up = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
             T_up[2, 3] += extra
             path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(
-                robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy(), T_up, 3), arm_only)
+                robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy(), T_up, 3), arm_only)
             if path is not None and carry.valid(path[-1])[0]:
                 ex.follow(path, cfg.approach_speed_scale)
                 state.notes.append(f"lifted {extra:.2f} m more")
                 break
-    T_tcp = robot.link_poses(ex.q[None])["panda_hand_tcp"][0].numpy()
+    T_tcp = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy()
     for distance in (cfg.retreat_distances if cfg.uses("retreat") else ()):
         path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(T_tcp, retreat(T_tcp, distance), 4),
                            carry)
@@ -565,12 +579,12 @@ def _plan(state: EpisodeState, rng, checker, q_start, q_goals, method: str = "ga
 
 def _return_home(env, method: str, state: EpisodeState, rng) -> bool:
     """Open the gripper and go back to the task's start configuration (for a retry)."""
-    cfg, robot, u = state.config, panda(), env.unwrapped
+    cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
     ex = Executor(env, state)
     ex.hold(GRIPPER_OPEN, 0.5)
     world, _ = _world_model(env, method, state)
     checker = CollisionChecker(robot, world, margin=cfg.margin)
-    q_home = np.asarray(u.tasks[0].robot_init_qpos[:7], float)
+    q_home = u.start_arm_qpos(0)
     if state.checks_left <= 0 and _check_budgeted(method):
         return False
     plan = _plan_and_move(state, ex, rng, checker, ex.q, q_home, method)

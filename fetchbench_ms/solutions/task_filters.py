@@ -10,7 +10,7 @@ import numpy as np
 
 from ..planning.checker import CollisionChecker
 from ..planning.ik import solve_ik
-from ..planning.robot import panda
+from ..planning.robot import robot_for_env
 from .grasp_source import object_grasps, tcp_from_hand
 from .worlds import mesh_world, object_poses_base
 
@@ -19,7 +19,7 @@ def reachable_grasps(env, max_grasps: int = 64, n_seeds: int = 8, seed: int = 0)
     """Indices (into ``object_grasps(target)``) of grasps with a collision-free IK solution."""
     u = env.unwrapped
     task = u.tasks[0]
-    robot = panda()
+    robot = robot_for_env(env)
     checker = CollisionChecker(robot, mesh_world(env), exclude=("target",))
     T_object_hand = object_grasps(task.target.object_id).T_object_hand
     T_tcp = tcp_from_hand(object_poses_base(env)[task.target_index][None] @ T_object_hand)  # (N, 4, 4)

@@ -59,14 +59,14 @@ def task_mesh_world(task, T_base_world: np.ndarray, T_base_objects: list[np.ndar
     return world
 
 
-def remove_robot_points(points_base: np.ndarray, q_full: np.ndarray, clearance: float = 0.01) -> np.ndarray:
+def remove_robot_points(points_base: np.ndarray, q_full: np.ndarray, clearance: float = 0.01, robot=None) -> np.ndarray:
     """Points outside the robot's collision spheres (grown by ``clearance``) at ``q_full``
     (7 arm joints + finger opening). Segmentation already labels the robot, but pixels on
     its silhouette can carry a neighbour's label; left in, they put the robot's own start
     configuration in collision."""
     from ..planning.robot import panda
 
-    robot = panda()
+    robot = panda() if robot is None else robot
     centers = robot.sphere_centers(np.asarray(q_full[:7])[None], finger=float(q_full[7]))[0].numpy()
     radii = robot.spheres.radii + clearance
     points_base = np.asarray(points_base, dtype=float).reshape(-1, 3)
@@ -76,10 +76,10 @@ def remove_robot_points(points_base: np.ndarray, q_full: np.ndarray, clearance: 
     return points_base[~inside]
 
 
-def pointcloud_world(clouds, q_full: np.ndarray | None = None, voxel: float = 0.005) -> CollisionWorld:
+def pointcloud_world(clouds, q_full: np.ndarray | None = None, voxel: float = 0.005, robot=None) -> CollisionWorld:
     """``clouds``: ``fetchbench_ms.envs.FetchClouds`` (base frame); ``q_full``: the robot's
     configuration when they were taken (its own points are then removed)."""
-    scene = clouds.scene if q_full is None else remove_robot_points(clouds.scene, q_full)
+    scene = clouds.scene if q_full is None else remove_robot_points(clouds.scene, q_full, robot=robot)
     world = CollisionWorld()
     world.add("scene", PointCloudField(scene, voxel))
     world.add("target", PointCloudField(clouds.target, voxel))

@@ -62,13 +62,17 @@ class ArrangementCheck:
 class FilterEnv:
     """One FetchBench env with segmentation cameras, reused to judge arrangements."""
 
-    def __init__(self, camera_width: int = 320, camera_height: int = 240, num_objects: int = 15):
+    def __init__(self, camera_width: int = 320, camera_height: int = 240, num_objects: int = 15,
+                 robot_uids: str = "panda", obs_mode: str = "rgb+segmentation"):
+        """``robot_uids``: the robot the reachability filter judges for (docs/robots.md);
+        ``obs_mode="none"`` when only ``reachable`` is asked (no renderer)."""
         import gymnasium as gym
 
         import fetchbench_ms  # noqa: F401  (registers the envs)
 
-        self.env = gym.make("FetchBench-v0", obs_mode="rgb+segmentation", camera_width=camera_width,
-                            camera_height=camera_height, num_objects=num_objects)
+        extra = {} if robot_uids == "panda" else {"robot_uids": robot_uids}
+        self.env = gym.make("FetchBench-v0", obs_mode=obs_mode, camera_width=camera_width,
+                            camera_height=camera_height, num_objects=num_objects, **extra)
         self.min_pixels = int(round(VISIBLE_FRACTION * camera_width * camera_height))
 
     def close(self) -> None:
@@ -95,16 +99,16 @@ class FilterEnv:
         """Object index -> whether a collision-free IK solution exists for one of its grasps."""
         from ..planning.checker import CollisionChecker
         from ..planning.ik import solve_ik
-        from ..planning.robot import panda
+        from ..planning.robot import robot_for_env
         from ..solutions.grasp_source import object_grasps, tcp_from_hand
         from ..solutions.worlds import mesh_world, object_poses_base
 
         u = self.env.unwrapped
         task = u.tasks[0]
-        robot = panda()
+        robot = robot_for_env(self.env)
         world = mesh_world(self.env)
         poses = object_poses_base(self.env)
-        q_start = np.asarray(task.robot_init_qpos[:7], dtype=float)
+        q_start = u.start_arm_qpos(0)
         hand_from_tcp = np.linalg.inv(tcp_from_hand(np.eye(4)))
         out = {}
         for k in targets:

@@ -164,15 +164,33 @@ SLIM_DROP = {
                        "googlerobot", "so100", "stompy", "trifinger", "unitree_g1", "unitree_go2", "unitree_h1",
                        "ur10e", "widowx", "xarm6", "xmate3"))),
 }
+# Packages of which FetchBench reads a few model files only (the other robots, docs/robots.md):
+# --slim keeps just those (and the wheel's metadata): robosuite's wheel is 150 MiB, the
+# Kinova Gen3 model in it 5 MiB packed; found by fetchbench_ms.robots.assets without
+# importing the package, so its code is not needed.
+SLIM_KEEP = {
+    "robosuite": ("robosuite/models/assets/robots/kinova3/",),
+    "airo_models": ("airo_models/grippers/robotiq_2f_85/",),
+}
 # pybullet 3.2.7 has no cp312 wheel on PyPI (and its sdist is the Bullet engine), but
 # FetchBench reads only its data folder (the blob meshes, objects/blobs.py): --slim packs
 # that folder, from this machine's install, into a data-only wheel of the same package name.
 PYBULLET_DATA_WHEEL = "fetchbench_pybullet_data-{version}-py3-none-any.whl"
 
 
-def slim_wheel(wheel: Path, drop: tuple[str, ...], out_dir: Path) -> Path:
-    """A copy of ``wheel`` without the members under ``drop`` (RECORD rewritten to match)."""
+def slim_wheel(wheel: Path, drop: tuple[str, ...], out_dir: Path, keep: tuple[str, ...] | None = None) -> Path:
+    """A copy of ``wheel`` without the members under ``drop`` (RECORD rewritten to match);
+    with ``keep``, also without any member outside ``keep`` but the wheel's metadata."""
     import zipfile
+
+    if keep is not None:
+        dist_info = wheel.name.split("-")[0] + "-" + wheel.name.split("-")[1] + ".dist-info/"
+
+        def dropped(name: str) -> bool:
+            return name.startswith(drop) or not (name.startswith(keep) or name.startswith(dist_info))
+    else:
+        def dropped(name: str) -> bool:
+            return name.startswith(drop)
 
     out = out_dir / wheel.name
     if out.exists() and out.stat().st_mtime >= wheel.stat().st_mtime:
@@ -180,12 +198,12 @@ def slim_wheel(wheel: Path, drop: tuple[str, ...], out_dir: Path) -> Path:
     tmp = out.with_suffix(".tmp")
     with zipfile.ZipFile(wheel) as src, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as dst:
         for info in src.infolist():
-            if info.filename.startswith(drop):
+            if dropped(info.filename):
                 continue
             data = src.read(info.filename)
             if info.filename.endswith(".dist-info/RECORD"):
                 data = "".join(line for line in data.decode().splitlines(keepends=True)
-                               if not line.startswith(drop)).encode()
+                               if not dropped(line.split(",")[0])).encode()
             dst.writestr(info, data)
     tmp.replace(out)
     return out
@@ -328,9 +346,10 @@ def main(argv=None) -> int:
         slim_dir = out / "slim"
         slim_dir.mkdir(exist_ok=True)
         for k, w in enumerate(wheels):
-            drop = SLIM_DROP.get(wheel_key(w.name)[0].replace("-", "_"))
-            if drop:
-                wheels[k] = slim_wheel(w, drop, slim_dir)
+            name = wheel_key(w.name)[0].replace("-", "_")
+            drop, keep = SLIM_DROP.get(name), SLIM_KEEP.get(name)
+            if drop or keep:
+                wheels[k] = slim_wheel(w, drop or (), slim_dir, keep)
                 say(f"slim {w.name}: {w.stat().st_size / MIB:.1f} -> {wheels[k].stat().st_size / MIB:.1f} MiB")
         pybullet = [v for n, v, _ in missing if n == "pybullet"]
         data = pybullet_data_wheel(pybullet[0], slim_dir) if pybullet else None

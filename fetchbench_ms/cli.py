@@ -42,6 +42,11 @@ def main(argv: list[str] | None = None) -> int:
         message = error.args[0] if isinstance(error, KeyError) and error.args else error
         print(f"fetchbench: error: {message}", file=sys.stderr)
         return 2
+    except (PermissionError, NotADirectoryError, IsADirectoryError) as error:
+        # A path given that cannot be written or read as asked (an output folder that is a
+        # file, a folder without permission): the user's to fix, so one line too.
+        print(f"fetchbench: error: {error.strerror}: {error.filename}", file=sys.stderr)
+        return 2
     return int(result or 0)
 
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import sys
 
 from .runner import BACKENDS
 
@@ -40,6 +41,10 @@ def cmd_eval(args) -> int:
     summary = summarize(records)
     print(format_table(summary, "by_category"))
     print(f"results: {os.path.join(out, 'results.jsonl')}")
+    if records and all(r.get("error") for r in records):
+        print(f"fetchbench: every one of the {len(records)} tasks ended in an error: nothing was evaluated",
+              file=sys.stderr)
+        return 1
     return 0
 
 

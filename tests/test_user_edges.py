@@ -1,0 +1,256 @@
+"""The user's edges (issue 40): bad files and paths end in one line and exit 2, never in a
+traceback or a success; the demos' .h5/.json pair is consistent for readers even across a
+kill; written files follow the umask."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import pytest
+
+from fetchbench_ms.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE = REPO / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _one_error_line(err: str, prefix: str = "fetchbench: error: ") -> str:
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert "Traceback" not in err, err[-3000:]
+    assert len(lines) == 1 and lines[0].startswith(prefix), err[-3000:]
+    return lines[0]
+
+
+def _cli(*args, without_root_powers=False, timeout=300):
+    """``python -m fetchbench_ms ARGS`` in a fresh process. ``without_root_powers``: as root,
+    without the capabilities that let root write where permissions say no (file modes bind)."""
+    prefix = []
+    if without_root_powers and os.geteuid() == 0:
+        prefix = ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
+    return subprocess.run([*prefix, sys.executable, "-m", "fetchbench_ms", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env=ENV, cwd=REPO)
+
+
+def _copy_sample(folder: Path, name: str = "sample") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for suffix in (".h5", ".json"):
+        shutil.copy(SAMPLE.with_suffix(suffix), folder / f"{name}{suffix}")
+    return folder / f"{name}.h5"
+
+
+@pytest.fixture
+def truncated(tmp_path) -> Path:
+    """The shipped sample with its .h5 cut to half its size (its .json intact)."""
+    path = _copy_sample(tmp_path / "trunc")
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+    return path
+
+
+# ----------------------------------------------------------------------------- demos: paths
+def test_record_dir_that_is_a_file(tmp_path, capsys):
+    target = tmp_path / "afile"
+    target.write_text("x")
+    assert main(["demos", "run", "--record-dir", str(target), "-n", "1", "--no-progress"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "is a file" in line and "valid: a folder" in line
+    assert target.read_text() == "x"
+
+
+def test_record_dir_without_write_permission(tmp_path):
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        out = _cli("demos", "run", "--record-dir", folder, "-n", "1", "--no-progress", without_root_powers=True)
+    finally:
+        folder.chmod(0o755)
+    assert out.returncode == 2, out.stderr[-3000:]
+    line = _one_error_line(out.stderr)
+    assert "not writable" in line and "Permission denied" in line
+    assert list(folder.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- demos: files
+def test_stats_checks_the_h5_itself(truncated, tmp_path, capsys):
+    assert main(["demos", "stats", str(SAMPLE)]) == 0  # the intact sample passes
+    capsys.readouterr()
+    assert main(["demos", "stats", str(truncated)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "is not a readable trajectory file" in line and "truncated" in line
+    fake = _copy_sample(tmp_path / "fake")
+    fake.write_text("not an HDF5 file\n")
+    assert main(["demos", "stats", str(fake)]) == 2
+    assert "is not a readable trajectory file" in _one_error_line(capsys.readouterr().err)
+
+
+def test_stats_refuses_an_h5_that_lacks_listed_trajectories(tmp_path, capsys):
+    path = _copy_sample(tmp_path / "cut")
+    with h5py.File(path, "a") as f:
+        del f["traj_3"]
+    assert main(["demos", "stats", str(path)]) == 2
+    assert "traj_3" in _one_error_line(capsys.readouterr().err)
+
+
+def test_show_on_a_truncated_file(truncated, tmp_path, capsys):
+    assert main(["demos", "show", str(truncated), "--out", str(tmp_path / "v.gif")]) == 2
+    assert "is not a readable trajectory file" in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "v.gif").exists()
+
+
+def test_replay_tool_on_a_truncated_file(truncated):
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(truncated),
+                          "-o", "state", "--save-traj"], capture_output=True, text=True, timeout=300, env=ENV)
+    assert out.returncode == 2, out.stderr[-3000:]
+    assert "is not a readable trajectory file" in _one_error_line(out.stderr, "replay_trajectory: error: ")
+
+
+# ----------------------------------------------------------------------------- demos: the pair under a kill
+def _fake_parts(record_dir: Path, seeds: range) -> None:
+    """Finished generator parts (one per task seed) cut from the shipped sample's trajectories."""
+    from fetchbench_ms.demos.generate import parts_dir, part_path
+
+    meta = json.loads(SAMPLE.with_suffix(".json").read_text())
+    parts = parts_dir(record_dir, "FetchBench-v0", "trajectory")
+    parts.mkdir(parents=True, exist_ok=True)
+    with h5py.File(SAMPLE, "r") as source:
+        for seed in seeds:
+            episode = {**meta["episodes"][seed], "episode_id": 0}
+            path = part_path(parts, seed)
+            with h5py.File(path, "w") as f:
+                source.copy(f"traj_{seed}", f, "traj_0")
+            summary = {"seed": seed, "task_id": episode.get("task_id"), "tries": 1, "successes": 1,
+                       "frames": episode["elapsed_steps"], "failures": {}}
+            path.with_suffix(".json").write_text(json.dumps({
+                "env_info": meta["env_info"], "source_type": meta.get("source_type"),
+                "source_desc": meta.get("source_desc"), "episodes": [episode],
+                "fetchbench": {"summary": summary}}))
+
+
+KILLED_MERGE = textwrap.dedent("""
+    import importlib, os, signal, sys
+    generate = importlib.import_module("fetchbench_ms.demos.generate")
+    real = os.replace
+    def replace(src, dst):
+        real(src, dst)
+        if str(dst).endswith("trajectory.h5"):  # the .h5 is in, its .json not yet
+            os.kill(os.getpid(), signal.SIGKILL)
+    generate.os.replace = replace
+    generate.merge(sys.argv[1], "FetchBench-v0", "trajectory", int(sys.argv[2]))
+""")
+
+
+def test_demos_pair_stays_consistent_for_readers_across_a_kill(tmp_path, capsys):
+    from fetchbench_ms.demos.generate import merge
+    from fetchbench_ms.demos.stats import check_trajectory_file, demo_stats
+
+    record_dir = tmp_path / "demos"
+    _fake_parts(record_dir, range(3))
+    out = merge(record_dir, "FetchBench-v0", "trajectory", 3)
+    assert demo_stats(out)["trajectories"] == 3
+    _fake_parts(record_dir, range(3, 6))
+    killed = subprocess.run([sys.executable, "-c", KILLED_MERGE, str(record_dir), "6"], capture_output=True,
+                            text=True, timeout=300, env=ENV)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
+    with h5py.File(out, "r") as f:  # the kill came between the renames: a new .h5 beside the old .json
+        assert len([k for k in f if k.startswith("traj_")]) == 6
+    assert len(json.loads(out.with_suffix(".json").read_text())["episodes"]) == 3
+    with pytest.raises(ValueError, match="were not written together"):
+        check_trajectory_file(out)
+    assert main(["demos", "stats", str(out)]) == 2
+    assert "were not written together" in _one_error_line(capsys.readouterr().err)
+    merge(record_dir, "FetchBench-v0", "trajectory", 6)  # what a rerun of `demos run` does last
+    assert demo_stats(out)["trajectories"] == 6
+
+
+# ----------------------------------------------------------------------------- eval: a bad checkpoint
+def test_eval_with_a_truncated_policy_checkpoint_fails_before_any_task(tmp_path):
+    checkpoint = tmp_path / "policy.pt"
+    data = (REPO / "assets/checkpoints/imit_mlp.pt").read_bytes()
+    checkpoint.write_bytes(data[: len(data) // 2])
+    t0 = time.perf_counter()
+    out = _cli("eval", "--method", "e2e-mlp", "--suite", "smoke", "--tasks", "0:2", "--workers", "1",
+               "--policy-checkpoint", checkpoint, "--out", tmp_path / "eval")
+    assert out.returncode == 2, (out.stdout[-2000:], out.stderr[-3000:])
+    line = _one_error_line(out.stderr)
+    assert "is not a readable policy checkpoint" in line and str(checkpoint) in line
+    assert not (tmp_path / "eval" / "results.jsonl").exists()
+    assert time.perf_counter() - t0 < 120
+
+
+# ----------------------------------------------------------------------------- envs: one vocabulary or the other
+def test_env_category_accepts_both_vocabularies():
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+
+    for env_id, category in (("FetchBench-v0", "on_shelf"), ("FetchBench-Shelf-v0", "on_shelf"),
+                             ("FetchBench-v0", "Shelf")):
+        env = gym.make(env_id, category=category, obs_mode="none", render_backend="none")
+        try:
+            env.reset(seed=3)
+            assert env.unwrapped.category == "Shelf" and env.unwrapped._tasks[0].target_label == "on_shelf"
+        finally:
+            env.close()
+    with pytest.raises(ValueError, match="make FetchBench-Table-v0 or FetchBench-v0 with category='Table'"):
+        gym.make("FetchBench-Shelf-v0", category="on_table", obs_mode="none", render_backend="none")
+    with pytest.raises(ValueError, match="valid: Table, Shelf, Drawer, Basket .or the target labels on_table"):
+        gym.make("FetchBench-v0", category="shelves", obs_mode="none", render_backend="none")
+
+
+# ----------------------------------------------------------------------------- permissions
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
+def test_written_files_follow_the_umask(tmp_path, umask):
+    from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text
+
+    old = os.umask(umask)
+    try:
+        atomic_write_bytes(tmp_path / "a.png", b"png")
+        atomic_write_text(tmp_path / "job.json", "{}")
+    finally:
+        os.umask(old)
+    for name in ("a.png", "job.json"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o666 & ~umask, name
+
+
+def test_report_shows_paper_rows_and_no_absolute_paths(tmp_path):
+    from fetchbench_ms.evaluation import ResultsStore
+    from fetchbench_ms.evaluation.report import build_report
+
+    def run(folder, method, pipeline):
+        store = ResultsStore(tmp_path / folder)
+        store.open_run({"method": method, "source": "/home/someone/fetchbench/assets/suites/test.json.gz",
+                        "source_sha256": "0123456789abcdef" * 4,
+                        "method_options": {"retries": 1, "pipeline": pipeline}, "selection": {"suite": "test",
+                                                                                             "tasks": "0:2"}})
+        for i in range(2):
+            store.append({"task_id": f"test/{i:04d}", "seed": i, "env_id": "FetchBench-v0", "method": method,
+                          "success": i == 0, "failure": None if i == 0 else "grasp_failure", "category": "on_shelf",
+                          "scene_type": "LargeShelf", "computation_time": 1.0, "cspace_length": 2.0,
+                          "phases": {"pregrasp_plan": True, "approach_reached": True}})
+        return tmp_path / folder
+
+    old = os.umask(0o022)
+    try:
+        page = build_report([run("paper", "ga-mesh-rrt", "paper"), run("ours", "ga-mesh-rrt", "ours")],
+                            tmp_path / "report", render=False)
+    finally:
+        os.umask(old)
+    text = page.read_text()
+    assert "/home/someone" not in text and str(tmp_path) not in text
+    assert "suite test (sha256 0123456789ab)" in text and "../paper" in text
+    # one paper row, for the paper variant only: 52.9 % (GA-Mesh-RRTConnect), its funnel 94.7 / 90.3 / 68.1 %
+    assert text.count("FetchBench paper: ga-mesh-rrt") == 2  # the success table and the funnel
+    assert "52.9%" in text and "94.7%" in text and "68.1%" in text
+    for path in page.parent.iterdir():
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, path

@@ -254,3 +254,47 @@ def test_report_shows_paper_rows_and_no_absolute_paths(tmp_path):
     assert "52.9%" in text and "94.7%" in text and "68.1%" in text
     for path in page.parent.iterdir():
         assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
+
+
+# ----------------------------------------------------------------------------- runs that do nothing
+def _load_script(path: Path, name: str):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ppo_time_limit_counts_training_only_and_a_run_with_nothing_to_train_fails(tmp_path):
+    """Start-up (env workers, first reset) takes seconds, far past a 1 ms limit: the run still
+    trains (one iteration, then the limit stops it). Resuming a finished run trains nothing:
+    one line and exit 1, before any env starts. rl_curve plots that short run where it ended
+    and refuses an empty one."""
+    ppo = _load_script(REPO / "baselines/ppo/ppo.py", "ppo")
+    args = ppo.Args(out_dir=str(tmp_path / "run"), num_envs=2, num_eval_envs=1, num_eval_episodes=1, num_steps=8,
+                    num_minibatches=2, update_epochs=1, total_timesteps=48, eval_freq=0, max_episode_steps=6,
+                    cuda=False, hidden=32, time_limit=0.001)
+    result = ppo.main(args)
+    assert result["trained_iterations"] == 1 and result["stopped_by_time"]
+    assert result["state"]["global_step"] == 16
+    flags = ["--out-dir", str(tmp_path / "run"), "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2",
+             "--total-timesteps", "16", "--no-cuda"]
+    t0 = time.perf_counter()
+    out = subprocess.run([sys.executable, str(REPO / "baselines/ppo/ppo.py"), *flags], capture_output=True, text=True,
+                         timeout=300, env=ENV, cwd=REPO)
+    assert out.returncode == 1, out.stderr[-3000:]
+    assert "trained 0 iterations" in out.stderr and "already at iteration 1 of 1" in out.stderr
+    assert time.perf_counter() - t0 < 60  # no env was started
+
+    curve = _load_script(REPO / "scripts/rl_curve.py", "rl_curve")
+    train = curve.read(tmp_path / "run" / "train.csv")
+    assert [b["steps"] for b in curve.binned(train, 10_000)] == [16]  # where the run ended, not 10,000
+    assert curve.main([str(tmp_path / "run"), "--png", str(tmp_path / "curve.png")]) == 0
+    assert (tmp_path / "curve.png").stat().st_size > 1000
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "train.csv").write_text(",".join(ppo.TRAIN_FIELDS) + "\n")
+    assert curve.main([str(empty), "--png", str(tmp_path / "empty.png")]) == 2
+    assert not (tmp_path / "empty.png").exists()

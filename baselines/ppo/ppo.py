@@ -65,7 +65,8 @@ class Args:
     cuda: bool = True
     """the policy on the GPU when there is one"""
     time_limit: float = 0.0
-    """seconds of wall time, then a checkpoint and a clean exit (0: none); the same command resumes"""
+    """seconds of training, then a checkpoint and a clean exit (0: none); the same command resumes.
+    Counted from the first iteration: start-up (curriculum tasks, env workers) is not training"""
     resume: bool = True
     """resume from <out-dir>/checkpoint.pt when it exists"""
     tensorboard: bool = True
@@ -378,6 +379,14 @@ def main(args: Args) -> dict:
                          f"{args.num_minibatches}; valid: a divisor of {batch_size}")
     minibatch_size = batch_size // args.num_minibatches
     num_iterations = max(1, args.total_timesteps // batch_size)
+    ckpt_path = out / "checkpoint.pt"
+    if args.resume and ckpt_path.exists():  # before any env starts: a finished run has nothing to do
+        done = torch.load(ckpt_path, map_location="cpu", weights_only=False)["state"]
+        if done["iteration"] >= num_iterations:
+            print(f"trained 0 iterations: {ckpt_path} is already at iteration {done['iteration']} of "
+                  f"{num_iterations} (--total-timesteps {args.total_timesteps}); valid: a larger --total-timesteps "
+                  "to train on, or --no-resume to start over", file=sys.stderr, flush=True)
+            return {"state": done, "final_eval": None, "stopped_by_time": False, "trained_iterations": 0}
 
     if args.curriculum is not None and args.sim_backend == "cpu":
         # Make the curriculum's tasks once, in parallel, before the env workers start
@@ -386,6 +395,9 @@ def main(args: Args) -> dict:
             n = prepare_curriculum(args.env_id, args.curriculum, suite, processes=min(args.num_envs, os.cpu_count()))
             print(f"curriculum {args.curriculum}: {n} tasks of suite {suite or 'train'} ready ({time.time() - start:.0f} s)",
                   flush=True)
+    print(f"starting {args.num_envs} training and {args.num_eval_envs} evaluation envs "
+          f"({'one process each' if args.sim_backend == 'cpu' and args.vector_env != 'maniskill' else 'batched'}) ...",
+          flush=True)
     envs = make_envs(args, args.num_envs, args.task_suite, device, ignore_terminations=not args.partial_reset)
     eval_envs = make_envs(args, args.num_eval_envs, args.eval_task_suite, device, ignore_terminations=False)
     obs_dim = int(np.prod(envs.single_observation_space.shape))
@@ -393,7 +405,6 @@ def main(args: Args) -> dict:
     agent = Agent(obs_dim, act_dim, args.hidden, args.points if args.obs == "pointcloud" else 0).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
     state = {"iteration": 0, "global_step": 0, "wall_s": 0.0, "best_success": -1.0}
-    ckpt_path = out / "checkpoint.pt"
     if args.resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
         agent.load_state_dict(ckpt["agent"])
@@ -422,6 +433,11 @@ def main(args: Args) -> dict:
     # A resumed run continues with fresh episodes from a seed it has not used.
     next_obs, _ = envs.reset(seed=args.seed + 1000 * state["iteration"])
     next_done = torch.zeros(args.num_envs, device=device)
+    # The training budget starts now: start-up (curriculum tasks, env workers, the first
+    # reset) does not count against --time-limit.
+    train_start, first_iteration = time.time(), state["iteration"]
+    print(f"envs ready ({train_start - start:.0f} s); training iterations {first_iteration + 1} .. {num_iterations} "
+          f"({batch_size} steps each)" + (f", for {args.time_limit:.0f} s" if args.time_limit else ""), flush=True)
 
     def wall() -> float:
         return wall_before + time.time() - start
@@ -439,7 +455,7 @@ def main(args: Args) -> dict:
 
     stopped_by_time = False
     while state["iteration"] < num_iterations:
-        if args.time_limit and time.time() - start > args.time_limit:
+        if args.time_limit and time.time() - train_start > args.time_limit and state["iteration"] > first_iteration:
             stopped_by_time = True
             break
         iteration_start = time.time()
@@ -548,6 +564,7 @@ def main(args: Args) -> dict:
             state["wall_s"] = wall()
             save_checkpoint(ckpt_path, agent, optimizer, state, args)
 
+    trained = state["iteration"] - first_iteration
     final = None if stopped_by_time else run_eval()
     state["wall_s"] = wall()
     save_checkpoint(ckpt_path, agent, optimizer, state, args)
@@ -557,10 +574,13 @@ def main(args: Args) -> dict:
         tb.close()
     envs.close()
     eval_envs.close()
-    print(("stopped at the time limit" if stopped_by_time else "done") + f"; checkpoint {ckpt_path}", flush=True)
-    return {"state": state, "final_eval": final, "stopped_by_time": stopped_by_time}
+    print(("stopped at the time limit" if stopped_by_time else "done")
+          + f" after {trained} iterations ({trained * batch_size} steps, {time.time() - train_start:.0f} s of training)"
+          + f"; now at iteration {state['iteration']} of {num_iterations}; checkpoint {ckpt_path}", flush=True)
+    return {"state": state, "final_eval": final, "stopped_by_time": stopped_by_time, "trained_iterations": trained}
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
-    sys.exit(0)
+    result = main(tyro.cli(Args))
+    # A run that trained nothing did not do what it was asked: say so (above) and fail.
+    sys.exit(0 if result["trained_iterations"] > 0 else 1)

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
 
 from fetchbench_ms.cli import main
@@ -298,3 +299,43 @@ def test_ppo_time_limit_counts_training_only_and_a_run_with_nothing_to_train_fai
     (empty / "train.csv").write_text(",".join(ppo.TRAIN_FIELDS) + "\n")
     assert curve.main([str(empty), "--png", str(tmp_path / "empty.png")]) == 2
     assert not (tmp_path / "empty.png").exists()
+
+
+# ----------------------------------------------------------------------------- docs run as pasted
+def _doc_block(doc: Path, heading: str) -> str:
+    """The first ```python block after ``heading`` in ``doc``."""
+    text = doc.read_text()
+    rest = text[text.index(heading):]
+    start = rest.index("```python\n") + len("```python\n")
+    return rest[start: rest.index("```", start)]
+
+
+def test_make_vec_env_example_of_docs_envs_runs_as_pasted(tmp_path):
+    script = tmp_path / "vec_example.py"
+    script.write_text(_doc_block(REPO / "docs/envs.md", "## Many environments on the CPU")
+                      + "    print('ok', obs.shape, reward.shape)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600, env=ENV,
+                         cwd=tmp_path)
+    assert out.returncode == 0 and "ok (2," in out.stdout, out.stderr[-3000:]
+    assert "Traceback" not in out.stderr
+
+
+def test_fetch_clouds_reads_compact_pointcloud_obs():
+    import gymnasium as gym
+
+    import fetchbench_ms
+
+    env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud")
+    try:
+        obs, _ = env.reset(seed=3)
+    finally:
+        env.close()
+    clouds = fetchbench_ms.envs.fetch_clouds(obs)
+    seg = obs["pointcloud"]["seg"][0].cpu().numpy()
+    from fetchbench_ms.envs.pointcloud import COMPACT_SIZES, LABEL_TARGET
+
+    assert len(clouds.target) == COMPACT_SIZES["target"] == int((seg == LABEL_TARGET).sum())
+    assert len(clouds.scene) > 0 and len(clouds.robot) > 0 and clouds.scene.dtype == np.float32
+    assert clouds.target_segmentation_id == int(obs["extra"]["target_segmentation_id"][0])
+    with pytest.raises(ValueError, match="obs_mode='pointcloud' or 'compact_pointcloud'"):
+        fetchbench_ms.envs.fetch_clouds({"agent": {}})

@@ -85,6 +85,9 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
     if not queue:
         return
     ctx = mp.get_context("spawn")
+    from ..utils.quiet import announce_render_device
+
+    announce_render_device()  # once here, not once a worker
     pool = [_Worker(ctx, spec) for _ in range(min(workers, len(queue)))]
     failed_starts = 0
     try:

@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..grasps.hand import gripper_outline_hand
-from ..grasps.show import save_3d_png
-from .predict import REGION_SIZE, PredictedGrasps
+if TYPE_CHECKING:
+    from .predict import PredictedGrasps
 
 
 def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: PredictedGrasps, out: str | os.PathLike,
@@ -19,6 +19,10 @@ def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: Predic
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    from ..grasps.hand import gripper_outline_hand
+    from ..grasps.show import save_3d_png
+    from .predict import REGION_SIZE
 
     rng = rng if rng is not None else np.random.default_rng(0)
     centre = (np.percentile(target, 2, axis=0) + np.percentile(target, 98, axis=0)) / 2

@@ -339,3 +339,23 @@ def test_fetch_clouds_reads_compact_pointcloud_obs():
     assert clouds.target_segmentation_id == int(obs["extra"]["target_segmentation_id"][0])
     with pytest.raises(ValueError, match="obs_mode='pointcloud' or 'compact_pointcloud'"):
         fetchbench_ms.envs.fetch_clouds({"agent": {}})
+
+
+def test_grasps_predict_writes_the_grasps_and_the_inference_time(tmp_path, capsys):
+    old = os.umask(0o022)
+    try:
+        assert main(["grasps", "predict", "smoke/0003", "--grasp-model", "ours", "--out", str(tmp_path / "g.png"),
+                     "--grasps-out", str(tmp_path / "g.json")]) == 0
+    finally:
+        os.umask(old)
+    out = capsys.readouterr().out
+    assert "inference" in out and "model load" in out
+    body = json.loads((tmp_path / "g.json").read_text())
+    n = body["grasps"]
+    assert n > 0 and len(body["T_base_hand"]) == len(body["widths"]) == len(body["scores"]) == n
+    assert np.asarray(body["T_base_hand"]).shape == (n, 4, 4) and body["scores"] == sorted(body["scores"], reverse=True)
+    for name in ("g.png", "g.json"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644
+    assert main(["grasps", "predict", "smoke/0003", "--out", str(tmp_path / "h.png"), "--grasps-out",
+                 str(tmp_path / "h.csv")]) == 2
+    assert "valid: .npz, .json" in _one_error_line(capsys.readouterr().err)

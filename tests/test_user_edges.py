@@ -359,3 +359,20 @@ def test_grasps_predict_writes_the_grasps_and_the_inference_time(tmp_path, capsy
     assert main(["grasps", "predict", "smoke/0003", "--out", str(tmp_path / "h.png"), "--grasps-out",
                  str(tmp_path / "h.csv")]) == 2
     assert "valid: .npz, .json" in _one_error_line(capsys.readouterr().err)
+
+
+# ----------------------------------------------------------------------------- long silences
+def test_a_long_evaluation_task_reports_its_control_steps():
+    from fetchbench_ms.evaluation.local import PROGRESS_AFTER, run_local
+    from fetchbench_ms.evaluation.methods import RunnerSpec
+    from fetchbench_ms.evaluation.runner import open_suite, suite_items
+
+    suite, _, _ = open_suite("smoke")
+    items = suite_items(suite, range(1))
+    records, news = [], []
+    run_local(RunnerSpec("evaluation_faults:slow_steps"), items, records.append, workers=1, task_timeout=300,
+              on_progress=lambda task_id, steps, seconds: news.append((task_id, steps, seconds)))
+    assert len(records) == 1 and not records[0].get("error"), records
+    assert news and all(t == items[0].task_id and s >= PROGRESS_AFTER for t, _, s in news)
+    steps = [n for _, n, _ in news]
+    assert steps == sorted(steps) and steps[-1] > 0  # the episode's control steps, growing

@@ -224,7 +224,7 @@ class TaskRunner:
     def __call__(self, item: WorkItem) -> dict:
         t = time.perf_counter()
         try:
-            env = self.env(item.env_id)
+            env = self.current_env = self.env(item.env_id)  # (the worker's progress reports read its steps)
             options = {"task": item.task} if item.task is not None else None
             env.reset(seed=item.seed, options=options)
             if self.video_dir:

@@ -376,3 +376,59 @@ def test_a_long_evaluation_task_reports_its_control_steps():
     assert news and all(t == items[0].task_id and s >= PROGRESS_AFTER for t, _, s in news)
     steps = [n for _, n, _ in news]
     assert steps == sorted(steps) and steps[-1] > 0  # the episode's control steps, growing
+
+
+MAKE_TWO_ENVS = textwrap.dedent("""
+    import gymnasium as gym, fetchbench_ms
+    for seed in range(2):
+        env = gym.make("FetchBench-v0", obs_mode="rgb")
+        env.reset(seed=seed)
+        env.close()
+""")
+
+
+def test_expected_cpu_machine_warnings_are_one_line(tmp_path):
+    """ManiSkill's 'CUDA device was not found' (each env), 'not installed with git' (each
+    recorder) and 'does not support rendering' (each env without a renderer): on a CPU machine
+    one line says what renders; a replay says nothing of them."""
+    from fetchbench_ms.utils.sapien_device import render_device
+
+    out = subprocess.run([sys.executable, "-c", MAKE_TWO_ENVS], capture_output=True, text=True, timeout=600,
+                         env=ENV, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "CUDA device was not found" not in out.stderr
+    assert out.stderr.count("fetchbench: no CUDA device here") == (0 if render_device().is_cuda() else 1)
+    path = _copy_sample(tmp_path / "replay")
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(path), "-o",
+                          "state", "--count", "1", "--save-traj"], capture_output=True, text=True, timeout=600, env=ENV)
+    assert out.returncode == 0 and "1/1" in out.stdout + out.stderr, out.stderr[-3000:]
+    for noise in ("not installed with git", "does not support rendering", "CUDA device was not found"):
+        assert noise not in out.stdout + out.stderr, noise
+
+
+BAD_FLAGS = textwrap.dedent("""
+    import sys
+    from fetchbench_ms.cli import main
+    codes = []
+    for argv in (["eval", "--bogus"], ["eval", "--pipeline", "nope"], ["demos", "run", "--num-procs", "x"],
+                 ["demos", "stats", "/no/such/file.h5"], ["scenes", "nope"]):
+        try:
+            codes.append(main(argv))
+        except SystemExit as exit:
+            codes.append(exit.code)
+    heavy = sorted(m for m in ("torch", "mani_skill", "sapien", "trimesh") if m in sys.modules)
+    print(codes, heavy)
+""")
+
+
+def test_bad_flags_are_answered_before_torch_and_the_simulator_load():
+    out = subprocess.run([sys.executable, "-c", BAD_FLAGS], capture_output=True, text=True, timeout=120, env=ENV)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip() == "[2, 2, 2, 2, 2] []", out.stdout
+
+
+def test_eval_pipeline_flag_spells_the_planners_pipelines():
+    from fetchbench_ms.evaluation.cli import PIPELINE_NAMES
+    from fetchbench_ms.solutions.sense_plan_act import PIPELINES
+
+    assert PIPELINE_NAMES == tuple(PIPELINES)

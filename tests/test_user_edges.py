@@ -432,3 +432,64 @@ def test_eval_pipeline_flag_spells_the_planners_pipelines():
     from fetchbench_ms.solutions.sense_plan_act import PIPELINES
 
     assert PIPELINE_NAMES == tuple(PIPELINES)
+
+
+def test_ppo_bad_flags_are_one_line_before_torch_loads():
+    probe = textwrap.dedent("""
+        import runpy, sys
+        sys.argv = ["ppo.py", "--num-minibatches", "3"]
+        try:
+            runpy.run_path("baselines/ppo/ppo.py", run_name="__main__")
+        except SystemExit as exit:
+            print("exit", exit.code, "torch" in sys.modules, "mani_skill" in sys.modules)
+    """)
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, env=ENV,
+                         cwd=REPO)
+    assert out.stdout.strip() == "exit 2 False False", (out.stdout, out.stderr[-2000:])
+    assert "not divisible by num_minibatches 3" in _one_error_line(out.stderr, "ppo.py: error: ")
+
+
+# ----------------------------------------------------------------------------- ManiSkill's own baselines
+MANISKILL_EVAL_CONTRACT = textwrap.dedent("""
+    # What ManiSkill's examples/baselines (bc, diffusion_policy, act) do to evaluate on the CPU:
+    # plain gymnasium vector envs of CPUGymWrapper envs (no autoreset argument, forkserver
+    # workers), then info["final_info"] read as one dict per env with its "episode" metrics.
+    import sys
+    import gymnasium as gym
+    import numpy as np
+    from mani_skill.utils.wrappers import CPUGymWrapper
+
+    def thunk():
+        env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", max_episode_steps=3,
+                       render_backend="none", reconfiguration_freq=1)
+        return CPUGymWrapper(env, ignore_terminations=True, record_metrics=True)
+
+    if __name__ == "__main__":
+        n = int(sys.argv[1])
+        envs = gym.vector.SyncVectorEnv([thunk]) if n == 1 else gym.vector.AsyncVectorEnv([thunk] * n,
+                                                                                           context="forkserver")
+        envs.reset(seed=0)
+        while True:
+            _, _, _, truncated, info = envs.step(np.zeros(envs.action_space.shape, dtype=np.float32))
+            if truncated.any():
+                print("episode lengths", [int(f["episode"]["episode_len"]) for f in info["final_info"]])
+                break
+        envs.close()
+""")
+
+
+@pytest.mark.parametrize("num_envs", [1, 2])
+def test_maniskill_baselines_launcher_registers_the_ids_and_gives_final_info(tmp_path, num_envs):
+    script = tmp_path / "evaluate_like_maniskill.py"
+    script.write_text(MANISKILL_EVAL_CONTRACT)
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(script), str(num_envs)],
+                         capture_output=True, text=True, timeout=600, env=ENV, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"episode lengths {[3] * num_envs}" in out.stdout
+    # without the launcher: the ids are unknown, and with them gymnasium 1.x gives no final_info
+    plain = subprocess.run([sys.executable, str(script), "1"], capture_output=True, text=True, timeout=600, env=ENV,
+                           cwd=tmp_path)
+    assert plain.returncode != 0 and "FetchBench-v0" in plain.stderr
+    bad = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(tmp_path / "none.py")],
+                         capture_output=True, text=True, timeout=120, env=ENV)
+    assert bad.returncode == 2 and "is not a Python file" in bad.stderr

@@ -42,17 +42,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal, Optional
 
-import gymnasium as gym
-import numpy as np
-import torch
-import torch.nn as nn
 import tyro
-from torch.distributions.normal import Normal
 
-import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
-from fetchbench_ms.envs import make_vec_env
-from fetchbench_ms.envs.curriculum import prepare as prepare_curriculum
-from fetchbench_ms.envs.wrappers import PointCloudStateObs
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test
 
 
@@ -124,6 +115,41 @@ class Args:
     bootstrap_at_done: Literal["always", "truncated"] = "always"
     """bootstrap the value at every episode end (ManiSkill's default) or only at truncations"""
     hidden: int = 256
+
+
+def check_args(args: Args) -> None:
+    """The flags' own errors (ValueError, one line) and the test-split guard (exit 2), before
+    torch and the simulator load: a bad flag is answered at once."""
+    cli_guard(refuse_test, args.task_suite, "PPO training")
+    cli_guard(refuse_test, args.eval_task_suite, "PPO evaluation")
+    if args.num_envs < 1 or args.num_eval_envs < 1:
+        raise ValueError(f"--num-envs and --num-eval-envs must be >= 1, got {args.num_envs}, {args.num_eval_envs}")
+    batch_size = args.num_envs * args.num_steps
+    if batch_size % args.num_minibatches:
+        raise ValueError(f"num_envs x num_steps = {batch_size} is not divisible by num_minibatches "
+                         f"{args.num_minibatches}; valid: a divisor of {batch_size}")
+    if args.time_limit < 0:
+        raise ValueError(f"--time-limit must be >= 0 (0: none), got {args.time_limit}")
+
+
+if __name__ == "__main__":
+    ARGS = tyro.cli(Args)
+    try:
+        check_args(ARGS)
+    except ValueError as error:
+        print(f"ppo.py: error: {error}", file=sys.stderr)
+        sys.exit(2)
+
+import gymnasium as gym  # noqa: E402  (after the flags: see check_args)
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import torch.nn as nn  # noqa: E402
+from torch.distributions.normal import Normal  # noqa: E402
+
+import fetchbench_ms  # noqa: E402,F401  (registers FetchBench-*-v0)
+from fetchbench_ms.envs import make_vec_env  # noqa: E402
+from fetchbench_ms.envs.curriculum import prepare as prepare_curriculum  # noqa: E402
+from fetchbench_ms.envs.wrappers import PointCloudStateObs  # noqa: E402
 
 
 # ---------------------------------------------------------------------------- observations
@@ -359,8 +385,7 @@ def save_checkpoint(path: Path, agent: Agent, optimizer, state: dict, args: Args
 def main(args: Args) -> dict:
     # Training tasks and the evaluation that picks the best checkpoint: never test (exit 2,
     # before anything is written).
-    cli_guard(refuse_test, args.task_suite, "PPO training")
-    cli_guard(refuse_test, args.eval_task_suite, "PPO evaluation")
+    check_args(args)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()
@@ -371,12 +396,7 @@ def main(args: Args) -> dict:
     gpu_sim = args.sim_backend.split(":")[0] in ("physx_cuda", "gpu", "cuda")
     # GPU simulation hands out CUDA tensors: the policy goes where they are.
     device = torch.device("cuda" if (args.cuda or gpu_sim) and torch.cuda.is_available() else "cpu")
-    if args.num_envs < 1 or args.num_eval_envs < 1:
-        raise ValueError(f"--num-envs and --num-eval-envs must be >= 1, got {args.num_envs}, {args.num_eval_envs}")
     batch_size = args.num_envs * args.num_steps
-    if batch_size % args.num_minibatches:
-        raise ValueError(f"num_envs x num_steps = {batch_size} is not divisible by num_minibatches "
-                         f"{args.num_minibatches}; valid: a divisor of {batch_size}")
     minibatch_size = batch_size // args.num_minibatches
     num_iterations = max(1, args.total_timesteps // batch_size)
     ckpt_path = out / "checkpoint.pt"
@@ -581,6 +601,6 @@ def main(args: Args) -> dict:
 
 
 if __name__ == "__main__":
-    result = main(tyro.cli(Args))
+    result = main(ARGS)
     # A run that trained nothing did not do what it was asked: say so (above) and fail.
     sys.exit(0 if result["trained_iterations"] > 0 else 1)

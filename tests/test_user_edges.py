@@ -493,3 +493,14 @@ def test_maniskill_baselines_launcher_registers_the_ids_and_gives_final_info(tmp
     bad = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(tmp_path / "none.py")],
                          capture_output=True, text=True, timeout=120, env=ENV)
     assert bad.returncode == 2 and "is not a Python file" in bad.stderr
+
+
+def test_eval_where_every_task_ended_in_an_error_exits_non_zero(tmp_path, monkeypatch, capsys):
+    from fetchbench_ms.evaluation.runner import open_suite, suite_items
+
+    suite, _, _ = open_suite("smoke")
+    seeds = [item.seed for item in suite_items(suite, range(2))]
+    monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", json.dumps({str(s): "raise" for s in seeds}))
+    assert main(["eval", "--method", "evaluation_faults:faulty", "--suite", "smoke", "--tasks", "0:2",
+                 "--out", str(tmp_path / "eval")]) == 1
+    assert "every one of the 2 tasks ended in an error: nothing was evaluated" in capsys.readouterr().err

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
+from pathlib import Path
+
+PACKAGE_DIR = Path(__file__).resolve().parent
 
 # Sub-packages that may contribute commands, in the order they appear in --help.
 COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "demos", "evaluation")
@@ -17,14 +19,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fetchbench", description="FetchBench-MS: fetching benchmark on ManiSkill3")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for package in COMMAND_PACKAGES:
-        module_name = f"fetchbench_ms.{package}.cli"
-        # Only a package that does not exist (yet) is skipped; a cli module that fails
-        # to import is a real error and is raised.
-        if importlib.util.find_spec(f"fetchbench_ms.{package}") is None:
+        # Only a package without a cli module is skipped; a cli module that fails to import
+        # is a real error and is raised. (Looked for as a file: find_spec of a sub-module
+        # would import its package, and a package may load torch.)
+        if not (PACKAGE_DIR / package / "cli.py").is_file():
             continue
-        if importlib.util.find_spec(module_name) is None:
-            continue
-        importlib.import_module(module_name).add_commands(subparsers)
+        importlib.import_module(f"fetchbench_ms.{package}.cli").add_commands(subparsers)
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).add_commands(subparsers)
     # The main job (`make demo`); its content changes as the project grows.
@@ -41,6 +41,11 @@ def main(argv: list[str] | None = None) -> int:
         # Bad input: one clear line that names what is valid, no traceback.
         message = error.args[0] if isinstance(error, KeyError) and error.args else error
         print(f"fetchbench: error: {message}", file=sys.stderr)
+        return 2
+    except (PermissionError, NotADirectoryError, IsADirectoryError) as error:
+        # A path given that cannot be written or read as asked (an output folder that is a
+        # file, a folder without permission): the user's to fix, so one line too.
+        print(f"fetchbench: error: {error.strerror}: {error.filename}", file=sys.stderr)
         return 2
     return int(result or 0)
 

@@ -28,8 +28,10 @@ import contextlib
 import json
 import multiprocessing as mp
 import os
+import sys
 
 import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
+from fetchbench_ms.demos.stats import check_trajectory_file
 from fetchbench_ms.envs.fetchbench import check_obs_mode, obs_mode_needs_renderer
 from mani_skill.trajectory import replay_trajectory as _maniskill_replay
 from mani_skill.utils.wrappers.record import RecordEpisode
@@ -156,16 +158,23 @@ def stock_action_conversion():
         _maniskill_replay.action_conversion = override
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
+    """ManiSkill's replay tool; bad input (an unknown obs mode, a missing, truncated or
+    mismatched trajectory file) is one line on stderr and exit status 2."""
     args = _maniskill_replay.parse_args(argv)
-    check_obs_mode(args.obs_mode)  # a typo: the valid choices, before anything is built
+    try:
+        check_obs_mode(args.obs_mode)  # a typo: the valid choices, before anything is built
+        check_trajectory_file(args.traj_path)  # a truncated or half-written file: before any worker starts
+    except (ValueError, FileNotFoundError) as error:
+        print(f"replay_trajectory: error: {error}", file=sys.stderr)
+        return 2
     json_path = args.traj_path.replace(".h5", ".json")  # as ManiSkill's tool finds it
     with open(json_path) as f:
         env_kwargs = json.load(f)["env_info"]["env_kwargs"]
     override = _replay_env_kwargs(args, env_kwargs)
     if override is None:
         _maniskill_replay.main(args)
-        return
+        return 0
     io_utils = _maniskill_replay.io_utils
     _maniskill_replay.io_utils = _JsonOverride(io_utils, json_path, override)
     try:
@@ -173,8 +182,9 @@ def main(argv: list[str] | None = None) -> None:
         _maniskill_replay.main(args)
     finally:
         _maniskill_replay.io_utils = io_utils
+    return 0
 
 
 if __name__ == "__main__":
     mp.set_start_method("spawn")  # as ManiSkill's tool does (warp does not survive fork)
-    main()
+    sys.exit(main())

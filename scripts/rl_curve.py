@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,31 +24,40 @@ def read(path: Path) -> list[dict]:
 
 def binned(train: list[dict], size: int) -> list[dict]:
     """Episode-weighted mean return and success of the training episodes that ended in
-    each ``size``-step bin of global steps."""
+    each ``size``-step bin of global steps; a bin's ``steps`` is the last step the run
+    reached in it (a run shorter than a bin is plotted where it ended, not at the bin's end)."""
     bins: dict[int, list] = {}
     for row in train:
         if not row["episodes"] or int(row["episodes"]) == 0 or row["return"] == "":
             continue
         k = (int(row["global_step"]) - 1) // size
-        bins.setdefault(k, []).append((int(row["episodes"]), float(row["return"]), float(row["success_once"] or 0)))
+        bins.setdefault(k, []).append((int(row["episodes"]), float(row["return"]), float(row["success_once"] or 0),
+                                       int(row["global_step"])))
     out = []
     for k in sorted(bins):
         n = np.array([b[0] for b in bins[k]], dtype=float)
-        out.append({"steps": (k + 1) * size, "episodes": int(n.sum()),
+        out.append({"steps": max(b[3] for b in bins[k]), "episodes": int(n.sum()),
                     "return": float(np.dot(n, [b[1] for b in bins[k]]) / n.sum()),
                     "success": float(np.dot(n, [b[2] for b in bins[k]]) / n.sum())})
     return out
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("runs", type=Path, nargs="+", help="PPO --out-dir folders")
     p.add_argument("--bin", type=int, default=10_000)
     p.add_argument("--png", type=Path, default=None)
     args = p.parse_args(argv)
+    if args.bin < 1:
+        p.error(f"--bin must be a positive number of steps, got {args.bin}")
     curves = {}
     for run in args.runs:
         train, evals = read(run / "train.csv"), read(run / "eval.csv")
+        if not train and not evals:  # nothing to show is an error, not empty panels
+            print(f"rl_curve: error: {run} holds no training iteration (train.csv: "
+                  f"{'header only' if (run / 'train.csv').exists() else 'missing'}) and no evaluation; valid: the "
+                  "--out-dir of a PPO run that trained", file=sys.stderr)
+            return 2
         curves[run.name] = (binned(train, args.bin), evals)
         wall = float(train[-1]["wall_s"]) if train else 0.0
         steps = int(train[-1]["global_step"]) if train else 0
@@ -87,7 +97,8 @@ def main(argv=None) -> None:
         tmp = args.png.with_name(args.png.stem + ".tmp.png")
         fig.savefig(tmp, dpi=110)
         tmp.replace(args.png)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

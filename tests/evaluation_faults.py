@@ -44,3 +44,18 @@ def numpy_record(env, seed):
         return {"failure": "not_attempted"}
     return {"success": np.bool_(False), "failure": "not_attempted", "computation_time": np.float32(0.5),
             "cspace_length": np.float64(1.5), "phases": {"ik_found": np.bool_(True)}}
+
+
+def slow_steps(env, seed):
+    """Steps the env (holding the arm's joint targets) for 9 s of wall time, then fails: a
+    long task, whose worker reports its control steps while it runs."""
+    import numpy as np
+
+    u = env.unwrapped
+    q = u.agent.robot.get_qpos()[0].cpu().numpy()[:7]
+    action = np.concatenate([q, [0.04]]).astype(np.float32)
+    end = time.monotonic() + 9.0
+    while time.monotonic() < end:
+        env.step(action)
+    return {"success": False, "failure": "not_attempted", "computation_time": 0.0, "cspace_length": 0.0,
+            "phases": {}}

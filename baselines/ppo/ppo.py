@@ -42,17 +42,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal, Optional
 
-import gymnasium as gym
-import numpy as np
-import torch
-import torch.nn as nn
 import tyro
-from torch.distributions.normal import Normal
 
-import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
-from fetchbench_ms.envs import make_vec_env
-from fetchbench_ms.envs.curriculum import prepare as prepare_curriculum
-from fetchbench_ms.envs.wrappers import PointCloudStateObs
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test
 
 
@@ -65,7 +56,8 @@ class Args:
     cuda: bool = True
     """the policy on the GPU when there is one"""
     time_limit: float = 0.0
-    """seconds of wall time, then a checkpoint and a clean exit (0: none); the same command resumes"""
+    """seconds of training, then a checkpoint and a clean exit (0: none); the same command resumes.
+    Counted from the first iteration: start-up (curriculum tasks, env workers) is not training"""
     resume: bool = True
     """resume from <out-dir>/checkpoint.pt when it exists"""
     tensorboard: bool = True
@@ -123,6 +115,41 @@ class Args:
     bootstrap_at_done: Literal["always", "truncated"] = "always"
     """bootstrap the value at every episode end (ManiSkill's default) or only at truncations"""
     hidden: int = 256
+
+
+def check_args(args: Args) -> None:
+    """The flags' own errors (ValueError, one line) and the test-split guard (exit 2), before
+    torch and the simulator load: a bad flag is answered at once."""
+    cli_guard(refuse_test, args.task_suite, "PPO training")
+    cli_guard(refuse_test, args.eval_task_suite, "PPO evaluation")
+    if args.num_envs < 1 or args.num_eval_envs < 1:
+        raise ValueError(f"--num-envs and --num-eval-envs must be >= 1, got {args.num_envs}, {args.num_eval_envs}")
+    batch_size = args.num_envs * args.num_steps
+    if batch_size % args.num_minibatches:
+        raise ValueError(f"num_envs x num_steps = {batch_size} is not divisible by num_minibatches "
+                         f"{args.num_minibatches}; valid: a divisor of {batch_size}")
+    if args.time_limit < 0:
+        raise ValueError(f"--time-limit must be >= 0 (0: none), got {args.time_limit}")
+
+
+if __name__ == "__main__":
+    ARGS = tyro.cli(Args)
+    try:
+        check_args(ARGS)
+    except ValueError as error:
+        print(f"ppo.py: error: {error}", file=sys.stderr)
+        sys.exit(2)
+
+import gymnasium as gym  # noqa: E402  (after the flags: see check_args)
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+import torch.nn as nn  # noqa: E402
+from torch.distributions.normal import Normal  # noqa: E402
+
+import fetchbench_ms  # noqa: E402,F401  (registers FetchBench-*-v0)
+from fetchbench_ms.envs import make_vec_env  # noqa: E402
+from fetchbench_ms.envs.curriculum import prepare as prepare_curriculum  # noqa: E402
+from fetchbench_ms.envs.wrappers import PointCloudStateObs  # noqa: E402
 
 
 # ---------------------------------------------------------------------------- observations
@@ -358,8 +385,7 @@ def save_checkpoint(path: Path, agent: Agent, optimizer, state: dict, args: Args
 def main(args: Args) -> dict:
     # Training tasks and the evaluation that picks the best checkpoint: never test (exit 2,
     # before anything is written).
-    cli_guard(refuse_test, args.task_suite, "PPO training")
-    cli_guard(refuse_test, args.eval_task_suite, "PPO evaluation")
+    check_args(args)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     start = time.time()
@@ -370,14 +396,17 @@ def main(args: Args) -> dict:
     gpu_sim = args.sim_backend.split(":")[0] in ("physx_cuda", "gpu", "cuda")
     # GPU simulation hands out CUDA tensors: the policy goes where they are.
     device = torch.device("cuda" if (args.cuda or gpu_sim) and torch.cuda.is_available() else "cpu")
-    if args.num_envs < 1 or args.num_eval_envs < 1:
-        raise ValueError(f"--num-envs and --num-eval-envs must be >= 1, got {args.num_envs}, {args.num_eval_envs}")
     batch_size = args.num_envs * args.num_steps
-    if batch_size % args.num_minibatches:
-        raise ValueError(f"num_envs x num_steps = {batch_size} is not divisible by num_minibatches "
-                         f"{args.num_minibatches}; valid: a divisor of {batch_size}")
     minibatch_size = batch_size // args.num_minibatches
     num_iterations = max(1, args.total_timesteps // batch_size)
+    ckpt_path = out / "checkpoint.pt"
+    if args.resume and ckpt_path.exists():  # before any env starts: a finished run has nothing to do
+        done = torch.load(ckpt_path, map_location="cpu", weights_only=False)["state"]
+        if done["iteration"] >= num_iterations:
+            print(f"trained 0 iterations: {ckpt_path} is already at iteration {done['iteration']} of "
+                  f"{num_iterations} (--total-timesteps {args.total_timesteps}); valid: a larger --total-timesteps "
+                  "to train on, or --no-resume to start over", file=sys.stderr, flush=True)
+            return {"state": done, "final_eval": None, "stopped_by_time": False, "trained_iterations": 0}
 
     if args.curriculum is not None and args.sim_backend == "cpu":
         # Make the curriculum's tasks once, in parallel, before the env workers start
@@ -386,6 +415,9 @@ def main(args: Args) -> dict:
             n = prepare_curriculum(args.env_id, args.curriculum, suite, processes=min(args.num_envs, os.cpu_count()))
             print(f"curriculum {args.curriculum}: {n} tasks of suite {suite or 'train'} ready ({time.time() - start:.0f} s)",
                   flush=True)
+    print(f"starting {args.num_envs} training and {args.num_eval_envs} evaluation envs "
+          f"({'one process each' if args.sim_backend == 'cpu' and args.vector_env != 'maniskill' else 'batched'}) ...",
+          flush=True)
     envs = make_envs(args, args.num_envs, args.task_suite, device, ignore_terminations=not args.partial_reset)
     eval_envs = make_envs(args, args.num_eval_envs, args.eval_task_suite, device, ignore_terminations=False)
     obs_dim = int(np.prod(envs.single_observation_space.shape))
@@ -393,7 +425,6 @@ def main(args: Args) -> dict:
     agent = Agent(obs_dim, act_dim, args.hidden, args.points if args.obs == "pointcloud" else 0).to(device)
     optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
     state = {"iteration": 0, "global_step": 0, "wall_s": 0.0, "best_success": -1.0}
-    ckpt_path = out / "checkpoint.pt"
     if args.resume and ckpt_path.exists():
         ckpt = torch.load(ckpt_path, map_location=device, weights_only=False)
         agent.load_state_dict(ckpt["agent"])
@@ -422,6 +453,11 @@ def main(args: Args) -> dict:
     # A resumed run continues with fresh episodes from a seed it has not used.
     next_obs, _ = envs.reset(seed=args.seed + 1000 * state["iteration"])
     next_done = torch.zeros(args.num_envs, device=device)
+    # The training budget starts now: start-up (curriculum tasks, env workers, the first
+    # reset) does not count against --time-limit.
+    train_start, first_iteration = time.time(), state["iteration"]
+    print(f"envs ready ({train_start - start:.0f} s); training iterations {first_iteration + 1} .. {num_iterations} "
+          f"({batch_size} steps each)" + (f", for {args.time_limit:.0f} s" if args.time_limit else ""), flush=True)
 
     def wall() -> float:
         return wall_before + time.time() - start
@@ -439,7 +475,7 @@ def main(args: Args) -> dict:
 
     stopped_by_time = False
     while state["iteration"] < num_iterations:
-        if args.time_limit and time.time() - start > args.time_limit:
+        if args.time_limit and time.time() - train_start > args.time_limit and state["iteration"] > first_iteration:
             stopped_by_time = True
             break
         iteration_start = time.time()
@@ -548,6 +584,7 @@ def main(args: Args) -> dict:
             state["wall_s"] = wall()
             save_checkpoint(ckpt_path, agent, optimizer, state, args)
 
+    trained = state["iteration"] - first_iteration
     final = None if stopped_by_time else run_eval()
     state["wall_s"] = wall()
     save_checkpoint(ckpt_path, agent, optimizer, state, args)
@@ -557,10 +594,13 @@ def main(args: Args) -> dict:
         tb.close()
     envs.close()
     eval_envs.close()
-    print(("stopped at the time limit" if stopped_by_time else "done") + f"; checkpoint {ckpt_path}", flush=True)
-    return {"state": state, "final_eval": final, "stopped_by_time": stopped_by_time}
+    print(("stopped at the time limit" if stopped_by_time else "done")
+          + f" after {trained} iterations ({trained * batch_size} steps, {time.time() - train_start:.0f} s of training)"
+          + f"; now at iteration {state['iteration']} of {num_iterations}; checkpoint {ckpt_path}", flush=True)
+    return {"state": state, "final_eval": final, "stopped_by_time": stopped_by_time, "trained_iterations": trained}
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
-    sys.exit(0)
+    result = main(ARGS)
+    # A run that trained nothing did not do what it was asked: say so (above) and fail.
+    sys.exit(0 if result["trained_iterations"] > 0 else 1)

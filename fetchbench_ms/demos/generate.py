@@ -88,6 +88,24 @@ def suite_task_ids(env_id: str, task_suite: str) -> list[str]:
     return ids
 
 
+def check_writable_dir(folder: str | Path, flag: str) -> None:
+    """ValueError (one line) unless ``folder`` is, or can be made as, a folder this process
+    can write to: a file in its place or a folder without write permission fails here, before
+    any worker starts, rather than as a traceback from deep inside."""
+    folder = Path(folder)
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ValueError(f"{flag} {folder}: {existing} is a file; valid: a folder (made if missing)")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe = folder / f".write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as error:
+        raise ValueError(f"{flag} {folder} is not writable ({error.strerror}: {error.filename}); valid: a folder "
+                         "you can write to") from None
+
+
 def parts_dir(record_dir: str | Path, env_id: str, name: str) -> Path:
     return Path(record_dir) / env_id / "motionplanning" / f"{name}.parts"
 
@@ -212,6 +230,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
         raise ValueError(f"start_seed {start_seed} is outside the {len(ids)} tasks of suite {job.task_suite!r} "
                          f"that {job.env_id} admits (valid: 0 .. {len(ids) - 1})")
     parts = parts_dir(record_dir, job.env_id, name)
+    check_writable_dir(record_dir, "--record-dir")
     parts.mkdir(parents=True, exist_ok=True)
     job_file = parts / "job.json"
     if job_file.exists() and json.loads(job_file.read_text()) != dataclasses.asdict(job):
@@ -318,11 +337,19 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
     data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"])}
     dump_json(str(tmp).replace(".h5", ".json"), data, indent=2)
     compressed = tmp.with_name(f".{name}.compressing.h5")
-    compress_h5(tmp, compressed)
-    os.replace(compressed, out)
+    compress_h5(tmp, compressed, pair_json=tmp.with_suffix(".json"))
     tmp.unlink()
-    os.replace(str(tmp).replace(".h5", ".json"), out.with_suffix(".json"))
+    _replace_pair(compressed, tmp.with_suffix(".json"), out)
     return out
+
+
+def _replace_pair(h5: Path, json_path: Path, out: Path) -> None:
+    """Moves ``h5`` and ``json_path`` to ``out`` and its .json. Two renames, so a kill between
+    them leaves a new .h5 beside the old .json: the .h5 carries its .json's sha256
+    (``stats.PAIR_ATTR``), readers (``stats.check_trajectory_file``) refuse a pair that does
+    not match, and a rerun writes both again."""
+    os.replace(h5, out)
+    os.replace(json_path, out.with_suffix(".json"))
 
 
 def _merge_quietly(tmp: Path, files: list) -> None:
@@ -376,16 +403,30 @@ def merge_runs(paths: list, out) -> Path:
     if transport:
         data["fetchbench_transport"] = {**transport[0], "source": [t["source"] for t in transport]}
     dump_json(str(tmp.with_suffix(".json")), data, indent=2)
-    os.replace(tmp, out)
-    os.replace(tmp.with_suffix(".json"), out.with_suffix(".json"))
+    _set_pair_attr(tmp, tmp.with_suffix(".json"))
+    _replace_pair(tmp, tmp.with_suffix(".json"), out)
     return out
 
 
-def compress_h5(src: Path, dst: Path, level: int = 4) -> None:
+def _set_pair_attr(h5: Path, json_path: Path) -> None:
+    import h5py
+
+    from ..utils.io import sha256_file
+    from .stats import PAIR_ATTR
+
+    with h5py.File(h5, "a") as f:
+        f.attrs[PAIR_ATTR] = sha256_file(json_path)
+
+
+def compress_h5(src: Path, dst: Path, level: int = 4, pair_json: Path | None = None) -> None:
     """A copy of a trajectory file with every array gzip-compressed (byte shuffle first):
     env states change smoothly, so this about halves the file. h5py reads it transparently,
-    ManiSkill's tools included; groups keep their order."""
+    ManiSkill's tools included; groups keep their order. ``pair_json``: the .json that goes
+    with it, whose sha256 the copy records (``stats.PAIR_ATTR``)."""
     import h5py
+
+    from ..utils.io import sha256_file
+    from .stats import PAIR_ATTR
 
     def copy(a, b):
         for key, item in a.items():
@@ -399,6 +440,8 @@ def compress_h5(src: Path, dst: Path, level: int = 4) -> None:
 
     with h5py.File(src, "r") as a, h5py.File(dst, "w", track_order=True) as b:
         copy(a, b)
+        if pair_json is not None:
+            b.attrs[PAIR_ATTR] = sha256_file(pair_json)
 
 
 def _empty(tmp: Path) -> None:

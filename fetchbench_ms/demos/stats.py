@@ -11,6 +11,10 @@ import numpy as np
 from ..tasks.spec import CATEGORY_LABELS
 
 CATEGORY_ORDER = tuple(CATEGORY_LABELS.values())  # on_table, on_shelf, in_drawer, in_basket
+#: Attribute of a merged .h5's root: the sha256 of the .json written with it. The two files
+#: are renamed into place one after the other, so a kill between the renames leaves a new
+#: .h5 beside the old .json; readers compare this to the .json and refuse such a pair.
+PAIR_ATTR = "fetchbench_json_sha256"
 
 
 def resolve(path: str | Path) -> Path:
@@ -34,10 +38,66 @@ def _episodes(path: Path) -> list[dict]:
     return json.loads(path.with_suffix(".json").read_text())["episodes"]
 
 
-def demo_stats(path: str | Path) -> dict:
-    """Counts of a trajectory file: trajectories, frames, tasks, by category and scene type."""
+def load_trajectory_json(path: str | Path) -> dict:
+    """The .json of a trajectory file, or ValueError naming what is wrong with it."""
+    json_path = Path(path).with_suffix(".json")
+    try:
+        data = json.loads(json_path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{json_path} is not a trajectory JSON ({error})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("episodes"), list):
+        raise ValueError(f"{json_path} is not a ManiSkill trajectory JSON (no 'episodes' list)")
+    return data
+
+
+def check_trajectory_file(path: str | Path) -> dict:
+    """The checked .json of trajectory file ``path`` (.h5, .json or a folder holding one):
+    ValueError with the reason when the .h5 cannot be opened (truncated, not HDF5), when the
+    pair was not written together (``PAIR_ATTR``), or when the .h5 lacks a trajectory the
+    .json lists (or holds one it does not) or its actions are not the length the .json says."""
+    import h5py
+
+    from ..utils.io import sha256_file
+
     path = resolve(path)
-    data = json.loads(path.with_suffix(".json").read_text())
+    data = load_trajectory_json(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as error:  # truncated, not an HDF5 file at all, unreadable
+        reason = str(error).split("(", 1)[-1].rstrip(")") if "(" in str(error) else str(error)
+        raise ValueError(f"{path} is not a readable trajectory file ({reason}); regenerate it (`fetchbench demos "
+                         "run` with the same flags resumes and rewrites it) or copy it again") from None
+    with f:
+        pair = f.attrs.get(PAIR_ATTR)
+        if pair is not None and (pair.decode() if isinstance(pair, bytes) else str(pair)) != sha256_file(
+                path.with_suffix(".json")):
+            raise ValueError(f"{path} and its .json were not written together (a run stopped between writing "
+                             "the two); rerun the same `fetchbench demos run` (or `demos merge`) command to "
+                             "write them again")
+        groups = {k for k in f.keys() if k.startswith("traj_")}
+        listed = {f"traj_{e['episode_id']}": e for e in data["episodes"]}
+        if groups != set(listed):
+            missing, extra = sorted(set(listed) - groups), sorted(groups - set(listed))
+            problems = []
+            if missing:
+                problems.append(f"{len(missing)} trajectories its .json lists are absent ({', '.join(missing[:3])})")
+            if extra:
+                problems.append(f"{len(extra)} trajectories are not in its .json ({', '.join(extra[:3])})")
+            raise ValueError(f"{path} does not match its .json: {'; '.join(problems)}; rerun the command that "
+                             "wrote them")
+        for key, episode in listed.items():
+            actions = f[key].get("actions")
+            if actions is None or actions.shape[0] != episode.get("elapsed_steps", actions.shape[0]):
+                raise ValueError(f"{path}: {key} holds {None if actions is None else actions.shape[0]} actions, "
+                                 f"its .json says {episode.get('elapsed_steps')}; rerun the command that wrote it")
+    return data
+
+
+def demo_stats(path: str | Path) -> dict:
+    """Counts of a trajectory file: trajectories, frames, tasks, by category and scene type
+    (the .h5 is checked against its .json first: ``check_trajectory_file``)."""
+    path = resolve(path)
+    data = check_trajectory_file(path)
     eps = data["episodes"]
     steps = np.array([e["elapsed_steps"] for e in eps], dtype=int)
     tasks = Counter(e.get("task_id") for e in eps)
@@ -106,7 +166,7 @@ def render_trajectory(path: str | Path, traj: int, out: str | Path, camera: str 
     import fetchbench_ms  # noqa: F401
 
     path = resolve(path)
-    data = json.loads(path.with_suffix(".json").read_text())
+    data = check_trajectory_file(path)
     episodes = {e["episode_id"]: e for e in data["episodes"]}
     if traj not in episodes:
         raise ValueError(f"no trajectory {traj} in {path}; valid: 0..{len(episodes) - 1}" if episodes

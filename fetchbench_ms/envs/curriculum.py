@@ -36,6 +36,7 @@ import dataclasses
 import functools
 import json
 import math
+import sys
 from dataclasses import dataclass, replace
 from typing import Optional, Union
 
@@ -269,20 +270,31 @@ def _one_thread() -> None:
     torch.set_num_threads(1)  # one process per core: torch's pool would oversubscribe them
 
 
-def prepare(env_id: str, curriculum, task_suite: Optional[str] = None, processes: int = 1) -> int:
+def prepare(env_id: str, curriculum, task_suite: Optional[str] = None, processes: int = 1,
+            progress: bool = True) -> int:
     """Make (into the disk cache) the curriculum's version of every task its env serves,
     on ``processes`` processes: run before starting many env workers, which then read
-    them instead of each making them. Returns the number of tasks."""
+    them instead of each making them. Returns the number of tasks. ``progress``: a bar on
+    stderr (minutes of IK on a small machine the first time; cached tasks pass at once)."""
     import multiprocessing
+
+    from tqdm import tqdm
 
     curriculum = resolve_curriculum(curriculum)
     jobs = [(curriculum, t) for t in curriculum_pool(env_id, curriculum, task_suite)]
-    if processes <= 1:
-        for job in jobs:
-            _apply_one(job)
-    else:
-        with multiprocessing.get_context("spawn").Pool(processes, initializer=_one_thread) as pool:
-            pool.map(_apply_one, jobs, chunksize=1)
+    bar = tqdm(total=len(jobs), desc=f"curriculum tasks of suite {task_suite or 'train'}",
+               unit="task", disable=not progress, file=sys.stderr)
+    try:
+        if processes <= 1:
+            for job in jobs:
+                _apply_one(job)
+                bar.update()
+        else:
+            with multiprocessing.get_context("spawn").Pool(processes, initializer=_one_thread) as pool:
+                for _ in pool.imap_unordered(_apply_one, jobs, chunksize=1):
+                    bar.update()
+    finally:
+        bar.close()
     return len(jobs)
 
 

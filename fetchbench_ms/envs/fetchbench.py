@@ -29,7 +29,7 @@ from ..scenes import SCENE_TYPES
 from ..tasks.camera_views import paper_camera_pair
 from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, look_at_quat, sample_task
-from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec
+from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
 from ..utils.io import canonical_json
 from . import pointcloud
@@ -327,11 +327,10 @@ class FetchBenchEnv(BaseEnv):
         id_fixes: Optional[dict] = None,
         **kwargs,
     ):
+        category = category_name(category)  # either vocabulary: Shelf or on_shelf
         _check_id_fixes(id_fixes, scene_type=scene_type, category=category)
         if scene_type is not None and scene_type not in SCENE_TYPES:
             raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
-        if category is not None and category not in CATEGORY_LABELS:
-            raise ValueError(f"unknown category {category!r}; valid: {', '.join(CATEGORY_LABELS)}")
         if success_criteria not in SUCCESS_CRITERIA:
             raise ValueError(f"unknown success_criteria {success_criteria!r}; valid: {', '.join(SUCCESS_CRITERIA)}")
         if (camera_width, camera_height) not in CAMERA_RESOLUTIONS:

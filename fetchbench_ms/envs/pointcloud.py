@@ -111,7 +111,10 @@ def fetch_clouds(
     num_points: dict[str, int] | None = None,
     rng: np.random.Generator | None = None,
 ) -> FetchClouds:
-    """The fused scene / target / robot clouds of sub-scene ``env_index`` of a point-cloud obs.
+    """The fused scene / target / robot clouds of sub-scene ``env_index`` of a point-cloud obs:
+    ``obs_mode="pointcloud"`` (every camera point), or ``"compact_pointcloud"`` (the fixed-size
+    cloud the imitation policies read: its points as drawn, repeats included where a segment
+    had fewer voxels than its size; its zero padding left out).
 
     ``max_distance``: keep only points within this distance of the base origin (the
     imitation baselines use 1.2 m). ``num_points``: fixed cloud sizes, e.g.
@@ -119,10 +122,16 @@ def fetch_clouds(
     (without replacement; with replacement when a cloud has fewer points; an empty cloud
     stays empty).
     """
-    if not isinstance(obs, dict) or "pointcloud" not in obs or "fetch_label" not in obs["pointcloud"]:
-        raise ValueError("fetch_clouds needs an observation of a FetchBench env made with obs_mode='pointcloud'")
-    points = _np(obs["pointcloud"]["xyz_base"][env_index]).astype(np.float32)
-    labels = _np(obs["pointcloud"]["fetch_label"][env_index])
+    pcd = obs.get("pointcloud") if isinstance(obs, dict) else None
+    if isinstance(pcd, dict) and "fetch_label" in pcd:
+        points = _np(pcd["xyz_base"][env_index]).astype(np.float32)
+        labels = _np(pcd["fetch_label"][env_index])
+    elif isinstance(pcd, dict) and "seg" in pcd and "xyz" in pcd:  # compact_pointcloud
+        points = _np(pcd["xyz"][env_index]).astype(np.float32)
+        labels = _np(pcd["seg"][env_index])
+    else:
+        raise ValueError("fetch_clouds needs an observation of a FetchBench env made with obs_mode='pointcloud' "
+                         f"or '{COMPACT_OBS_MODE}'")
     if max_distance is not None:
         labels = np.where(np.linalg.norm(points, axis=1) <= max_distance, labels, LABEL_NONE)
     masks = {

@@ -64,4 +64,7 @@ def make_vec_env(env_id: str, num_envs: int, context: str = "spawn", wrappers: t
     factory = functools.partial(_make_cpu_env, env_id, {**kwargs, "sim_backend": "physx_cpu"}, tuple(wrappers),
                                 dict(record_metrics=record_metrics, ignore_terminations=ignore_terminations))
     extra = {} if autoreset_mode is None else {"autoreset_mode": autoreset_mode}
+    from ..utils.quiet import announce_render_device
+
+    announce_render_device()  # once here, not once a worker
     return gym.vector.AsyncVectorEnv([factory] * int(num_envs), context=context, **extra)

@@ -19,6 +19,9 @@ from typing import Callable, Iterable
 from .methods import RunnerSpec, WorkItem, error_record
 
 READY = "ready"
+PROGRESS = "progress"  # ("progress", task id, control steps of its episode, seconds): a task still running
+PROGRESS_AFTER = 5.0  # s a task runs before its worker reports its control steps
+PROGRESS_EVERY = 2.0  # s between two such reports
 STARTUP_TIMEOUT = 300.0  # s for a worker to import everything and say it is ready
 
 
@@ -39,11 +42,16 @@ def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
         return
     # One core per worker: many workers share the machine, threads would fight.
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import threading
+
     import torch
 
     torch.set_num_threads(1)
     runner = spec.make()
-    conn.send(READY)
+    send_lock, running = threading.Lock(), {}
+    threading.Thread(target=_report_progress, args=(conn, send_lock, runner, running), daemon=True).start()
+    with send_lock:
+        conn.send(READY)
     while True:
         try:
             item = conn.recv()
@@ -51,8 +59,33 @@ def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
             break
         if item is None:
             break
-        conn.send(runner(item))
+        running.update(item=item, started=time.monotonic())
+        record = runner(item)
+        with send_lock:
+            running.clear()
+            conn.send(record)
     runner.close()
+
+
+def _report_progress(conn, send_lock, runner, running: dict) -> None:
+    """Worker thread: while a task runs longer than ``PROGRESS_AFTER``, send its episode's
+    control steps every ``PROGRESS_EVERY`` s, so a long task shows it is moving (read-only:
+    the env's step counter)."""
+    while True:
+        time.sleep(PROGRESS_EVERY)
+        with send_lock:
+            item, started = running.get("item"), running.get("started")
+            if item is None or time.monotonic() - started < PROGRESS_AFTER:
+                continue
+            env = getattr(runner, "current_env", None)
+            try:
+                steps = int(env.unwrapped.elapsed_steps.reshape(-1)[0]) if env is not None else 0
+            except (AttributeError, RuntimeError, TypeError):
+                steps = 0
+            try:
+                conn.send((PROGRESS, item.task_id, steps, round(time.monotonic() - started, 1)))
+            except (OSError, ValueError):
+                return
 
 
 class _Worker:
@@ -77,14 +110,18 @@ def _deadline(worker: _Worker, task_timeout: float) -> float:
 
 
 def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
-              task_timeout: float = 600.0) -> None:
-    """Run every item; ``on_record`` gets each task's record (in the parent) as it finishes."""
+              task_timeout: float = 600.0, on_progress: Callable[[str, int, float], None] | None = None) -> None:
+    """Run every item; ``on_record`` gets each task's record (in the parent) as it finishes,
+    ``on_progress`` (task id, control steps, seconds) the news of a task that runs long."""
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     queue = collections.deque(items)
     if not queue:
         return
     ctx = mp.get_context("spawn")
+    from ..utils.quiet import announce_render_device
+
+    announce_render_device()  # once here, not once a worker
     pool = [_Worker(ctx, spec) for _ in range(min(workers, len(queue)))]
     failed_starts = 0
     try:
@@ -110,6 +147,9 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
                     died = True
                 if message == READY:
                     w.ready, failed_starts = True, 0
+                elif isinstance(message, tuple) and message[0] == PROGRESS:
+                    if on_progress is not None and w.item is not None and message[1] == w.item.task_id:
+                        on_progress(*message[1:])  # (then on to the deadline check: news is no reprieve)
                 elif message is not None:
                     w.item = None
                     on_record(message)

@@ -145,7 +145,9 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
 
         return Method(name, obs_mode, run)
     if name in deploy.POLICY_METHODS:
-        deploy.resolve_checkpoint(name, policy_checkpoint)  # missing: the error says how to train one
+        # missing: the error says how to train one; unreadable or of another kind: a usage
+        # error here, before any task runs (not one error record per task)
+        deploy.check_checkpoint(name, policy_checkpoint)
         check_stride(policy_stride)  # invalid: an error before any task runs
         if name in deploy.HYBRID_METHODS:
             from ..grasping import load_model
@@ -256,7 +258,7 @@ class TaskRunner:
     def __call__(self, item: WorkItem) -> dict:
         t = time.perf_counter()
         try:
-            env = self.env(item.env_id)
+            env = self.current_env = self.env(item.env_id)  # (the worker's progress reports read its steps)
             options = {"task": item.task} if item.task is not None else None
             env.reset(seed=item.seed, options=options)
             if self.video_dir:

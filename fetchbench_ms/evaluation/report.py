@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import html
 import io
+import os
 import shutil
 import warnings
 from dataclasses import dataclass
@@ -149,17 +150,46 @@ def _table(header: list[str], rows: list[list[str]], css: str = "") -> str:
     return f'<table class="{css}"><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>'
 
 
+def paper_reference(run: Run) -> tuple[float, tuple | None] | None:
+    """The FetchBench paper's success rate (and its funnel: approach plan, approach execution,
+    retrieval plan) for a run of the paper's variant of a method the paper reports: the
+    ``paper`` pipeline (or a method without one) and the env's defaults. None otherwise."""
+    from .results_table import PAPER, PAPER_FUNNEL
+
+    options = run.manifest.get("method_options") or {}
+    method = run.manifest.get("method")
+    if method not in PAPER or options.get("pipeline") not in ("paper", "none") or options.get("env_options"):
+        return None
+    return PAPER[method], PAPER_FUNNEL.get(method)
+
+
+#: The paper's funnel stages in the report's funnel (the record's phase for each).
+PAPER_FUNNEL_PHASES = ("pregrasp_plan", "approach_reached", "retrieval_plan")
+
+
+def _paper_row(cells: int, all_column: int, rate: float) -> list[str]:
+    row = ["–"] * cells
+    row[all_column] = f"{100 * rate:.1f}%"
+    return row
+
+
 def tables(runs: list[Run]) -> dict[str, str]:
     esc = html.escape
     categories = _union(r.summary["by_category"] for r in runs)
     scene_types = _union(r.summary["by_scene_type"] for r in runs)
     out = {}
+    rows = []
+    for r in runs:
+        rows.append([esc(r.label)] + [_pct(r.summary["by_category"].get(c)) for c in categories] + [
+            _pct(r.summary["all"]), str(r.summary["all"]["errors"]),
+            _num(r.summary["all"]["median_computation_time"]), _num(r.summary["all"]["median_cspace_length"])])
+        paper = paper_reference(r)
+        if paper is not None:  # the paper's figure for this method, beside ours
+            rows.append([f"<i>FetchBench paper: {esc(r.manifest['method'])}</i>"]
+                        + _paper_row(len(categories) + 4, len(categories), paper[0]))
     out["by_category"] = _table(
         ["method"] + [esc(c) for c in categories] + ["all", "errors", "median time (s)", "median C-space length"],
-        [[esc(r.label)] + [_pct(r.summary["by_category"].get(c)) for c in categories] + [
-            _pct(r.summary["all"]), str(r.summary["all"]["errors"]),
-            _num(r.summary["all"]["median_computation_time"]), _num(r.summary["all"]["median_cspace_length"])]
-         for r in runs], "by_category")
+        rows, "by_category")
     out["by_scene_type"] = _table(["scene type"] + [esc(r.label) for r in runs],
                                   [[esc(t)] + [_pct(r.summary["by_scene_type"].get(t)) for r in runs]
                                    for t in scene_types] + [["all"] + [_pct(r.summary["all"]) for r in runs]],
@@ -168,9 +198,15 @@ def tables(runs: list[Run]) -> dict[str, str]:
     out["failures"] = _table(["method"] + [esc(c) for c in classes],
                              [[esc(r.label)] + [str(r.summary["all"]["failures"].get(c, 0)) for c in classes]
                               for r in runs], "failures")
-    out["funnel"] = _table(["method"] + [esc(name) for _, name in FUNNEL],
-                           [[esc(r.label)] + [_percent(r.summary['all']['funnel'][k]) for k, _ in FUNNEL]
-                            for r in runs], "funnel")
+    funnel_rows = []
+    for r in runs:
+        funnel_rows.append([esc(r.label)] + [_percent(r.summary['all']['funnel'][k]) for k, _ in FUNNEL])
+        paper = paper_reference(r)
+        if paper is not None and paper[1] is not None:
+            given = dict(zip(PAPER_FUNNEL_PHASES, paper[1]))
+            funnel_rows.append([f"<i>FetchBench paper: {esc(r.manifest['method'])}</i>"]
+                               + [_percent(paper[0] if k == "success" else given.get(k)) for k, _ in FUNNEL])
+    out["funnel"] = _table(["method"] + [esc(name) for _, name in FUNNEL], funnel_rows, "funnel")
     return out
 
 
@@ -229,6 +265,17 @@ def render_starts(run: Run, records: list[dict]) -> dict[str, bytes]:
     return images
 
 
+def source_label(manifest: dict) -> str:
+    """Where a run's tasks came from, without the suite file's path: ``suite test (sha256
+    0123456789ab)`` or ``env:FetchBench-v0``."""
+    source = manifest["source"]
+    if source.startswith("env:"):
+        return source
+    name = (manifest.get("selection") or {}).get("suite") or Path(source).name
+    sha = manifest.get("source_sha256")
+    return f"suite {name}" + (f" (sha256 {sha[:12]})" if sha else "")
+
+
 # ---------------------------------------------------------------------------- page
 STYLE = """body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
@@ -247,9 +294,10 @@ def build_report(dirs, out=None, gallery: int = 6, render: bool = True) -> Path:
     esc = html.escape
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>FetchBench-MS results</title>"
              f"<style>{STYLE}</style></head><body><h1>FetchBench-MS results</h1>"]
+    # Paths relative to the report (a page shared or served shows no one's home folder).
     parts.append(_table(["method", "results", "task source", "tasks"],
-                        [[esc(r.label), esc(str(r.root)), esc(r.manifest["source"]), str(len(r.records))]
-                         for r in runs], "runs"))
+                        [[esc(r.label), esc(os.path.relpath(r.root.resolve(), out.resolve())),
+                          esc(source_label(r.manifest)), str(len(r.records))] for r in runs], "runs"))
     parts.append("<h2>Success by target category</h2>" + t["by_category"] + "<img src='success_by_category.png'>")
     parts.append("<h2>Success by scene type</h2>" + t["by_scene_type"] + "<img src='success_by_scene_type.png'>")
     parts.append("<h2>Failure classes</h2>" + t["failures"] + "<img src='failures.png'>")

@@ -114,13 +114,24 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     kept = [done[i.task_id] for i in items if i.task_id in done and i.task_id not in todo_ids]
     successes, finished = sum(bool(r["success"]) for r in kept), len(kept)
 
+    running: dict = {}  # task id -> "N steps, T s" of the tasks that run long
+
     def on_record(record: dict) -> None:
         nonlocal successes, finished
         store.append(record)
         done[record["task_id"]] = record
         successes, finished = successes + bool(record["success"]), finished + 1
+        running.pop(record["task_id"], None)
         bar.update(1)
-        bar.set_postfix(success=f"{successes}/{finished}")
+        _postfix()
+
+    def on_progress(task_id: str, steps: int, seconds: float) -> None:
+        running[task_id] = f"{steps} steps, {seconds:.0f} s"
+        _postfix()
+
+    def _postfix() -> None:
+        bar.set_postfix_str(f"success {successes}/{finished}"
+                            + "".join(f"; {t}: {news}" for t, news in sorted(running.items())))
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
                       str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
@@ -133,7 +144,7 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         if backend == "local":
             from .local import run_local
 
-            run_local(spec, todo, on_record, workers=workers, task_timeout=task_timeout)
+            run_local(spec, todo, on_record, workers=workers, task_timeout=task_timeout, on_progress=on_progress)
         else:
             from .ray_backend import run_ray
 

@@ -1,13 +1,15 @@
-"""``fetchbench grasps predict``: a suite task's observed cloud with the predicted grasps drawn on it."""
+"""``fetchbench grasps predict``: Contact-GraspNet's grasps on a suite task's observed target,
+written as data (.npz / .json) and drawn on the cloud (PNG), with the inference time."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..grasps.hand import gripper_outline_hand
-from ..grasps.show import save_3d_png
-from .predict import REGION_SIZE, PredictedGrasps
+if TYPE_CHECKING:
+    from .predict import PredictedGrasps
 
 
 def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: PredictedGrasps, out: str | os.PathLike,
@@ -19,6 +21,10 @@ def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: Predic
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+    from ..grasps.hand import gripper_outline_hand
+    from ..grasps.show import save_3d_png
+    from .predict import REGION_SIZE
 
     rng = rng if rng is not None else np.random.default_rng(0)
     centre = (np.percentile(target, 2, axis=0) + np.percentile(target, 98, axis=0)) / 2
@@ -43,10 +49,44 @@ def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: Predic
     return shown
 
 
-def cmd_predict(args) -> int:
-    from ..envs import fetch_clouds, make
-    from .predict import predict_from_clouds
+GRASP_FILE_SUFFIXES = (".npz", ".json")
 
+
+def grasps_path(png: str | os.PathLike, grasps_out: str | None) -> Path:
+    """Where the grasps go: ``--grasps-out``, else beside the PNG as ``<name>.npz``."""
+    path = Path(grasps_out) if grasps_out else Path(png).with_suffix(".npz")
+    if path.suffix not in GRASP_FILE_SUFFIXES:
+        raise ValueError(f"--grasps-out {path}: unknown format {path.suffix!r}; valid: {', '.join(GRASP_FILE_SUFFIXES)}")
+    return path
+
+
+def write_grasps(path: Path, grasps: PredictedGrasps, meta: dict) -> None:
+    """The grasps, best first, in the robot-base frame: ``T_base_hand`` (N, 4, 4) panda_hand
+    poses, ``widths`` (N,) m, ``scores`` (N,), ``contacts`` (N, 3) m; .npz (arrays, plus
+    ``meta`` as a JSON string) or .json (lists, ``meta`` beside them). Written atomically."""
+    import io
+    import json
+
+    from ..utils.io import atomic_write_bytes, atomic_write_text
+
+    arrays = {"T_base_hand": grasps.T_base_hand.astype(np.float32), "widths": grasps.widths.astype(np.float32),
+              "scores": grasps.scores.astype(np.float32), "contacts": grasps.contacts.astype(np.float32)}
+    if path.suffix == ".npz":
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **arrays, meta=np.array(json.dumps(meta, sort_keys=True)))
+        atomic_write_bytes(path, buffer.getvalue())
+    else:
+        body = {**meta, "frame": "robot base", **{k: np.round(v.astype(float), 6).tolist() for k, v in arrays.items()}}
+        atomic_write_text(path, json.dumps(body, indent=1) + "\n")
+
+
+def cmd_predict(args) -> int:
+    import time
+
+    from ..envs import fetch_clouds, make
+    from .predict import load_model, predict_from_clouds
+
+    out_grasps = grasps_path(args.out, args.grasps_out)  # a bad name: before anything runs
     suite = args.task.split("/")[0] if args.suite is None else args.suite
     env = make("FetchBench-v0", obs_mode="pointcloud", task_suite=suite)
     try:
@@ -54,19 +94,31 @@ def cmd_predict(args) -> int:
         clouds = fetch_clouds(obs)
     finally:
         env.close()
-    grasps = predict_from_clouds(clouds, args.grasp_model, np.random.default_rng(args.seed))
+    t0 = time.perf_counter()
+    model = load_model(args.grasp_model)
+    t1 = time.perf_counter()
+    grasps = predict_from_clouds(clouds, model, np.random.default_rng(args.seed))
+    t2 = time.perf_counter()
+    write_grasps(out_grasps, grasps, {"task_id": args.task, "grasp_model": args.grasp_model, "seed": args.seed,
+                                      "grasps": int(len(grasps.scores))})
     drawn = render_predictions_png(clouds.scene, clouds.target, grasps, args.out, top=args.top,
                                    title=f"{args.task} ({args.grasp_model})")
-    print(f"wrote {args.out}: {drawn} of {len(grasps.scores)} predicted grasps on the target of {args.task}")
+    print(f"{len(grasps.scores)} grasps on the target of {args.task}: inference {t2 - t1:.2f} s on the CPU "
+          f"(model load {t1 - t0:.2f} s)")
+    print(f"wrote {out_grasps} (poses T_base_hand, widths, scores, contacts; best first) and {args.out} "
+          f"(the best {drawn} drawn)")
     return 0
 
 
 def add_predict_command(sub) -> None:
-    p = sub.add_parser("predict", help="draw Contact-GraspNet's grasps on a suite task's observed target to a PNG")
+    p = sub.add_parser("predict", help="Contact-GraspNet's grasps on a suite task's observed target: .npz/.json and a PNG")
     p.add_argument("task", help="a suite task id, e.g. smoke/0003")
     p.add_argument("--suite", default=None, help="the suite (default: the task id's prefix)")
     p.add_argument("--out", required=True)
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"))
     p.add_argument("--top", type=int, default=10, help="draw the best this many")
     p.add_argument("--seed", type=int, default=0, help="seed of the point sampling")
+    p.add_argument("--grasps-out", default=None,
+                   help="the grasps (robot-base-frame poses, widths, scores, contacts) as .npz or .json "
+                        "(default: the PNG's path with .npz)")
     p.set_defaults(func=cmd_predict)

@@ -16,11 +16,18 @@ Modules: ``hand`` (geometry from ManiSkill's URDF), ``sampler`` (antipodal candi
 ``physics`` (the SAPIEN labeller), ``store`` (files, hashes, ``load_grasps``,
 ``objects_with_grasps``), ``build`` (resumable parallel builder), ``show`` (pictures).
 """
-from ..objects import catalog as _catalog
-from .hand import MAX_OPENING, TCP_OFFSET
-from .store import Grasps, add_grasp_stats, load_grasps, objects_with_grasps
+import importlib
 
-# `fetchbench objects stats` (and catalog.stats()) report grasp counts once this package is loaded.
-_catalog.register_stats_extension(add_grasp_stats)
+# Loaded on first use (trimesh, scipy): a command's flags are read without them. Loading
+# ``store`` registers the grasp counts with ``fetchbench objects stats`` (catalog.stats()).
+_NAMES = {"Grasps": "store", "load_grasps": "store", "objects_with_grasps": "store", "add_grasp_stats": "store",
+          "TCP_OFFSET": "hand", "MAX_OPENING": "hand"}
+
+
+def __getattr__(name: str):
+    if name in _NAMES:
+        return getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["Grasps", "load_grasps", "objects_with_grasps", "TCP_OFFSET", "MAX_OPENING"]

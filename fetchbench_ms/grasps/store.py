@@ -348,3 +348,13 @@ def add_grasp_stats(out: dict) -> None:
     unlabelled = stats.pop("unlabelled")
     out["grasps"] = {**stats, "unlabelled": len(unlabelled)}
     out["grasps_by_category"] = {c: f"{s['kept']}/{s['objects']} kept, {s['success_rate']:.0%} of trials held" for c, s in by_category.items()}
+
+
+def _register_with_catalog() -> None:
+    from ..objects import catalog
+
+    # `fetchbench objects stats` (and catalog.stats()) report grasp counts once this module is loaded.
+    catalog.register_stats_extension(add_grasp_stats)
+
+
+_register_with_catalog()

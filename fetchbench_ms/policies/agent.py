@@ -171,7 +171,14 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[to
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no policy checkpoint at {path}")
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # truncated or not a torch file: zip, pickle and EOF errors alike
+        raise ValueError(f"{path} is not a readable policy checkpoint ({type(error).__name__}: "
+                         f"{str(error).splitlines()[0] if str(error) else 'no detail'}); copy it again or "
+                         "re-export it (docs/imitation.md)") from None
+    if not isinstance(payload, dict) or not {"kind", "config", "state_dict"} <= set(payload):
+        raise ValueError(f"{path} is not a FetchBench policy checkpoint (no kind/config/state_dict)")
     if payload.get("version") != CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint version {payload.get('version')}, this code reads {CHECKPOINT_VERSION}")
     model = build_policy(payload["kind"], config_from_dict(payload["kind"], payload["config"]))

@@ -73,6 +73,19 @@ def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
     return path
 
 
+def check_checkpoint(method: str, checkpoint: str | None = None) -> Path:
+    """``resolve_checkpoint``, and the file loads as a policy of the method's kind (ValueError
+    otherwise: a truncated copy, another file, another kind's policy)."""
+    from .agent import load_model
+
+    path = resolve_checkpoint(method, checkpoint)
+    model, _ = load_model(path)
+    expected = POLICY_METHODS[method]
+    if model.kind != expected:
+        raise ValueError(f"{method} needs a {expected} checkpoint; {path} holds a {model.kind} policy")
+    return path
+
+
 @functools.lru_cache(maxsize=None)
 def _sha256(path: str) -> str:
     from ..utils.io import sha256_file

@@ -26,7 +26,8 @@ def add_commands(subparsers) -> None:
     s = sub.add_parser("sample", help="sample a task (scene, objects, robot, cameras) as JSON")
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--scene-type", default=None, help="one of the 13 scene types (default: the paper's mix)")
-    s.add_argument("--category", default=None, help="target support: Table, Shelf, Drawer or Basket")
+    s.add_argument("--category", default=None, help="target support: Table, Shelf, Drawer or Basket (or the "
+                   "target labels on_table, on_shelf, in_drawer, in_basket)")
     s.add_argument("--objects", type=int, default=15, help="objects to place (default 15)")
     s.add_argument("--split", default="train", choices=("train", "test"),
                    help="object split (default train, as the envs' seeded resets)")

@@ -46,7 +46,7 @@ from ..scenes import SCENE_TYPES, generate, get_scene_type
 from ..utils.canonical import canonical_lengths, canonical_quat
 from .camera_views import Occluders, camera_axes, sample_camera_pair
 from .objects import collision_vertices, load_object, object_ids, object_source
-from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, matrix_to_pose
+from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, category_name, matrix_to_pose
 
 SAMPLER_VERSION = "4"  # 4: poses on the grids of utils.canonical (machine-independent); 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
 
@@ -133,9 +133,7 @@ def scene_types_for(category: str | None) -> tuple[str, ...]:
 
 
 def _category_label(category: str) -> str:
-    if category not in CATEGORY_LABELS:
-        raise ValueError(f"unknown category {category!r}; valid: {', '.join(CATEGORY_LABELS)}")
-    return CATEGORY_LABELS[category]
+    return CATEGORY_LABELS[category_name(category)]  # Shelf or on_shelf alike
 
 
 def sample_task(

@@ -33,6 +33,19 @@ CATEGORY_LABELS = {
     "Basket": "in_basket",
 }
 
+
+def category_name(category: str | None) -> str | None:
+    """The category's name (``Shelf``) for either vocabulary: the env ids' names (``Table``,
+    ``Shelf``, ``Drawer``, ``Basket``) or the target labels that suites, records and results
+    use (``on_table``, ``on_shelf``, ``in_drawer``, ``in_basket``); ValueError naming both."""
+    if category is None or category in CATEGORY_LABELS:
+        return category
+    by_label = {label: name for name, label in CATEGORY_LABELS.items()}
+    if category in by_label:
+        return by_label[category]
+    raise ValueError(f"unknown category {category!r}; valid: {', '.join(CATEGORY_LABELS)} "
+                     f"(or the target labels {', '.join(by_label)})")
+
 #: The Franka arm's default joint configuration in the original (7 arm joints + 2 fingers).
 DEFAULT_QPOS = (-0.3127, -1.1997, 0.0578, -2.1768, 0.0649, 0.9786, 0.5300, 0.04, 0.04)
 

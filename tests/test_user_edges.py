@@ -1,0 +1,506 @@
+"""The user's edges (issue 40): bad files and paths end in one line and exit 2, never in a
+traceback or a success; the demos' .h5/.json pair is consistent for readers even across a
+kill; written files follow the umask."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from fetchbench_ms.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE = REPO / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _one_error_line(err: str, prefix: str = "fetchbench: error: ") -> str:
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert "Traceback" not in err, err[-3000:]
+    assert len(lines) == 1 and lines[0].startswith(prefix), err[-3000:]
+    return lines[0]
+
+
+def _cli(*args, without_root_powers=False, timeout=300):
+    """``python -m fetchbench_ms ARGS`` in a fresh process. ``without_root_powers``: as root,
+    without the capabilities that let root write where permissions say no (file modes bind)."""
+    prefix = []
+    if without_root_powers and os.geteuid() == 0:
+        prefix = ["setpriv", "--bounding-set=-dac_override,-dac_read_search"]
+    return subprocess.run([*prefix, sys.executable, "-m", "fetchbench_ms", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, env=ENV, cwd=REPO)
+
+
+def _copy_sample(folder: Path, name: str = "sample") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for suffix in (".h5", ".json"):
+        shutil.copy(SAMPLE.with_suffix(suffix), folder / f"{name}{suffix}")
+    return folder / f"{name}.h5"
+
+
+@pytest.fixture
+def truncated(tmp_path) -> Path:
+    """The shipped sample with its .h5 cut to half its size (its .json intact)."""
+    path = _copy_sample(tmp_path / "trunc")
+    with open(path, "r+b") as f:
+        f.truncate(path.stat().st_size // 2)
+    return path
+
+
+# ----------------------------------------------------------------------------- demos: paths
+def test_record_dir_that_is_a_file(tmp_path, capsys):
+    target = tmp_path / "afile"
+    target.write_text("x")
+    assert main(["demos", "run", "--record-dir", str(target), "-n", "1", "--no-progress"]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "is a file" in line and "valid: a folder" in line
+    assert target.read_text() == "x"
+
+
+def test_record_dir_without_write_permission(tmp_path):
+    folder = tmp_path / "locked"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        out = _cli("demos", "run", "--record-dir", folder, "-n", "1", "--no-progress", without_root_powers=True)
+    finally:
+        folder.chmod(0o755)
+    assert out.returncode == 2, out.stderr[-3000:]
+    line = _one_error_line(out.stderr)
+    assert "not writable" in line and "Permission denied" in line
+    assert list(folder.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- demos: files
+def test_stats_checks_the_h5_itself(truncated, tmp_path, capsys):
+    assert main(["demos", "stats", str(SAMPLE)]) == 0  # the intact sample passes
+    capsys.readouterr()
+    assert main(["demos", "stats", str(truncated)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "is not a readable trajectory file" in line and "truncated" in line
+    fake = _copy_sample(tmp_path / "fake")
+    fake.write_text("not an HDF5 file\n")
+    assert main(["demos", "stats", str(fake)]) == 2
+    assert "is not a readable trajectory file" in _one_error_line(capsys.readouterr().err)
+
+
+def test_stats_refuses_an_h5_that_lacks_listed_trajectories(tmp_path, capsys):
+    path = _copy_sample(tmp_path / "cut")
+    with h5py.File(path, "a") as f:
+        del f["traj_3"]
+    assert main(["demos", "stats", str(path)]) == 2
+    assert "traj_3" in _one_error_line(capsys.readouterr().err)
+
+
+def test_show_on_a_truncated_file(truncated, tmp_path, capsys):
+    assert main(["demos", "show", str(truncated), "--out", str(tmp_path / "v.gif")]) == 2
+    assert "is not a readable trajectory file" in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "v.gif").exists()
+
+
+def test_replay_tool_on_a_truncated_file(truncated):
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(truncated),
+                          "-o", "state", "--save-traj"], capture_output=True, text=True, timeout=300, env=ENV)
+    assert out.returncode == 2, out.stderr[-3000:]
+    assert "is not a readable trajectory file" in _one_error_line(out.stderr, "replay_trajectory: error: ")
+
+
+# ----------------------------------------------------------------------------- demos: the pair under a kill
+def _fake_parts(record_dir: Path, seeds: range) -> None:
+    """Finished generator parts (one per task seed) cut from the shipped sample's trajectories."""
+    from fetchbench_ms.demos.generate import parts_dir, part_path
+
+    meta = json.loads(SAMPLE.with_suffix(".json").read_text())
+    parts = parts_dir(record_dir, "FetchBench-v0", "trajectory")
+    parts.mkdir(parents=True, exist_ok=True)
+    with h5py.File(SAMPLE, "r") as source:
+        for seed in seeds:
+            episode = {**meta["episodes"][seed], "episode_id": 0}
+            path = part_path(parts, seed)
+            with h5py.File(path, "w") as f:
+                source.copy(f"traj_{seed}", f, "traj_0")
+            summary = {"seed": seed, "task_id": episode.get("task_id"), "tries": 1, "successes": 1,
+                       "frames": episode["elapsed_steps"], "failures": {}}
+            path.with_suffix(".json").write_text(json.dumps({
+                "env_info": meta["env_info"], "source_type": meta.get("source_type"),
+                "source_desc": meta.get("source_desc"), "episodes": [episode],
+                "fetchbench": {"summary": summary}}))
+
+
+KILLED_MERGE = textwrap.dedent("""
+    import importlib, os, signal, sys
+    generate = importlib.import_module("fetchbench_ms.demos.generate")
+    real = os.replace
+    def replace(src, dst):
+        real(src, dst)
+        if str(dst).endswith("trajectory.h5"):  # the .h5 is in, its .json not yet
+            os.kill(os.getpid(), signal.SIGKILL)
+    generate.os.replace = replace
+    generate.merge(sys.argv[1], "FetchBench-v0", "trajectory", int(sys.argv[2]))
+""")
+
+
+def test_demos_pair_stays_consistent_for_readers_across_a_kill(tmp_path, capsys):
+    from fetchbench_ms.demos.generate import merge
+    from fetchbench_ms.demos.stats import check_trajectory_file, demo_stats
+
+    record_dir = tmp_path / "demos"
+    _fake_parts(record_dir, range(3))
+    out = merge(record_dir, "FetchBench-v0", "trajectory", 3)
+    assert demo_stats(out)["trajectories"] == 3
+    _fake_parts(record_dir, range(3, 6))
+    killed = subprocess.run([sys.executable, "-c", KILLED_MERGE, str(record_dir), "6"], capture_output=True,
+                            text=True, timeout=300, env=ENV)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
+    with h5py.File(out, "r") as f:  # the kill came between the renames: a new .h5 beside the old .json
+        assert len([k for k in f if k.startswith("traj_")]) == 6
+    assert len(json.loads(out.with_suffix(".json").read_text())["episodes"]) == 3
+    with pytest.raises(ValueError, match="were not written together"):
+        check_trajectory_file(out)
+    assert main(["demos", "stats", str(out)]) == 2
+    assert "were not written together" in _one_error_line(capsys.readouterr().err)
+    merge(record_dir, "FetchBench-v0", "trajectory", 6)  # what a rerun of `demos run` does last
+    assert demo_stats(out)["trajectories"] == 6
+
+
+# ----------------------------------------------------------------------------- eval: a bad checkpoint
+def test_eval_with_a_truncated_policy_checkpoint_fails_before_any_task(tmp_path):
+    checkpoint = tmp_path / "policy.pt"
+    data = (REPO / "assets/checkpoints/imit_mlp.pt").read_bytes()
+    checkpoint.write_bytes(data[: len(data) // 2])
+    t0 = time.perf_counter()
+    out = _cli("eval", "--method", "e2e-mlp", "--suite", "smoke", "--tasks", "0:2", "--workers", "1",
+               "--policy-checkpoint", checkpoint, "--out", tmp_path / "eval")
+    assert out.returncode == 2, (out.stdout[-2000:], out.stderr[-3000:])
+    line = _one_error_line(out.stderr)
+    assert "is not a readable policy checkpoint" in line and str(checkpoint) in line
+    assert not (tmp_path / "eval" / "results.jsonl").exists()
+    assert time.perf_counter() - t0 < 120
+
+
+# ----------------------------------------------------------------------------- envs: one vocabulary or the other
+def test_env_category_accepts_both_vocabularies():
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+
+    for env_id, category in (("FetchBench-v0", "on_shelf"), ("FetchBench-Shelf-v0", "on_shelf"),
+                             ("FetchBench-v0", "Shelf")):
+        env = gym.make(env_id, category=category, obs_mode="none", render_backend="none")
+        try:
+            env.reset(seed=3)
+            assert env.unwrapped.category == "Shelf" and env.unwrapped._tasks[0].target_label == "on_shelf"
+        finally:
+            env.close()
+    with pytest.raises(ValueError, match="make FetchBench-Table-v0 or FetchBench-v0 with category='Table'"):
+        gym.make("FetchBench-Shelf-v0", category="on_table", obs_mode="none", render_backend="none")
+    with pytest.raises(ValueError, match="valid: Table, Shelf, Drawer, Basket .or the target labels on_table"):
+        gym.make("FetchBench-v0", category="shelves", obs_mode="none", render_backend="none")
+
+
+# ----------------------------------------------------------------------------- permissions
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
+def test_written_files_follow_the_umask(tmp_path, umask):
+    from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text
+
+    old = os.umask(umask)
+    try:
+        atomic_write_bytes(tmp_path / "a.png", b"png")
+        atomic_write_text(tmp_path / "job.json", "{}")
+    finally:
+        os.umask(old)
+    for name in ("a.png", "job.json"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o666 & ~umask, name
+
+
+def test_report_shows_paper_rows_and_no_absolute_paths(tmp_path):
+    from fetchbench_ms.evaluation import ResultsStore
+    from fetchbench_ms.evaluation.report import build_report
+
+    def run(folder, method, pipeline):
+        store = ResultsStore(tmp_path / folder)
+        store.open_run({"method": method, "source": "/home/someone/fetchbench/assets/suites/test.json.gz",
+                        "source_sha256": "0123456789abcdef" * 4,
+                        "method_options": {"retries": 1, "pipeline": pipeline}, "selection": {"suite": "test",
+                                                                                             "tasks": "0:2"}})
+        for i in range(2):
+            store.append({"task_id": f"test/{i:04d}", "seed": i, "env_id": "FetchBench-v0", "method": method,
+                          "success": i == 0, "failure": None if i == 0 else "grasp_failure", "category": "on_shelf",
+                          "scene_type": "LargeShelf", "computation_time": 1.0, "cspace_length": 2.0,
+                          "phases": {"pregrasp_plan": True, "approach_reached": True}})
+        return tmp_path / folder
+
+    old = os.umask(0o022)
+    try:
+        page = build_report([run("paper", "ga-mesh-rrt", "paper"), run("ours", "ga-mesh-rrt", "ours")],
+                            tmp_path / "report", render=False)
+    finally:
+        os.umask(old)
+    text = page.read_text()
+    assert "/home/someone" not in text and str(tmp_path) not in text
+    assert "suite test (sha256 0123456789ab)" in text and "../paper" in text
+    # one paper row, for the paper variant only: 52.9 % (GA-Mesh-RRTConnect), its funnel 94.7 / 90.3 / 68.1 %
+    assert text.count("FetchBench paper: ga-mesh-rrt") == 2  # the success table and the funnel
+    assert "52.9%" in text and "94.7%" in text and "68.1%" in text
+    for path in page.parent.iterdir():
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
+
+
+# ----------------------------------------------------------------------------- runs that do nothing
+def _load_script(path: Path, name: str):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ppo_time_limit_counts_training_only_and_a_run_with_nothing_to_train_fails(tmp_path):
+    """Start-up (env workers, first reset) takes seconds, far past a 1 ms limit: the run still
+    trains (one iteration, then the limit stops it). Resuming a finished run trains nothing:
+    one line and exit 1, before any env starts. rl_curve plots that short run where it ended
+    and refuses an empty one."""
+    ppo = _load_script(REPO / "baselines/ppo/ppo.py", "ppo")
+    args = ppo.Args(out_dir=str(tmp_path / "run"), num_envs=2, num_eval_envs=1, num_eval_episodes=1, num_steps=8,
+                    num_minibatches=2, update_epochs=1, total_timesteps=48, eval_freq=0, max_episode_steps=6,
+                    cuda=False, hidden=32, time_limit=0.001)
+    result = ppo.main(args)
+    assert result["trained_iterations"] == 1 and result["stopped_by_time"]
+    assert result["state"]["global_step"] == 16
+    flags = ["--out-dir", str(tmp_path / "run"), "--num-envs", "2", "--num-steps", "8", "--num-minibatches", "2",
+             "--total-timesteps", "16", "--no-cuda"]
+    t0 = time.perf_counter()
+    out = subprocess.run([sys.executable, str(REPO / "baselines/ppo/ppo.py"), *flags], capture_output=True, text=True,
+                         timeout=300, env=ENV, cwd=REPO)
+    assert out.returncode == 1, out.stderr[-3000:]
+    assert "trained 0 iterations" in out.stderr and "already at iteration 1 of 1" in out.stderr
+    assert time.perf_counter() - t0 < 60  # no env was started
+
+    curve = _load_script(REPO / "scripts/rl_curve.py", "rl_curve")
+    train = curve.read(tmp_path / "run" / "train.csv")
+    assert [b["steps"] for b in curve.binned(train, 10_000)] == [16]  # where the run ended, not 10,000
+    assert curve.main([str(tmp_path / "run"), "--png", str(tmp_path / "curve.png")]) == 0
+    assert (tmp_path / "curve.png").stat().st_size > 1000
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "train.csv").write_text(",".join(ppo.TRAIN_FIELDS) + "\n")
+    assert curve.main([str(empty), "--png", str(tmp_path / "empty.png")]) == 2
+    assert not (tmp_path / "empty.png").exists()
+
+
+# ----------------------------------------------------------------------------- docs run as pasted
+def _doc_block(doc: Path, heading: str) -> str:
+    """The first ```python block after ``heading`` in ``doc``."""
+    text = doc.read_text()
+    rest = text[text.index(heading):]
+    start = rest.index("```python\n") + len("```python\n")
+    return rest[start: rest.index("```", start)]
+
+
+def test_make_vec_env_example_of_docs_envs_runs_as_pasted(tmp_path):
+    script = tmp_path / "vec_example.py"
+    script.write_text(_doc_block(REPO / "docs/envs.md", "## Many environments on the CPU")
+                      + "    print('ok', obs.shape, reward.shape)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=600, env=ENV,
+                         cwd=tmp_path)
+    assert out.returncode == 0 and "ok (2," in out.stdout, out.stderr[-3000:]
+    assert "Traceback" not in out.stderr
+
+
+def test_fetch_clouds_reads_compact_pointcloud_obs():
+    import gymnasium as gym
+
+    import fetchbench_ms
+
+    env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud")
+    try:
+        obs, _ = env.reset(seed=3)
+    finally:
+        env.close()
+    clouds = fetchbench_ms.envs.fetch_clouds(obs)
+    seg = obs["pointcloud"]["seg"][0].cpu().numpy()
+    from fetchbench_ms.envs.pointcloud import COMPACT_SIZES, LABEL_TARGET
+
+    assert len(clouds.target) == COMPACT_SIZES["target"] == int((seg == LABEL_TARGET).sum())
+    assert len(clouds.scene) > 0 and len(clouds.robot) > 0 and clouds.scene.dtype == np.float32
+    assert clouds.target_segmentation_id == int(obs["extra"]["target_segmentation_id"][0])
+    with pytest.raises(ValueError, match="obs_mode='pointcloud' or 'compact_pointcloud'"):
+        fetchbench_ms.envs.fetch_clouds({"agent": {}})
+
+
+def test_grasps_predict_writes_the_grasps_and_the_inference_time(tmp_path, capsys):
+    old = os.umask(0o022)
+    try:
+        assert main(["grasps", "predict", "smoke/0003", "--grasp-model", "ours", "--out", str(tmp_path / "g.png"),
+                     "--grasps-out", str(tmp_path / "g.json")]) == 0
+    finally:
+        os.umask(old)
+    out = capsys.readouterr().out
+    assert "inference" in out and "model load" in out
+    body = json.loads((tmp_path / "g.json").read_text())
+    n = body["grasps"]
+    assert n > 0 and len(body["T_base_hand"]) == len(body["widths"]) == len(body["scores"]) == n
+    assert np.asarray(body["T_base_hand"]).shape == (n, 4, 4) and body["scores"] == sorted(body["scores"], reverse=True)
+    for name in ("g.png", "g.json"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == 0o644
+    assert main(["grasps", "predict", "smoke/0003", "--out", str(tmp_path / "h.png"), "--grasps-out",
+                 str(tmp_path / "h.csv")]) == 2
+    assert "valid: .npz, .json" in _one_error_line(capsys.readouterr().err)
+
+
+# ----------------------------------------------------------------------------- long silences
+def test_a_long_evaluation_task_reports_its_control_steps():
+    from fetchbench_ms.evaluation.local import PROGRESS_AFTER, run_local
+    from fetchbench_ms.evaluation.methods import RunnerSpec
+    from fetchbench_ms.evaluation.runner import open_suite, suite_items
+
+    suite, _, _ = open_suite("smoke")
+    items = suite_items(suite, range(1))
+    records, news = [], []
+    run_local(RunnerSpec("evaluation_faults:slow_steps"), items, records.append, workers=1, task_timeout=300,
+              on_progress=lambda task_id, steps, seconds: news.append((task_id, steps, seconds)))
+    assert len(records) == 1 and not records[0].get("error"), records
+    assert news and all(t == items[0].task_id and s >= PROGRESS_AFTER for t, _, s in news)
+    steps = [n for _, n, _ in news]
+    assert steps == sorted(steps) and steps[-1] > 0  # the episode's control steps, growing
+
+
+MAKE_TWO_ENVS = textwrap.dedent("""
+    import gymnasium as gym, fetchbench_ms
+    for seed in range(2):
+        env = gym.make("FetchBench-v0", obs_mode="rgb")
+        env.reset(seed=seed)
+        env.close()
+""")
+
+
+def test_expected_cpu_machine_warnings_are_one_line(tmp_path):
+    """ManiSkill's 'CUDA device was not found' (each env), 'not installed with git' (each
+    recorder) and 'does not support rendering' (each env without a renderer): on a CPU machine
+    one line says what renders; a replay says nothing of them."""
+    from fetchbench_ms.utils.sapien_device import render_device
+
+    out = subprocess.run([sys.executable, "-c", MAKE_TWO_ENVS], capture_output=True, text=True, timeout=600,
+                         env=ENV, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "CUDA device was not found" not in out.stderr
+    assert out.stderr.count("fetchbench: no CUDA device here") == (0 if render_device().is_cuda() else 1)
+    path = _copy_sample(tmp_path / "replay")
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(path), "-o",
+                          "state", "--count", "1", "--save-traj"], capture_output=True, text=True, timeout=600, env=ENV)
+    assert out.returncode == 0 and "1/1" in out.stdout + out.stderr, out.stderr[-3000:]
+    for noise in ("not installed with git", "does not support rendering", "CUDA device was not found"):
+        assert noise not in out.stdout + out.stderr, noise
+
+
+BAD_FLAGS = textwrap.dedent("""
+    import sys
+    from fetchbench_ms.cli import main
+    codes = []
+    for argv in (["eval", "--bogus"], ["eval", "--pipeline", "nope"], ["demos", "run", "--num-procs", "x"],
+                 ["demos", "stats", "/no/such/file.h5"], ["scenes", "nope"]):
+        try:
+            codes.append(main(argv))
+        except SystemExit as exit:
+            codes.append(exit.code)
+    heavy = sorted(m for m in ("torch", "mani_skill", "sapien", "trimesh") if m in sys.modules)
+    print(codes, heavy)
+""")
+
+
+def test_bad_flags_are_answered_before_torch_and_the_simulator_load():
+    out = subprocess.run([sys.executable, "-c", BAD_FLAGS], capture_output=True, text=True, timeout=120, env=ENV)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip() == "[2, 2, 2, 2, 2] []", out.stdout
+
+
+def test_eval_pipeline_flag_spells_the_planners_pipelines():
+    from fetchbench_ms.evaluation.cli import PIPELINE_NAMES
+    from fetchbench_ms.solutions.sense_plan_act import PIPELINES
+
+    assert PIPELINE_NAMES == tuple(PIPELINES)
+
+
+def test_ppo_bad_flags_are_one_line_before_torch_loads():
+    probe = textwrap.dedent("""
+        import runpy, sys
+        sys.argv = ["ppo.py", "--num-minibatches", "3"]
+        try:
+            runpy.run_path("baselines/ppo/ppo.py", run_name="__main__")
+        except SystemExit as exit:
+            print("exit", exit.code, "torch" in sys.modules, "mani_skill" in sys.modules)
+    """)
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, env=ENV,
+                         cwd=REPO)
+    assert out.stdout.strip() == "exit 2 False False", (out.stdout, out.stderr[-2000:])
+    assert "not divisible by num_minibatches 3" in _one_error_line(out.stderr, "ppo.py: error: ")
+
+
+# ----------------------------------------------------------------------------- ManiSkill's own baselines
+MANISKILL_EVAL_CONTRACT = textwrap.dedent("""
+    # What ManiSkill's examples/baselines (bc, diffusion_policy, act) do to evaluate on the CPU:
+    # plain gymnasium vector envs of CPUGymWrapper envs (no autoreset argument, forkserver
+    # workers), then info["final_info"] read as one dict per env with its "episode" metrics.
+    import sys
+    import gymnasium as gym
+    import numpy as np
+    from mani_skill.utils.wrappers import CPUGymWrapper
+
+    def thunk():
+        env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", max_episode_steps=3,
+                       render_backend="none", reconfiguration_freq=1)
+        return CPUGymWrapper(env, ignore_terminations=True, record_metrics=True)
+
+    if __name__ == "__main__":
+        n = int(sys.argv[1])
+        envs = gym.vector.SyncVectorEnv([thunk]) if n == 1 else gym.vector.AsyncVectorEnv([thunk] * n,
+                                                                                           context="forkserver")
+        envs.reset(seed=0)
+        while True:
+            _, _, _, truncated, info = envs.step(np.zeros(envs.action_space.shape, dtype=np.float32))
+            if truncated.any():
+                print("episode lengths", [int(f["episode"]["episode_len"]) for f in info["final_info"]])
+                break
+        envs.close()
+""")
+
+
+@pytest.mark.parametrize("num_envs", [1, 2])
+def test_maniskill_baselines_launcher_registers_the_ids_and_gives_final_info(tmp_path, num_envs):
+    script = tmp_path / "evaluate_like_maniskill.py"
+    script.write_text(MANISKILL_EVAL_CONTRACT)
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(script), str(num_envs)],
+                         capture_output=True, text=True, timeout=600, env=ENV, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"episode lengths {[3] * num_envs}" in out.stdout
+    # without the launcher: the ids are unknown, and with them gymnasium 1.x gives no final_info
+    plain = subprocess.run([sys.executable, str(script), "1"], capture_output=True, text=True, timeout=600, env=ENV,
+                           cwd=tmp_path)
+    assert plain.returncode != 0 and "FetchBench-v0" in plain.stderr
+    bad = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(tmp_path / "none.py")],
+                         capture_output=True, text=True, timeout=120, env=ENV)
+    assert bad.returncode == 2 and "is not a Python file" in bad.stderr
+
+
+def test_eval_where_every_task_ended_in_an_error_exits_non_zero(tmp_path, monkeypatch, capsys):
+    from fetchbench_ms.evaluation.runner import open_suite, suite_items
+
+    suite, _, _ = open_suite("smoke")
+    seeds = [item.seed for item in suite_items(suite, range(2))]
+    monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", json.dumps({str(s): "raise" for s in seeds}))
+    assert main(["eval", "--method", "evaluation_faults:faulty", "--suite", "smoke", "--tasks", "0:2",
+                 "--out", str(tmp_path / "eval")]) == 1
+    assert "every one of the 2 tasks ended in an error: nothing was evaluated" in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 from pathlib import Path
 
 from fetchbench_ms.cli import main
@@ -139,3 +140,15 @@ def test_packed_bytes_are_reproducible(tmp_path):
         assert (a / name).read_bytes() == (b / name).read_bytes()
     data = (a / "results.jsonl.gz").read_bytes()
     assert data[3:10] == b"\0\0\0\0\0\x02\xff"  # no file name, mtime 0, level 9, OS "unknown"
+
+
+def test_packed_folder_follows_the_umask(tmp_path):
+    """A packed run is readable by others where the umask says so (a staging folder from
+    mkdtemp is 0700, and the rename would keep that)."""
+    old = os.umask(0o022)
+    try:
+        run = pack(make_run(tmp_path / "a", TWO), "r", tmp_path / "runs")
+    finally:
+        os.umask(old)
+    assert run.stat().st_mode & 0o777 == 0o755
+    assert (run / "run.json").stat().st_mode & 0o777 == 0o644

@@ -22,7 +22,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json
+from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, current_umask
 from .metrics import CATEGORIES, summarize
 from .store import MANIFEST_FILE, PACKED_RESULTS_FILE, ResultsStore
 
@@ -125,6 +125,7 @@ def pack(run_dir, name: str, runs_dir=None, force: bool = False) -> Path:
                              f"differ); choose another --name, or --force to replace it")
     runs_dir.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=runs_dir))
+    os.chmod(staging, 0o777 & ~current_umask())  # mkdtemp's 0700 would outlive the rename
     try:
         for file, data in files.items():
             atomic_write_bytes(staging / file, data)

@@ -2,10 +2,11 @@
 (``solutions.worlds.MESH_WORLD_CACHE``): seconds a task, and the trajectories compared.
 
 Runs ``demos.generate.run_task`` (the generator's worker: up to --per-task successful
-trajectories from up to 8 tries) on the suite's tasks --start .. --start + --tasks - 1 in this
-process, once with ``FETCHBENCH_MESH_WORLD_CACHE=0`` (every world built from scratch) and once
-with the cache, and checks that both made the same trajectories (every dataset of every
-``traj_N``, and the episodes' JSON). Prints seconds a task each way and the speed-up.
+trajectories from up to 8 tries) on the suite's tasks --start .. --start + --tasks - 1, once
+with ``FETCHBENCH_MESH_WORLD_CACHE=0`` (every world built from scratch) and once with the cache,
+each in a process of its own after an untimed warm-up task, and checks that both made the same
+trajectories (every dataset of every ``traj_N``, and the episodes' JSON). Prints seconds a task
+each way and the speed-up.
 
     PYTHONPATH=. python scripts/bench_expert_world.py --tasks 3
 """
@@ -15,6 +16,8 @@ import argparse
 import json
 import os
 import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -39,45 +42,64 @@ def same_part(a: Path, b: Path) -> bool:
     return ja == jb
 
 
+def run_mode(args) -> None:
+    """One mode in this process (the parent's subprocess): a warm-up task, then the tasks."""
+    from fetchbench_ms.demos.generate import DemoJob, run_task, suite_task_ids
+    from fetchbench_ms.solutions import worlds
+
+    os.environ["FETCHBENCH_MESH_WORLD_CACHE"] = "0" if args.mode == "rebuilt" else "1"
+    job = DemoJob(task_suite=args.suite, per_task=args.per_task)
+    ids = suite_task_ids(job.env_id, args.suite)
+    out = Path(args.parts)
+    (out / "warm-up").mkdir(parents=True)
+    # Untimed: the env, the objects' and grasps' caches. Another task than the timed ones, so
+    # that each timed task starts with a new scene, as in the generator's workers.
+    warm = args.start + args.tasks if args.start + args.tasks < len(ids) else args.start - 1
+    run_task(job, out / "warm-up", warm, ids[warm])
+    seconds = []
+    for seed in range(args.start, args.start + args.tasks):
+        t = time.perf_counter()
+        summary = run_task(job, out, seed, ids[seed])
+        seconds.append(time.perf_counter() - t)
+        print(f"{ids[seed]} {args.mode}: {seconds[-1]:.1f} s, {summary['successes']} trajectories of "
+              f"{summary['tries']} tries", flush=True)
+    (out / "seconds.json").write_text(json.dumps({"seconds": seconds, "hits": worlds.MESH_WORLD_CACHE.hits}))
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--suite", default="train", choices=["train", "val"])
     p.add_argument("--start", type=int, default=0)
     p.add_argument("--tasks", type=int, default=3)
     p.add_argument("--per-task", type=int, default=5)
+    p.add_argument("--mode", choices=["rebuilt", "cached"], help=argparse.SUPPRESS)  # (a subprocess's)
+    p.add_argument("--parts", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.tasks < 1:
         p.error("--tasks must be >= 1")
-    from fetchbench_ms.demos.generate import DemoJob, part_path, run_task, suite_task_ids
-    from fetchbench_ms.solutions import worlds
+    if args.mode:
+        return run_mode(args)
+    from fetchbench_ms.demos.generate import part_path
 
-    job = DemoJob(task_suite=args.suite, per_task=args.per_task)
-    ids = suite_task_ids(job.env_id, args.suite)[args.start:args.start + args.tasks]
-    modes = ("rebuilt", "cached")
-    seconds = {m: [] for m in modes}
+    # Each mode in a fresh process, as a generator's worker runs: a task's trajectories depend
+    # on its seed and on the task the worker's env was on before (a reset to the same task
+    # again skips the scene rebuild and starts from other physics state).
+    seconds, hits = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
-        parts = {m: Path(tmp) / m for m in ("warm-up", *modes)}
-        for folder in parts.values():
-            folder.mkdir()
-        # Untimed: the env, the renderer-free scene build, the objects' and grasps' caches.
-        run_task(job, parts["warm-up"], args.start, ids[0])
-        for i, task_id in enumerate(ids):
-            # Each task in both modes, in turn first (what one run warms, the other reuses).
-            for mode in (modes if i % 2 == 0 else modes[::-1]):
-                os.environ["FETCHBENCH_MESH_WORLD_CACHE"] = "0" if mode == "rebuilt" else "1"
-                worlds.MESH_WORLD_CACHE.__init__()  # a task starts with an empty cache
-                t = time.perf_counter()
-                summary = run_task(job, parts[mode], args.start + i, task_id)
-                seconds[mode].append(time.perf_counter() - t)
-                print(f"{task_id} {mode}: {seconds[mode][-1]:.1f} s, {summary['successes']} trajectories of "
-                      f"{summary['tries']} tries", flush=True)
-        same = all(same_part(part_path(parts["rebuilt"], args.start + i), part_path(parts["cached"], args.start + i))
-                   for i in range(len(ids)))
-    cache = worlds.MESH_WORLD_CACHE
+        for mode in ("rebuilt", "cached"):
+            folder = Path(tmp) / mode
+            subprocess.run([sys.executable, __file__, "--suite", args.suite, "--start", str(args.start), "--tasks",
+                            str(args.tasks), "--per-task", str(args.per_task), "--mode", mode, "--parts", str(folder)],
+                           check=True)
+            record = json.loads((folder / "seconds.json").read_text())
+            seconds[mode], hits[mode] = record["seconds"], record["hits"]
+        same = all(same_part(part_path(Path(tmp) / "rebuilt", seed), part_path(Path(tmp) / "cached", seed))
+                   for seed in range(args.start, args.start + args.tasks))
+    rebuilt, cached = sum(seconds["rebuilt"]), sum(seconds["cached"])
     print(f"machine: {platform.node()}, {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}")
-    print(f"{len(ids)} {args.suite} tasks from {args.start}, one process: rebuilt {sum(seconds['rebuilt']):.1f} s, "
-          f"cached {sum(seconds['cached']):.1f} s: {sum(seconds['rebuilt']) / sum(seconds['cached']):.2f}x; "
-          f"the same trajectories: {same}; the last task's furniture sets reused {cache.hits} times")
+    print(f"{args.tasks} {args.suite} tasks from {args.start}, one process each way: rebuilt {rebuilt:.1f} s, "
+          f"cached {cached:.1f} s: {rebuilt / cached:.2f}x; the same trajectories: {same}; "
+          f"the furniture's sets reused {hits['cached']} times")
     if not same:
         raise SystemExit("the cached worlds made other trajectories")
 

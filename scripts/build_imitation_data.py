@@ -78,7 +78,8 @@ def main(argv=None) -> int:
     start, end = parse_tasks(args.tasks)
     if args.procs < 1 or args.per_task < 1 or args.chunk < 1 or args.frame_stride < 1:
         raise SystemExit("--procs, --per-task, --chunk and --frame-stride must be >= 1")
-    from fetchbench_ms.demos.generate import DemoJob, TIMING_FILE, generate, parts_dir, suite_task_ids
+    from fetchbench_ms.demos.generate import (TIMING_FILE, DemoJob, done_parts, generate, parts_dir,
+                                              suite_task_ids)
 
     n_suite = len(suite_task_ids(ENV_ID, "train"))
     if end > n_suite:
@@ -88,14 +89,17 @@ def main(argv=None) -> int:
     job = DemoJob(env_id=ENV_ID, task_suite="train", per_task=args.per_task)
 
     # 1. demos (resumes from finished parts; merging is redone, its bytes the same)
+    parts = parts_dir(root / "demos", ENV_ID, name)
+    tasks_before = len(set(done_parts(parts)) & set(range(start, end)))
     t0 = time.perf_counter()
     merged = generate(job, root / "demos", name, end - start, only_count_success=False, num_procs=args.procs,
                       start_seed=start, progress=False)
     t_generate = time.perf_counter() - t0
     meta = json.loads(merged.with_suffix(".json").read_text())
     trajectories = len(meta["episodes"])
-    timing = [json.loads(line) for line in (parts_dir(root / "demos", ENV_ID, name) / TIMING_FILE).read_text().splitlines()
-              if line.strip()] if (parts_dir(root / "demos", ENV_ID, name) / TIMING_FILE).is_file() else []
+    timing_file = parts / TIMING_FILE
+    timing = [json.loads(line) for line in timing_file.read_text().splitlines() if line.strip()] \
+        if timing_file.is_file() else []
     timed = {t["seed"]: t for t in timing if start <= t["seed"] < end}  # (a resumed task's last timing)
     core_hours = sum(t["wall_time"] for t in timed.values()) / 3600
     timed_trajectories = sum(t["successes"] for t in timed.values())
@@ -124,7 +128,7 @@ def main(argv=None) -> int:
 
     # 3. throughput
     print(f"training files: {after['demos']} demos, {after['frames']} frames in {root / 'data'}")
-    if before["complete"] and t_generate < 60 and new_frames == 0:
+    if before["complete"] and tasks_before == end - start:
         print("nothing left to do: the demos and training files were already complete")
     if timed_trajectories and core_hours > 0:
         rate = timed_trajectories / core_hours

@@ -28,11 +28,11 @@ def test_bad_task_ranges_are_refused(tmp_path):
 
 
 def test_one_task_to_training_files_resumes_with_the_same_bytes(tmp_path, capsys):
-    """Train task 0 (one trajectory, its first 6 steps converted in policy_pointcloud) in two
+    """Train task 1 (one trajectory, its first 6 steps converted in policy_pointcloud) in two
     roots: the same parts and training files; the same command again in a finished root keeps
     every file as it is."""
     build = _build()
-    args = ["--tasks", "0:1", "--procs", "1", "--per-task", "1", "--chunk", "1", "--first-steps", "6"]
+    args = ["--tasks", "1:2", "--procs", "1", "--per-task", "1", "--chunk", "1", "--first-steps", "6"]
     assert build.main(["--root", str(tmp_path / "a"), *args]) == 0
     out = capsys.readouterr().out
     assert "frames a second" in out and "trajectories a core-hour" in out

@@ -127,12 +127,25 @@ def one_thread_per_spawned_worker():
                 os.environ[k] = v
 
 
-def _start_worker(env_id: str, env_kwargs: dict, obs_mode: str) -> None:
+def render_backends(gpus: int) -> list[str] | None:
+    """The render backends workers take in turn: ``cuda:0`` .. ``cuda:{gpus - 1}`` for
+    ``gpus`` > 1 (a machine's GPUs share the render workers), None for ManiSkill's default."""
+    if gpus < 1:
+        raise ValueError(f"render GPUs must be >= 1, got {gpus}")
+    return [f"cuda:{i}" for i in range(gpus)] if gpus > 1 else None
+
+
+def _with_backend(env_kwargs: dict, backend: str | None) -> dict:
+    return env_kwargs if backend is None else {**env_kwargs, "render_backend": backend}
+
+
+def _start_worker(env_id: str, env_kwargs: dict, obs_mode: str, backends: list[str] | None, slots) -> None:
     global _worker_renderer
     import torch
 
     torch.set_num_threads(1)  # (see WORKER_THREAD_VARS)
-    _worker_renderer = StateRenderer(env_id, env_kwargs, obs_mode)
+    backend = None if backends is None else backends[slots.get() % len(backends)]
+    _worker_renderer = StateRenderer(env_id, _with_backend(env_kwargs, backend), obs_mode)
 
 
 def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
@@ -140,12 +153,13 @@ def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
 
 
 def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob], workers: int = 1,
-                          obs_mode: str = COMPACT_OBS_MODE) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+                          obs_mode: str = COMPACT_OBS_MODE,
+                          backends: list[str] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """The clouds of every job (``StateRenderer.render`` in ``obs_mode``), job by job in order,
     from ``workers`` processes with an env each (a job to whichever is free), or from this
-    process for 1."""
+    process for 1. ``backends`` (``render_backends``): worker i renders on backends[i % n]."""
     if workers <= 1 or len(jobs) <= 1:
-        renderer = StateRenderer(env_id, env_kwargs, obs_mode)
+        renderer = StateRenderer(env_id, _with_backend(env_kwargs, backends and backends[0]), obs_mode)
         try:
             for job in jobs:
                 yield renderer.render(job)
@@ -153,7 +167,12 @@ def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob], 
             renderer.close()
         return
     # Spawned, as ManiSkill's replay tool starts its workers (warp does not survive a fork).
+    context = mp.get_context("spawn")
+    n = min(workers, len(jobs))
+    slots = context.Queue()  # each worker takes its index, and with it its render backend
+    for i in range(n):
+        slots.put(i)
     with one_thread_per_spawned_worker():
-        pool = mp.get_context("spawn").Pool(min(workers, len(jobs)), _start_worker, (env_id, env_kwargs, obs_mode))
+        pool = context.Pool(n, _start_worker, (env_id, env_kwargs, obs_mode, backends, slots))
     with pool:
         yield from pool.imap(_render_in_worker, jobs)

@@ -1,6 +1,6 @@
 """Train tasks -> expert demos -> imitation training files, in one resumable command.
 
-    python scripts/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda \
+    python scripts/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda --render-gpus 4 \
         [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5]
 
 1. ``fetchbench_ms.demos.generate``: the expert on ``train`` tasks START..END-1 (episode seed i
@@ -73,6 +73,7 @@ def main(argv=None) -> int:
     p.add_argument("--frame-stride", type=int, default=1, help="keep every K-th step of each stage (the converter's)")
     p.add_argument("--chunk", type=int, default=128, help="demos per training file")
     p.add_argument("--device", default="cpu", help="the converter's --device (cuda on a GPU machine)")
+    p.add_argument("--render-gpus", type=int, default=1, help="the converter's --render-gpus (4 on a 4-GPU machine)")
     p.add_argument("--first-steps", type=int, default=None, help="convert only each demo's first steps (tests)")
     args = p.parse_args(argv)
     start, end = parse_tasks(args.tasks)
@@ -114,7 +115,7 @@ def main(argv=None) -> int:
     before = _manifest_totals(manifest)
     convert_args = ["--traj-path", str(merged), "--out", str(root / "data"), "--chunk", str(args.chunk),
                     "--num-envs", str(args.procs), "--device", args.device, "--obs-mode", args.obs_mode,
-                    "--frame-stride", str(args.frame_stride)]
+                    "--frame-stride", str(args.frame_stride), "--render-gpus", str(args.render_gpus)]
     if args.first_steps is not None:
         convert_args += ["--first-steps", str(args.first_steps)]
     t0 = time.perf_counter()

@@ -46,6 +46,7 @@ from pathlib import Path
 import h5py
 
 from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
+from fetchbench_ms.render_env_states import render_backends
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_env_kwargs, refuse_test_objects, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
@@ -195,6 +196,9 @@ def main(argv=None) -> int:
                         f"cloud, then --sizes; the shipped checkpoints') or {POLICY_OBS_MODE} (160x120 cameras, the "
                         "policies' 1,792 points made by the env itself: what a policy trained on it reads at "
                         "deployment; always rendered from the state-only replay's env states)")
+    p.add_argument("--render-gpus", type=int, default=1,
+                   help="render workers spread over GPUs cuda:0 .. N-1 (a machine of several GPUs; the frames are "
+                        "the same on GPUs of one model); 1: ManiSkill's default device")
     p.add_argument("--overlap-replay", action="store_true",
                    help="K > 1: run the next chunk's state-only replay in the background while this chunk's "
                         "kept frames are rendered (the same output)")
@@ -202,6 +206,9 @@ def main(argv=None) -> int:
     if args.frame_stride < 1:
         raise SystemExit(f"--frame-stride takes an integer >= 1 (converted steps per frame kept), "
                          f"got {args.frame_stride}")
+    if args.render_gpus < 1:
+        raise SystemExit(f"--render-gpus must be >= 1, got {args.render_gpus}")
+    backends = render_backends(args.render_gpus)
     policy_obs = args.obs_mode == POLICY_OBS_MODE
     if policy_obs and args.sizes != ",".join(str(v) for v in POLICY_SIZES.values()):
         raise SystemExit(f"--sizes is the compact cloud's subsampling; {POLICY_OBS_MODE} makes its own "
@@ -288,7 +295,7 @@ def main(argv=None) -> int:
             t = time.perf_counter()
             data = convert_episodes(converted, replay.work / "demos.h5", sizes, device=args.device, log=log,
                                     frame_stride=args.frame_stride, render_workers=min(args.num_envs, len(chunk)),
-                                    render_obs_mode=args.obs_mode)
+                                    render_obs_mode=args.obs_mode, render_backends=backends)
             for e in data["episodes"]:
                 e["source"] = source.name  # the chunk file is a temporary copy
             size = write_training_file(target, data)

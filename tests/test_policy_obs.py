@@ -191,3 +191,28 @@ def test_deployment_steps_observe_what_the_conversion_renders(state_replay):
     finally:
         env.close()
         renderer.close()
+
+
+def test_render_workers_take_the_render_backends_in_turn(state_replay):
+    """``--render-gpus N``: worker i renders on cuda:{i % N}. Here two CPU workers given the two
+    spellings of the CPU renderer render what one process renders, job by job in order."""
+    import h5py
+    from mani_skill.trajectory.utils import index_dict
+
+    from fetchbench_ms.render_env_states import RenderJob, render_backends, render_compact_clouds
+
+    assert render_backends(1) is None and render_backends(3) == ["cuda:0", "cuda:1", "cuda:2"]
+    with pytest.raises(ValueError, match=">= 1"):
+        render_backends(0)
+    converted = state_replay / "demos.state.pd_joint_delta_pos.physx_cpu.h5"
+    meta = json.loads(converted.with_suffix(".json").read_text())
+    episode = meta["episodes"][0]
+    with h5py.File(converted, "r") as f:
+        states = index_dict(f[f"traj_{episode['episode_id']}"]["env_states"], slice(None))
+    jobs = [RenderJob(episode["reset_kwargs"], int(episode["episode_seed"]), np.array(steps),
+                      index_dict(states, np.array(steps))) for steps in ([0, 3], [6])]
+    env_id, env_kwargs = meta["env_info"]["env_id"], meta["env_info"]["env_kwargs"]
+    one = list(render_compact_clouds(env_id, env_kwargs, jobs, 1, POLICY_OBS_MODE))
+    two = list(render_compact_clouds(env_id, env_kwargs, jobs, 2, POLICY_OBS_MODE, ["cpu", "sapien_cpu"]))
+    assert [len(xyz) for xyz, _ in two] == [2, 1]
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(one, two))

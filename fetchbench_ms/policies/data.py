@@ -291,7 +291,7 @@ class _KeptFrames:
 
 def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes: dict = POLICY_SIZES,
                      device: str = "cpu", log=print, frame_stride: int = 1, render_workers: int = 1,
-                     render_obs_mode: str = COMPACT_OBS_MODE) -> dict:
+                     render_obs_mode: str = COMPACT_OBS_MODE, render_backends: list[str] | None = None) -> dict:
     """Frames of every converted trajectory (the replay tool's ``pd_joint_delta_pos`` output)
     that matches a source demo, in the training format's arrays (see the module docstring),
     with the source's stage labels.
@@ -355,7 +355,7 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
             jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
                               index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
             clouds = render_compact_clouds(converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers,
-                                           render_obs_mode)
+                                           render_obs_mode, render_backends)
         t = time.perf_counter()
         for demo, (xyz, label) in zip(kept, clouds):
             if policy_obs:  # the obs mode's own points, as a policy reads them at deployment

@@ -30,7 +30,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .envs.pointcloud import compact_pointcloud_obs, compact_seed
+from .envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE, compact_pointcloud_obs, compact_seed
 
 
 @dataclass
@@ -43,41 +43,54 @@ class RenderJob:
     states: dict  # those steps' env states: ManiSkill's nested dict of [F, ...] arrays
 
 
-def render_env_kwargs(env_kwargs: dict) -> dict:
-    """The recorded env kwargs with the raw point-cloud obs mode; a recording made without a
-    renderer (``render_backend="none"``) gets ManiSkill's default one, as the replay tool gives it."""
+def render_env_kwargs(env_kwargs: dict, obs_mode: str = "pointcloud") -> dict:
+    """The recorded env kwargs with ``obs_mode`` (the raw point-cloud one by default); a recording
+    made without a renderer (``render_backend="none"``) gets ManiSkill's default one, as the
+    replay tool gives it."""
     kwargs = {k: v for k, v in env_kwargs.items() if k != "render_backend" or v not in (None, "none")}
-    kwargs["obs_mode"] = "pointcloud"
+    kwargs["obs_mode"] = obs_mode
     return kwargs
 
 
 class StateRenderer:
-    """One env of ``env_id`` that renders recorded env states into compact clouds."""
+    """One env of ``env_id`` that renders recorded env states into compact clouds, or, with
+    ``obs_mode="policy_pointcloud"``, into the policies' points by that obs mode itself."""
 
-    def __init__(self, env_id: str, env_kwargs: dict):
+    def __init__(self, env_id: str, env_kwargs: dict, obs_mode: str = COMPACT_OBS_MODE):
         import gymnasium as gym
 
         import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0, also in a spawned worker)
 
-        self.env = gym.make(env_id, **render_env_kwargs(env_kwargs))
+        if obs_mode not in (COMPACT_OBS_MODE, POLICY_OBS_MODE):
+            raise ValueError(f"unknown obs mode {obs_mode!r} to render states in; valid: {COMPACT_OBS_MODE}, "
+                             f"{POLICY_OBS_MODE}")
+        self.obs_mode = obs_mode
+        self.env = gym.make(env_id, **render_env_kwargs(env_kwargs, "pointcloud" if obs_mode == COMPACT_OBS_MODE
+                                                        else obs_mode))
 
-    def observation(self, state: dict) -> dict:
-        """The env's raw point-cloud observation of one env state (ManiSkill's nested dict of
-        [1, ...] arrays) of the task the env was last reset to."""
+    def observation(self, state: dict, step: int = 0) -> dict:
+        """The env's observation of one env state (ManiSkill's nested dict of [1, ...] arrays) of
+        the task the env was last reset to, as the env makes it at control step ``step`` (its
+        step counter, which seeds the point draws, is set to it: a state set leaves it alone)."""
         env = self.env.unwrapped
         env.set_state_dict(state)
+        env._elapsed_steps[:] = step
         return env.get_obs()
 
     def render(self, job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
-        """(xyz [F, M, 3] float16, seg [F, M] uint8): the compact cloud of each of the job's steps."""
+        """(xyz [F, M, 3] float16, seg [F, M] uint8): the compact cloud of each of the job's steps;
+        for ``policy_pointcloud``, the obs mode's points and labels ([F, N, 3], [F, N])."""
         from mani_skill.trajectory.utils import index_dict
         from mani_skill.utils import common
 
         self.env.reset(**job.reset_kwargs)
         xyz, seg = [], []
         for i, step in enumerate(job.steps):
-            obs = self.observation(index_dict(job.states, slice(i, i + 1)))
-            cloud = compact_pointcloud_obs(obs, [compact_seed(job.episode_seed, int(step))])["pointcloud"]
+            obs = self.observation(index_dict(job.states, slice(i, i + 1)), int(step))
+            if self.obs_mode == POLICY_OBS_MODE:
+                cloud = {"xyz": obs["pointcloud"]["points"], "seg": obs["pointcloud"]["point_label"]}
+            else:
+                cloud = compact_pointcloud_obs(obs, [compact_seed(job.episode_seed, int(step))])["pointcloud"]
             xyz.append(common.to_numpy(cloud["xyz"])[0])
             seg.append(common.to_numpy(cloud["seg"])[0])
         return np.stack(xyz), np.stack(seg)
@@ -114,24 +127,39 @@ def one_thread_per_spawned_worker():
                 os.environ[k] = v
 
 
-def _start_worker(env_id: str, env_kwargs: dict) -> None:
+def render_backends(gpus: int) -> list[str] | None:
+    """The render backends workers take in turn: ``cuda:0`` .. ``cuda:{gpus - 1}`` for
+    ``gpus`` > 1 (a machine's GPUs share the render workers), None for ManiSkill's default."""
+    if gpus < 1:
+        raise ValueError(f"render GPUs must be >= 1, got {gpus}")
+    return [f"cuda:{i}" for i in range(gpus)] if gpus > 1 else None
+
+
+def _with_backend(env_kwargs: dict, backend: str | None) -> dict:
+    return env_kwargs if backend is None else {**env_kwargs, "render_backend": backend}
+
+
+def _start_worker(env_id: str, env_kwargs: dict, obs_mode: str, backends: list[str] | None, slots) -> None:
     global _worker_renderer
     import torch
 
     torch.set_num_threads(1)  # (see WORKER_THREAD_VARS)
-    _worker_renderer = StateRenderer(env_id, env_kwargs)
+    backend = None if backends is None else backends[slots.get() % len(backends)]
+    _worker_renderer = StateRenderer(env_id, _with_backend(env_kwargs, backend), obs_mode)
 
 
 def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
     return _worker_renderer.render(job)
 
 
-def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob],
-                          workers: int = 1) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """The clouds of every job (``StateRenderer.render``), job by job in order, from ``workers``
-    processes with an env each (a job to whichever is free), or from this process for 1."""
+def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob], workers: int = 1,
+                          obs_mode: str = COMPACT_OBS_MODE,
+                          backends: list[str] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The clouds of every job (``StateRenderer.render`` in ``obs_mode``), job by job in order,
+    from ``workers`` processes with an env each (a job to whichever is free), or from this
+    process for 1. ``backends`` (``render_backends``): worker i renders on backends[i % n]."""
     if workers <= 1 or len(jobs) <= 1:
-        renderer = StateRenderer(env_id, env_kwargs)
+        renderer = StateRenderer(env_id, _with_backend(env_kwargs, backends and backends[0]), obs_mode)
         try:
             for job in jobs:
                 yield renderer.render(job)
@@ -139,7 +167,12 @@ def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob],
             renderer.close()
         return
     # Spawned, as ManiSkill's replay tool starts its workers (warp does not survive a fork).
+    context = mp.get_context("spawn")
+    n = min(workers, len(jobs))
+    slots = context.Queue()  # each worker takes its index, and with it its render backend
+    for i in range(n):
+        slots.put(i)
     with one_thread_per_spawned_worker():
-        pool = mp.get_context("spawn").Pool(min(workers, len(jobs)), _start_worker, (env_id, env_kwargs))
+        pool = context.Pool(n, _start_worker, (env_id, env_kwargs, obs_mode, backends, slots))
     with pool:
         yield from pool.imap(_render_in_worker, jobs)

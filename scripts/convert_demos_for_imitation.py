@@ -45,6 +45,8 @@ from pathlib import Path
 
 import h5py
 
+from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
+from fetchbench_ms.render_env_states import render_backends
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_env_kwargs, refuse_test_objects, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
@@ -189,6 +191,14 @@ def main(argv=None) -> int:
     p.add_argument("--frame-stride", type=int, default=1,
                    help="K: keep every K-th converted step of each stage, its arm action the mean over its K steps "
                         "(a replay without rendering, then the kept frames rendered from its env states)")
+    p.add_argument("--obs-mode", default=COMPACT_OBS_MODE, choices=(COMPACT_OBS_MODE, POLICY_OBS_MODE),
+                   help=f"the env obs mode the frames are made with: {COMPACT_OBS_MODE} (320x240 cameras, the compact "
+                        f"cloud, then --sizes; the shipped checkpoints') or {POLICY_OBS_MODE} (160x120 cameras, the "
+                        "policies' 1,792 points made by the env itself: what a policy trained on it reads at "
+                        "deployment; always rendered from the state-only replay's env states)")
+    p.add_argument("--render-gpus", type=int, default=1,
+                   help="render workers spread over GPUs cuda:0 .. N-1 (a machine of several GPUs; the frames are "
+                        "the same on GPUs of one model); 1: ManiSkill's default device")
     p.add_argument("--overlap-replay", action="store_true",
                    help="K > 1: run the next chunk's state-only replay in the background while this chunk's "
                         "kept frames are rendered (the same output)")
@@ -196,7 +206,14 @@ def main(argv=None) -> int:
     if args.frame_stride < 1:
         raise SystemExit(f"--frame-stride takes an integer >= 1 (converted steps per frame kept), "
                          f"got {args.frame_stride}")
-    if args.overlap_replay and args.frame_stride == 1:
+    if args.render_gpus < 1:
+        raise SystemExit(f"--render-gpus must be >= 1, got {args.render_gpus}")
+    backends = render_backends(args.render_gpus)
+    policy_obs = args.obs_mode == POLICY_OBS_MODE
+    if policy_obs and args.sizes != ",".join(str(v) for v in POLICY_SIZES.values()):
+        raise SystemExit(f"--sizes is the compact cloud's subsampling; {POLICY_OBS_MODE} makes its own "
+                         f"{','.join(str(v) for v in POLICY_CLOUD_SIZES.values())} points: leave --sizes out")
+    if args.overlap_replay and args.frame_stride == 1 and not policy_obs:
         raise SystemExit("--overlap-replay overlaps a state-only replay with the render pass of --frame-stride K > 1; "
                          "at stride 1 the replay renders and there is no separate render pass to overlap")
     sizes = parse_sizes(args.sizes)
@@ -225,10 +242,13 @@ def main(argv=None) -> int:
     # Stride-1 conversions write no stride (their manifest stays as it was): absent means 1.
     if args.frame_stride != 1:
         settings["frame_stride"] = args.frame_stride
+    if policy_obs:  # (absent: compact_pointcloud, as every conversion made before the policy obs mode)
+        settings["obs_mode"] = POLICY_OBS_MODE
     manifest_path = out / "manifest.json"
     if manifest_path.is_file():
-        old = {"frame_stride": 1, **json.loads(manifest_path.read_text())["settings"]}
-        differ = {k: (old.get(k), v) for k, v in {"frame_stride": 1, **settings}.items()
+        absent = {"frame_stride": 1, "obs_mode": COMPACT_OBS_MODE}  # what a setting left out means
+        old = {**absent, **json.loads(manifest_path.read_text())["settings"]}
+        differ = {k: (old.get(k), v) for k, v in {**absent, **settings}.items()
                   if old.get(k) != v and k != "source"}
         if differ:
             raise SystemExit(f"{out} holds a conversion with other settings {differ} (old, new): use another --out")
@@ -241,7 +261,7 @@ def main(argv=None) -> int:
     log(f"{len(episodes)} demos of {source} in {len(chunks)} chunks of {args.chunk} -> {out}")
     # Stride 1 renders every step in the replay; a larger stride replays without rendering
     # and renders the kept frames from the recorded env states (convert_episodes).
-    obs_mode = "compact_pointcloud" if args.frame_stride == 1 else "state"
+    obs_mode = "compact_pointcloud" if args.frame_stride == 1 and not policy_obs else "state"
     todo = [(k, chunk) for k, chunk in enumerate(chunks, start=args.start // args.chunk)
             if not (out / f"chunk_{k:05d}.imit.h5").is_file()]
 
@@ -274,7 +294,8 @@ def main(argv=None) -> int:
                 log(f"  chunk {todo[i + 1][0]}: its replay runs in the background during chunk {k}'s render")
             t = time.perf_counter()
             data = convert_episodes(converted, replay.work / "demos.h5", sizes, device=args.device, log=log,
-                                    frame_stride=args.frame_stride, render_workers=min(args.num_envs, len(chunk)))
+                                    frame_stride=args.frame_stride, render_workers=min(args.num_envs, len(chunk)),
+                                    render_obs_mode=args.obs_mode, render_backends=backends)
             for e in data["episodes"]:
                 e["source"] = source.name  # the chunk file is a temporary copy
             size = write_training_file(target, data)

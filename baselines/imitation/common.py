@@ -23,6 +23,7 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
+from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE
 from fetchbench_ms.policies.agent import load_model, save_checkpoint
 from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_training_files
 from fetchbench_ms.policies.deploy import E2E_METHODS
@@ -158,6 +159,8 @@ class Frames:
         # Converted steps a frame stands for (--frame-stride): what a deployment's
         # --policy-stride should be; the checkpoint and the export record it.
         self.frame_stride = int(raw.get("frame_stride", 1))
+        # The env obs mode the points were made with: the policy reads that mode at deployment.
+        self.obs_mode = raw.get("obs_mode") or COMPACT_OBS_MODE
 
     def observation(self, index: torch.Tensor, history: int = 1, jitter: float = 0.0,
                     generator: Optional[torch.Generator] = None) -> dict:
@@ -261,12 +264,17 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     torch.backends.cudnn.allow_tf32 = True
     torch.manual_seed(args.seed)
     model = make_model().to(args.device)
+    model.cfg.encoder.obs_mode = frames.obs_mode  # (saved with the config: the deployment's obs mode)
     n_params = sum(p.numel() for p in model.parameters())
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=args.weight_decay)
     generator = torch.Generator(device=args.device).manual_seed(args.seed)
     step, history, ckpt = 0, {"val_loss": [], "val_success": []}, run / "checkpoint.pt"
     if ckpt.is_file():
         saved = torch.load(ckpt, map_location=args.device, weights_only=False)
+        saved_mode = saved.get("obs_mode", COMPACT_OBS_MODE)
+        if saved_mode != frames.obs_mode:
+            raise ValueError(f"{ckpt} was trained on {saved_mode} frames, {args.data} holds {frames.obs_mode} "
+                             "frames: a run learns from one obs mode; use another --run")
         saved_stride = saved.get("frame_stride", 1)  # (checkpoints before the frame stride: every step)
         if saved_stride != frames.frame_stride:
             raise ValueError(f"{ckpt} was trained on frames every {saved_stride} converted steps, {args.data} holds "
@@ -301,7 +309,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     def save() -> None:
         payload = {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
                    "step": step, "history": history, "args": dataclasses.asdict(args), "data_sha256": dhash,
-                   "frame_stride": frames.frame_stride}
+                   "frame_stride": frames.frame_stride, "obs_mode": frames.obs_mode}
         tmp = ckpt.with_name(ckpt.name + ".tmp")
         torch.save(payload, tmp)
         tmp.replace(ckpt)

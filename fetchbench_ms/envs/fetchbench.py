@@ -84,11 +84,30 @@ DEFAULT_TASK_SUITE = "train"
 NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
 #: ManiSkill's named obs modes; any "+"-joined combination of camera textures
 #: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
-NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE)
+NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE,
+                                         pointcloud.POLICY_OBS_MODE)
+#: What ``policy_pointcloud`` asks ManiSkill for: the two textures its points are made of (no colour).
+_POLICY_TEXTURES = "position+segmentation"
 #: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
 MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
                        "rgb+depth", "rgb+depth+segmentation", "rgb+segmentation", "depth+segmentation",
                        "pointcloud")
+
+
+def _camera_size(obs_mode: Optional[str], width: Optional[int], height: Optional[int]) -> tuple[int, int]:
+    """The cameras' (width, height): given, or 320x240; ``policy_pointcloud``'s own
+    ``POLICY_CAMERA_SIZE`` (its observation is the policies' input, one resolution)."""
+    if obs_mode == pointcloud.POLICY_OBS_MODE:
+        size = pointcloud.POLICY_CAMERA_SIZE
+        if (width, height) not in ((None, None), size):
+            raise ValueError(f"obs_mode {obs_mode!r} renders its cameras at {size[0]}x{size[1]}; leave "
+                             "camera_width / camera_height unset")
+        return size
+    width, height = 320 if width is None else width, 240 if height is None else height
+    if (width, height) not in CAMERA_RESOLUTIONS:
+        valid = ", ".join(f"{w}x{h}" for w, h in CAMERA_RESOLUTIONS)
+        raise ValueError(f"camera resolution {width}x{height} is not supported; valid: {valid}")
+    return width, height
 
 
 def control_modes() -> tuple[str, ...]:
@@ -311,8 +330,8 @@ class FetchBenchEnv(BaseEnv):
         robot_uids="panda",
         scene_type: Optional[str] = None,
         category: Optional[str] = None,
-        camera_width: int = 320,
-        camera_height: int = 240,
+        camera_width: Optional[int] = None,
+        camera_height: Optional[int] = None,
         success_criteria: str = "paper",
         num_objects: int = 15,
         object_split: str = DEFAULT_OBJECT_SPLIT,
@@ -333,9 +352,7 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
         if success_criteria not in SUCCESS_CRITERIA:
             raise ValueError(f"unknown success_criteria {success_criteria!r}; valid: {', '.join(SUCCESS_CRITERIA)}")
-        if (camera_width, camera_height) not in CAMERA_RESOLUTIONS:
-            valid = ", ".join(f"{w}x{h}" for w, h in CAMERA_RESOLUTIONS)
-            raise ValueError(f"camera resolution {camera_width}x{camera_height} is not supported; valid: {valid}")
+        camera_width, camera_height = _camera_size(kwargs.get("obs_mode"), camera_width, camera_height)
         self.robot_setup = robot_setup(check_robot_uid(robot_uids))
         if object_split not in OBJECT_SPLITS:
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
@@ -351,6 +368,11 @@ class FetchBenchEnv(BaseEnv):
         self._compact_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPACT_OBS_MODE
         if self._compact_pointcloud:
             kwargs["obs_mode"] = "pointcloud"
+        # policy_pointcloud: ManiSkill's position and segmentation textures, made into the
+        # policies' points in get_obs (no colour, no camera cloud, no compact cloud).
+        self._policy_pointcloud = kwargs.get("obs_mode") == pointcloud.POLICY_OBS_MODE
+        if self._policy_pointcloud:
+            kwargs["obs_mode"] = _POLICY_TEXTURES
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
@@ -832,17 +854,38 @@ class FetchBenchEnv(BaseEnv):
         if self._obs_mode == "pointcloud":
             pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
             pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
-        if self._compact_pointcloud:
+        if self._compact_pointcloud or self._policy_pointcloud:
             steps = common.to_numpy(self.elapsed_steps).reshape(-1)
             seeds = [pointcloud.compact_seed(int(e), int(t)) for e, t in zip(np.atleast_1d(self._episode_seed), steps)]
+        if self._compact_pointcloud:
             obs = pointcloud.compact_pointcloud_obs(obs, seeds)
+        if self._policy_pointcloud:
+            obs = self._policy_pointcloud_obs(obs, seeds)
         obs = _own_arrays(obs)
         return obs if unflattened else self._flatten_raw_obs(obs)
 
+    def _policy_pointcloud_obs(self, obs: dict, seeds: list[int]) -> dict:
+        """``obs`` with the cameras' textures replaced by ``obs["pointcloud"]``: the policies'
+        points (``points`` [B, N, 3] float16, base frame) and labels (``point_label`` [B, N]
+        uint8), made on the render device and moved to the env's."""
+        p_world_base, R_world_base = self._world_base
+        T_base_world = torch.zeros((self.num_envs, 4, 4), device=p_world_base.device)
+        T_base_world[:, :3, :3] = R_world_base.transpose(1, 2)
+        T_base_world[:, :3, 3] = -(R_world_base.transpose(1, 2) @ p_world_base[..., None])[..., 0]
+        T_base_world[:, 3, 3] = 1
+        points_base, labels = pointcloud.camera_points_base(obs, self.segmentation_lut, T_base_world)
+        points, point_label = pointcloud.policy_cloud(points_base, labels, torch.tensor(seeds, dtype=torch.int64))
+        out = {k: v for k, v in obs.items() if k != "sensor_data"}
+        out["pointcloud"] = {"points": points.to(self.device), "point_label": point_label.to(self.device)}
+        return out
+
     @property
     def obs_mode(self) -> str:
-        """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath)."""
-        return pointcloud.COMPACT_OBS_MODE if self._compact_pointcloud else self._obs_mode
+        """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath,
+        ``policy_pointcloud`` its position and segmentation textures)."""
+        if self._compact_pointcloud:
+            return pointcloud.COMPACT_OBS_MODE
+        return pointcloud.POLICY_OBS_MODE if self._policy_pointcloud else self._obs_mode
 
     # ------------------------------------------------------------------ rewards
     def target_surface_distance(self) -> torch.Tensor:

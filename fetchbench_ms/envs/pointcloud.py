@@ -256,3 +256,119 @@ def compact_pointcloud_obs(obs: dict, seeds) -> dict:
         batched = {k: torch.from_numpy(v).to(device) for k, v in batched.items()}
     out["pointcloud"] = batched
     return out
+
+
+# ---------------------------------------------------------------------- policy clouds
+#: ``obs_mode="policy_pointcloud"``: the imitation policies' own points, made in the env from
+#: cameras at ``POLICY_CAMERA_SIZE`` with no camera cloud or compact cloud in between.
+POLICY_OBS_MODE = "policy_pointcloud"
+#: The policy mode's cameras (the task's views, a quarter of the pixels of 320x240): the
+#: 1,792 points the policies keep need ~40k camera points, not 153,600.
+POLICY_CAMERA_SIZE = (160, 120)
+#: Points per segment in the policy cloud (scene, target, robot; the imitation policies' sizes).
+POLICY_CLOUD_SIZES = {"scene": 1024, "target": 512, "robot": 256}
+#: Farthest-point sampling of a segment starts from this many candidates per point kept:
+#: the segment's pixels with the smallest keys (a seeded hash of the pixel's index).
+POLICY_CANDIDATES_PER_POINT = 4
+_MASK32 = 0xFFFFFFFF
+_PIXEL_BITS = 20  # pixel index bits of a sort key (two 160x120 cameras: 38,400 pixels)
+
+
+def _mul32(x: torch.Tensor, c: int) -> torch.Tensor:
+    """(x * c) mod 2^32 for int64 ``x`` in [0, 2^32), without an int64 overflow (same bits on any device)."""
+    lo, hi = c & 0xFFFF, c >> 16
+    return (x * lo + ((x * hi) & 0xFFFF) * 65536) & _MASK32
+
+
+def hash32(x: torch.Tensor) -> torch.Tensor:
+    """A 32-bit integer mix (lowbias32) of int64 values in [0, 2^32): a counter-based random draw."""
+    x = x ^ (x >> 16)
+    x = _mul32(x, 0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = _mul32(x, 0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def pixel_keys(seeds: torch.Tensor, num_pixels: int) -> torch.Tensor:
+    """[B, P] int64 sort keys, all distinct within a row: a hash of (seed, pixel index) above the
+    index. Pixel i's key depends on i and the seed only, so a pixel that changes (an edge moving
+    onto another surface) changes its own candidacy and no other pixel's."""
+    if num_pixels > 1 << _PIXEL_BITS:
+        raise ValueError(f"{num_pixels} pixels: the policy cloud's keys hold at most {1 << _PIXEL_BITS}")
+    index = torch.arange(num_pixels, dtype=torch.int64, device=seeds.device)
+    mixed = hash32(seeds.long()[:, None] & _MASK32)
+    key = hash32(_mul32(index[None, :], 0x9E3779B1) ^ mixed)
+    return (key << _PIXEL_BITS) | index[None, :]
+
+
+def policy_cloud(points_base: torch.Tensor, labels: torch.Tensor, seeds: torch.Tensor,
+                 sizes: dict | None = None, box=WORKSPACE_BOX) -> tuple[torch.Tensor, torch.Tensor]:
+    """The policies' points of a batch of camera clouds: (points [B, N, 3] float16, point_label
+    [B, N] uint8), the segments scene, target, robot one after the other (``sizes``).
+
+    ``points_base`` [B, P, 3] (robot-base frame) and ``labels`` [B, P] (``LABEL_*``, 0 for a
+    pixel not seen) are the cameras' pixels in a fixed order; ``seeds`` [B] (``compact_seed``).
+    Per segment, points outside ``box`` are dropped; the candidates are the segment's
+    ``POLICY_CANDIDATES_PER_POINT`` x n pixels of smallest key (``pixel_keys``: a seeded uniform
+    draw), repeated cyclically when fewer; then n of them by farthest-point sampling from the
+    smallest key. A segment with no point is zeros labelled ``LABEL_NONE``. Runs on the tensors'
+    device (the render device on a GPU machine), batched over the sub-scenes."""
+    from ..grasping.pointops import farthest_point_sample
+
+    sizes = POLICY_CLOUD_SIZES if sizes is None else sizes
+    unknown = sorted(set(sizes) - set(_SEGMENT_LABELS))
+    if unknown:
+        raise ValueError(f"unknown segments {unknown}; valid: {', '.join(_SEGMENT_LABELS)}")
+    points_base = points_base.float()
+    B, P, _ = points_base.shape
+    device = points_base.device
+    low = torch.tensor([b[0] for b in box], device=device)
+    high = torch.tensor([b[1] for b in box], device=device)
+    in_box = ((points_base >= low) & (points_base <= high)).all(-1)
+    segment = torch.from_numpy(_segment_table()).to(device)[labels.long()]
+    segment = torch.where(in_box, segment, torch.full_like(segment, -1))
+    keys = pixel_keys(seeds.to(device), P)
+    never = torch.iinfo(torch.int64).max
+    rows = torch.arange(B, device=device)[:, None]
+    points_out, labels_out = [], []
+    for k, name in enumerate(_SEGMENT_LABELS):
+        if name not in sizes:
+            continue
+        n = sizes[name]
+        m = min(POLICY_CANDIDATES_PER_POINT * n, P)
+        in_segment = segment == k
+        count = in_segment.sum(1)
+        _, order = torch.topk(torch.where(in_segment, keys, torch.full_like(keys, never)), m, dim=1,
+                              largest=False, sorted=True)
+        # Fewer than m pixels in the segment: its pixels, in key order, over and over.
+        slot = torch.arange(m, device=device)[None, :] % count.clamp(min=1, max=m)[:, None]
+        candidates = torch.gather(order, 1, slot)
+        xyz = points_base[rows, candidates]
+        pick = farthest_point_sample(xyz, n)
+        chosen = torch.gather(candidates, 1, pick.to(device))
+        seen = (count > 0)[:, None]
+        points_out.append(torch.where(seen[..., None], points_base[rows, chosen], torch.zeros(1, device=device)))
+        labels_out.append(torch.where(seen, labels[rows, chosen].to(torch.uint8),
+                                      torch.full((1,), LABEL_NONE, dtype=torch.uint8, device=device)))
+    return torch.cat(points_out, 1).to(torch.float16), torch.cat(labels_out, 1)
+
+
+def camera_points_base(obs: dict, lut: torch.Tensor, T_base_world: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(points_base [B, P, 3], labels [B, P] uint8) of the cameras' ``position`` and
+    ``segmentation`` textures (ManiSkill's, in sensor order, on the render device), with
+    ``LABEL_NONE`` outside the ``DEPTH_RANGE`` crop and for the background. The labels and the
+    depth crop are those of ``add_fetch_pointcloud``; the points go from each camera's OpenGL
+    frame to the base frame in one transform."""
+    points, labels = [], []
+    for uid, images in obs["sensor_data"].items():
+        position = images["position"]
+        device = position.device
+        xyz_gl = position[..., :3].reshape(position.shape[0], -1, 3).float() / 1000.0  # mm -> m
+        seg = images["segmentation"].reshape(position.shape[0], -1).long().clamp(min=0, max=lut.shape[1] - 1)
+        T = T_base_world.to(device) @ obs["sensor_param"][uid]["cam2world_gl"].to(device)  # [B, 4, 4]
+        points.append(xyz_gl @ T[:, :3, :3].transpose(1, 2) + T[:, None, :3, 3])
+        depth = -xyz_gl[..., 2]
+        seen = (seg != 0) & (depth >= DEPTH_RANGE[0]) & (depth <= DEPTH_RANGE[1])
+        label = torch.gather(lut.to(device), 1, seg)
+        labels.append(torch.where(seen, label, torch.zeros_like(label)))
+    return torch.cat(points, 1), torch.cat(labels, 1)

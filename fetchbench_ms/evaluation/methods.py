@@ -162,7 +162,7 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
                 return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS,
                                       stride=policy_stride)
 
-        return Method(name, deploy.policy_obs_mode(name), run)
+        return Method(name, deploy.policy_obs_mode(name, policy_checkpoint), run)
     if name == IDLE:
         return Method(name, "none", run_idle)
     if ":" in name:

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE
 from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, _numpy, observation_input
 from .networks import build_policy, config_from_dict, config_to_dict
 
@@ -149,6 +150,23 @@ class TemporalEnsemble:
         predictions = np.stack([c[self.frame - start] for start, c in self.chunks])
         self.frame += 1
         return (self.weights(len(predictions))[:, None] * predictions).sum(0).astype(np.float32)
+
+
+def check_obs_mode(obs: dict, trained_on: str) -> None:
+    """ValueError unless ``obs`` is of the kind the policy was trained on: the points of
+    ``policy_pointcloud`` (``pointcloud/points``), or a compact / raw cloud for the
+    ``compact_pointcloud`` policies (the raw one is made compact as the env would)."""
+    policy_obs = "points" in obs.get("pointcloud", {})
+    if policy_obs != (trained_on == POLICY_OBS_MODE):
+        have = POLICY_OBS_MODE if policy_obs else "a compact or raw point cloud"
+        raise ValueError(f"the policy was trained on {trained_on} observations, the env gives {have}: make the env "
+                         f"with obs_mode={trained_on!r}")
+
+
+def checkpoint_obs_mode(path: str | Path) -> str:
+    """The env obs mode a checkpoint's policy reads (its encoder config; before the field: compact)."""
+    payload = torch.load(path, map_location="cpu", weights_only=False)
+    return payload["config"]["encoder"].get("obs_mode", COMPACT_OBS_MODE)
 
 
 def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: bool = True) -> int:
@@ -294,6 +312,7 @@ class ImitationPolicy:
         arm = np.zeros(ARM_DOF, np.float32)
         termination = None
         if observe:
+            check_obs_mode(obs, self.model.cfg.encoder.obs_mode)
             step_input = observation_input(obs, self.model.cfg.encoder.sizes, self.episode_seed, self.steps)
             self.history.append(step_input)
             stage = PHASE_STAGE[self.machine.phase]

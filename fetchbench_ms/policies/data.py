@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from ..envs.pointcloud import (COMPACT_OBS_MODE, COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT,
-                               LABEL_TARGET, compact_pointcloud_obs, compact_seed)
+                               LABEL_TARGET, POLICY_CLOUD_SIZES, POLICY_OBS_MODE, compact_pointcloud_obs, compact_seed)
 from ..grasping.pointops import farthest_point_sample
 
 #: Points per segment the policies read (scene, target, robot), farthest-point sampled
@@ -128,6 +128,13 @@ def observation_input(obs: dict, sizes: dict = POLICY_SIZES, episode_seed: int |
     ``obs_mode="pointcloud"`` one (what the sense-plan-act methods read) is made compact first,
     seeded as the env would (``compact_seed(episode_seed, step)``)."""
     pcd = obs["pointcloud"]
+    if "points" in pcd:  # obs_mode="policy_pointcloud": the env made the policy's points itself
+        points, point_label = _numpy(pcd["points"]), _numpy(pcd["point_label"])
+        if points.shape[1] != sum(sizes.values()):
+            raise ValueError(f"a {POLICY_OBS_MODE} observation of {points.shape[1]} points; the policy reads "
+                             f"{sum(sizes.values())} ({dict(sizes)})")
+        qpos = _numpy(obs["agent"]["qpos"]).astype(np.float32).reshape(len(points), -1)
+        return PolicyInput(points.astype(np.float16), point_label.astype(np.uint8), qpos, tcp_features(qpos))
     if "xyz" not in pcd:
         if "xyz_base" not in pcd:
             raise ValueError("a policy reads obs_mode='compact_pointcloud' (or 'pointcloud') observations; "
@@ -283,7 +290,8 @@ class _KeptFrames:
 
 
 def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes: dict = POLICY_SIZES,
-                     device: str = "cpu", log=print, frame_stride: int = 1, render_workers: int = 1) -> dict:
+                     device: str = "cpu", log=print, frame_stride: int = 1, render_workers: int = 1,
+                     render_obs_mode: str = COMPACT_OBS_MODE, render_backends: list[str] | None = None) -> dict:
     """Frames of every converted trajectory (the replay tool's ``pd_joint_delta_pos`` output)
     that matches a source demo, in the training format's arrays (see the module docstring),
     with the source's stage labels.
@@ -291,7 +299,10 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     The points come from the file's ``compact_pointcloud`` observations, or, for a state-only
     replay (``-o state``), are rendered from its recorded env states at the frames kept only
     (``fetchbench_ms.render_env_states``, ``render_workers`` processes). ``frame_stride`` K > 1
-    keeps every K-th step of each stage (``select_frames``); 1 keeps every step."""
+    keeps every K-th step of each stage (``select_frames``); 1 keeps every step.
+    ``render_obs_mode="policy_pointcloud"`` renders the states in that obs mode, whose points
+    are the frames' as they are (``sizes`` must be its ``POLICY_CLOUD_SIZES``); the result
+    then carries ``obs_mode``."""
     import h5py
     from mani_skill.trajectory.utils import index_dict
 
@@ -306,6 +317,10 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
         raise ValueError(f"{converted_path}: converted with control_mode={control!r}, obs_mode={obs_mode!r}; the "
                          "policies need -c pd_joint_delta_pos -o compact_pointcloud (or -o state: the clouds are "
                          "then rendered from its env states)")
+    policy_obs = render_obs_mode == POLICY_OBS_MODE
+    if policy_obs and (obs_mode != "state" or dict(sizes) != POLICY_CLOUD_SIZES):
+        raise ValueError(f"{POLICY_OBS_MODE} frames are rendered from a state-only replay (-o state) at its own "
+                         f"sizes {POLICY_CLOUD_SIZES}; got obs_mode={obs_mode!r}, sizes {dict(sizes)}")
     parts: dict[str, list] = {k: [] for k in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage",
                                                 "stage_end")}
     episodes, kept = [], []
@@ -339,10 +354,14 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
         else:
             jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
                               index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
-            clouds = render_compact_clouds(converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers)
+            clouds = render_compact_clouds(converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers,
+                                           render_obs_mode, render_backends)
         t = time.perf_counter()
         for demo, (xyz, label) in zip(kept, clouds):
-            points, point_label = subsample_compact(xyz, label, sizes, device=device)
+            if policy_obs:  # the obs mode's own points, as a policy reads them at deployment
+                points, point_label = xyz, label
+            else:
+                points, point_label = subsample_compact(xyz, label, sizes, device=device)
             parts["points"].append(points)
             parts["point_label"].append(point_label)
             parts["qpos"].append(demo.qpos)
@@ -356,8 +375,9 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     dropped = len(converted_json["episodes"]) - len(pairs)
     if dropped:
         log(f"{converted_path.name}: {dropped} converted trajectories matched no source demo (left out)")
+    extra = {"obs_mode": POLICY_OBS_MODE} if policy_obs else {}
     if not episodes:
-        return {"episodes": [], "sizes": dict(sizes), "frame_stride": frame_stride}
+        return {"episodes": [], "sizes": dict(sizes), "frame_stride": frame_stride, **extra}
     out = {k: np.concatenate(v) for k, v in parts.items()}
     lengths = np.array([e["length"] for e in episodes], np.int64)
     out["episode_length"] = lengths
@@ -365,6 +385,7 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     out["episodes"] = episodes
     out["sizes"] = dict(sizes)
     out["frame_stride"] = frame_stride
+    out.update(extra)
     return out
 
 
@@ -383,6 +404,8 @@ def write_training_file(path: str | Path, data: dict) -> int:
         f.attrs["episodes"] = json.dumps(data["episodes"])
         if data.get("frame_stride", 1) != 1:  # (stride-1 files stay as they were: no attribute)
             f.attrs["frame_stride"] = int(data["frame_stride"])
+        if data.get("obs_mode", COMPACT_OBS_MODE) != COMPACT_OBS_MODE:  # (absent: compact_pointcloud)
+            f.attrs["obs_mode"] = data["obs_mode"]
         for key in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage", "stage_end",
                     "episode_start", "episode_length"):
             if key in data:
@@ -406,7 +429,7 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
         raise FileNotFoundError(f"no training files (*.imit.h5) in {paths}; make them with "
                                 "scripts/convert_demos_for_imitation.py")
     parts = {k: [] for k in ARRAYS}
-    episodes, lengths, file_sizes, file_stride = [], [], None, None
+    episodes, lengths, file_sizes, file_stride, file_mode = [], [], None, None, None
     for path in files:
         with h5py.File(path, "r") as f:
             if int(f.attrs.get("format_version", -1)) != FORMAT_VERSION:
@@ -423,6 +446,12 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
                 raise ValueError(f"{path}: frames every {stride} converted steps (--frame-stride {stride}), the "
                                  f"other files' every {file_stride}: train on files of one frame stride")
             file_stride = stride
+            # The points of two obs modes are other draws of other cameras: not one training set.
+            mode = str(f.attrs.get("obs_mode", COMPACT_OBS_MODE))
+            if file_mode is not None and mode != file_mode:
+                raise ValueError(f"{path}: frames of obs mode {mode}, the other files' {file_mode}: train on files "
+                                 "of one obs mode")
+            file_mode = mode
             if "points" not in f:  # a chunk none of whose trajectories replayed
                 continue
             for k in ARRAYS:
@@ -440,5 +469,6 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
     out["episodes"] = episodes
     out["sizes"] = file_sizes
     out["frame_stride"] = file_stride
+    out["obs_mode"] = file_mode
     out["files"] = [str(p) for p in files]
     return out

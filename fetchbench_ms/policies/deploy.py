@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..envs.pointcloud import COMPACT_OBS_MODE
 from ..utils.paths import assets_root
 from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
@@ -55,9 +56,20 @@ def hybrid_approach_method() -> str:
     return "cgn-ptd-trajopt" if "cgn-ptd-trajopt" in METHODS else "cgn-ptd-rrt"
 
 
-def policy_obs_mode(method: str) -> str:
-    """End-to-end methods read the compact cloud; the hybrids the raw cloud CGN needs (made compact per step)."""
-    return "pointcloud" if method in HYBRID_METHODS else "compact_pointcloud"
+def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
+    """The env obs mode of a policy method: the one its checkpoint was trained on for the
+    end-to-end methods (``compact_pointcloud`` or ``policy_pointcloud``); for the hybrids, the raw
+    cloud CGN needs (made compact per step: they run ``compact_pointcloud`` checkpoints only)."""
+    from .agent import checkpoint_obs_mode
+
+    trained_on = checkpoint_obs_mode(resolve_checkpoint(method, checkpoint))
+    if method in HYBRID_METHODS:
+        if trained_on != COMPACT_OBS_MODE:
+            raise ValueError(f"{method} reads the 320x240 point cloud CGN grasps on and makes it compact for the "
+                             f"policy; its checkpoint was trained on {trained_on} (160x120 cameras): use an "
+                             f"end-to-end method, or a {COMPACT_OBS_MODE} checkpoint")
+        return "pointcloud"
+    return trained_on
 
 
 def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:

@@ -29,6 +29,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..envs.pointcloud import COMPACT_OBS_MODE
 from .data import ARM_DOF, POINT_CLASSES, POLICY_SIZES, POLICY_STAGES, segment_slices
 
 PROPRIO_DIM = 18  # 9 joint positions + TCP position (3) + rotation 6-D (6)
@@ -43,6 +44,9 @@ class EncoderConfig:
     point_dims: tuple = (64, 128, 256)
     point_out: int = 256
     proprio_dims: tuple = (128, 128)
+    #: The env obs mode whose points the policy was trained on and reads at deployment
+    #: (checkpoints without it: compact_pointcloud, the shipped ones).
+    obs_mode: str = COMPACT_OBS_MODE
 
     @property
     def embed_dim(self) -> int:

@@ -42,20 +42,79 @@ def mesh_world(env) -> CollisionWorld:
     return task_mesh_world(u.tasks[0], np.linalg.inv(T_world_base(env)), object_poses_base(env))
 
 
+class MeshWorldCache:
+    """The obstacle sets of one task's mesh worlds, reused while the task stays the same.
+
+    The expert builds the oracle world at every try of a task and again after each grasp, and
+    the building (convex hulls, their planes) is most of it: the furniture's sets depend only on
+    the task and the base pose, an object's on its id and its pose. Entries are keyed by the
+    exact bytes of those inputs, so a cached set is the one the same inputs build (the same
+    worlds, the same plans: ``tests/test_demos.py``); an object that moved is built anew. The
+    sets are never modified after they are built (the planner only queries them). A new task
+    empties the cache, so it holds one task's sets at a time."""
+
+    def __init__(self, max_objects: int = 256):
+        self.max_objects = max_objects
+        self.task_key: tuple | None = None
+        self.scene: list = []
+        self.objects: dict = {}
+        self.hits = self.misses = 0
+
+    def sets(self, task, T_base_world: np.ndarray, T_base_objects: list[np.ndarray]) -> tuple[list, list]:
+        from ..tasks.objects import load_object
+
+        T_base_world = np.asarray(T_base_world, dtype=float)
+        key = (task.to_json(), T_base_world.tobytes())
+        if key != self.task_key:
+            self.task_key, self.objects = key, {}
+            self.scene = _scene_sets(task, T_base_world)
+            self.misses += 1
+        else:
+            self.hits += 1
+        objects = []
+        for placement, T in zip(task.objects, T_base_objects):
+            T = np.asarray(T, dtype=float)
+            object_key = (placement.object_id, T.tobytes())
+            if object_key not in self.objects:
+                if len(self.objects) >= self.max_objects:
+                    self.objects.pop(next(iter(self.objects)))  # the oldest
+                self.objects[object_key] = convex_set_from_parts(load_object(placement.object_id).convex_parts, T)
+            objects.append(self.objects[object_key])
+        return self.scene, objects
+
+
+#: The process's cache (one env a process: the demo generator's workers, the eval's).
+#: ``FETCHBENCH_MESH_WORLD_CACHE=0`` builds every world from scratch (to measure the cache).
+MESH_WORLD_CACHE = MeshWorldCache()
+
+
+def _scene_sets(task, T_base_world: np.ndarray) -> list:
+    """The furniture's obstacle sets, then the robot table and the floor as boxes (base frame)."""
+    sets = list(obstacle_sets_from_parts(task.scene().parts, T_base_world))
+    T_table = T_base_world @ pose_matrix(task.robot_table_center, task.robot_base_quat_wxyz)
+    T_floor = T_base_world @ pose_matrix([0.0, 0.0, -FLOOR_THICKNESS / 2])
+    sets.append(box_set(np.stack([T_table, T_floor]), [task.robot_table_size, [20.0, 20.0, FLOOR_THICKNESS]]))
+    return sets
+
+
 def task_mesh_world(task, T_base_world: np.ndarray, T_base_objects: list[np.ndarray]) -> CollisionWorld:
     """The oracle world of ``task`` in the base frame, objects at ``T_base_objects`` (task
     order): furniture parts, robot table, floor, each object's convex parts."""
+    import os
+
     from ..tasks.objects import load_object
 
+    if os.environ.get("FETCHBENCH_MESH_WORLD_CACHE", "1") != "0":
+        scene, objects = MESH_WORLD_CACHE.sets(task, T_base_world, T_base_objects)
+    else:
+        scene = _scene_sets(task, np.asarray(T_base_world, dtype=float))
+        objects = [convex_set_from_parts(load_object(p.object_id).convex_parts, np.asarray(T, dtype=float))
+                   for p, T in zip(task.objects, T_base_objects)]
     world = CollisionWorld()
-    for obstacle_set in obstacle_sets_from_parts(task.scene().parts, T_base_world):
+    for obstacle_set in scene:
         world.add("scene", obstacle_set)
-    T_table = T_base_world @ pose_matrix(task.robot_table_center, task.robot_base_quat_wxyz)
-    T_floor = T_base_world @ pose_matrix([0.0, 0.0, -FLOOR_THICKNESS / 2])
-    world.add("scene", box_set(np.stack([T_table, T_floor]), [task.robot_table_size, [20.0, 20.0, FLOOR_THICKNESS]]))
-    for k, (placement, T) in enumerate(zip(task.objects, T_base_objects)):
-        group = "target" if k == task.target_index else f"object:{k}"
-        world.add(group, convex_set_from_parts(load_object(placement.object_id).convex_parts, T))
+    for k, obstacle_set in enumerate(objects):
+        world.add("target" if k == task.target_index else f"object:{k}", obstacle_set)
     return world
 
 

@@ -62,11 +62,11 @@ def test_cached_worlds_are_the_rebuilt_ones(monkeypatch):
 
 def test_the_generator_makes_the_same_demos_with_the_cache():
     """One train task through the generator's worker with every world rebuilt and with the
-    cache: the same trajectories, dataset for dataset (scripts/bench_expert_world.py)."""
-    sys.path.insert(0, str(ROOT / "scripts"))
+    cache: the same trajectories, dataset for dataset (scripts/bench/bench_expert_world.py)."""
+    sys.path.insert(0, str(ROOT / "scripts" / "bench"))
     try:
         bench = importlib.import_module("bench_expert_world")
     finally:
-        sys.path.remove(str(ROOT / "scripts"))
+        sys.path.remove(str(ROOT / "scripts" / "bench"))
     # train/0001 gives a trajectory at its first try (train/0000 none: nothing to compare)
     bench.main(["--start", "1", "--tasks", "1", "--per-task", "1"])  # exits non-zero when they differ

@@ -228,6 +228,20 @@ def collision_free(T_world_hand: np.ndarray, obstacles: list) -> np.ndarray:
     return free
 
 
+def finger_contacts(T_world_hand: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two finger contacts of each grasp ((N, 4, 4) panda_hand poses, (N,) widths) and the
+    label each carries: (2N, 3) contacts, (2N, 4, 4) grasps in CGN's frame, (2N,) widths, the
+    +y finger's contacts first. On the +y finger the baseline is -y (hand y = -cgn x); on the
+    -y finger the label is the same grasp turned half about z (baseline +y)."""
+    tcp = T_world_hand[:, :3, 3] + GRIPPER_DEPTH * T_world_hand[:, :3, 2]
+    y = T_world_hand[:, :3, 1]
+    contacts, labels = [], []
+    for sign, T_extra in ((1.0, np.eye(4)), (-1.0, _yaw(np.pi))):
+        contacts.append(tcp + sign * 0.5 * width[:, None] * y)
+        labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
+    return np.concatenate(contacts).reshape(-1, 3), np.concatenate(labels).reshape(-1, 4, 4), np.concatenate([width, width])
+
+
 def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
     """1-3 objects on a table: surface points with their owner (-1: table), and the two finger
     contacts of every verified grasp that is collision-free in this scene (``collision_free``)
@@ -266,16 +280,12 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
         T_world_hand = poses[k][None] @ grasps.T_object_hand
         keep = collision_free(T_world_hand, others)
         T_world_hand = T_world_hand[keep]
-        tcp = T_world_hand[:, :3, 3] + GRIPPER_DEPTH * T_world_hand[:, :3, 2]
-        y = T_world_hand[:, :3, 1]
         w = np.asarray(grasps.width, dtype=np.float64)[keep]
-        # contact on the +y finger: baseline -y (hand y = -cgn x); on the -y finger: the same
-        # grasp turned half about z (baseline +y).
-        for sign, T_extra in ((1.0, np.eye(4)), (-1.0, _yaw(np.pi))):
-            contacts.append(tcp + sign * 0.5 * w[:, None] * y)
-            labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
-            widths.append(w)
-            hands.append(T_world_hand)
+        c, lab, wid = finger_contacts(T_world_hand, w)
+        contacts.append(c)
+        labels.append(lab)
+        widths.append(wid)
+        hands.append(np.concatenate([T_world_hand, T_world_hand]))
     count = int((2 * TABLE_HALF) ** 2 / SURFACE_SPACING**2)
     table = np.c_[rng.uniform(-TABLE_HALF, TABLE_HALF, (count, 2)), np.zeros(count)]
     contacts = np.concatenate(contacts)

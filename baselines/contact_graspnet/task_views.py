@@ -17,7 +17,7 @@ target) within ``--positive-radius`` of a contact is positive and carries the ne
 contact's grasp. Only the positive points' labels are stored, as ``train.build_views`` does.
 
 Output: ``<out>/shard-NNNNN.npz``, one per ``--shard-tasks`` consecutive tasks of the slice,
-each written atomically with fixed zip metadata (same seed and flags: same bytes); the arrays
+each written atomically with fixed zip metadata (``utils.io.npz_bytes``) (same seed and flags: same bytes); the arrays
 of ``train.build_views`` (points, pos_offset, pos_index, pos_grasp, pos_width) and per view
 ``task_id``, ``object_id``, ``mean`` (base frame), ``grasps_kept`` / ``grasps_total``. A rerun
 skips the shards present (the flags are checked against ``<out>/config.json``); when every
@@ -36,18 +36,14 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import io
 import json
 import os
 import sys
 import time
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # train.py beside this file (as a script or imported)
 
 ALLOWED_SUITES = ("train", "val")
 VIEWS_VERSION = 1  # bump when what a seed produces changes
@@ -74,6 +70,18 @@ class Args:
 DATA_FLAGS = ("suite", "views_per_task", "num_points", "positive_radius", "max_grasps", "shard_tasks", "seed")
 
 
+def _trainer():
+    """train.py beside this file, as the module ``cgn_train`` (a script, not a package)."""
+    if "cgn_train" not in sys.modules:
+        import importlib.util
+
+        spec = importlib.util.spec_from_file_location("cgn_train", Path(__file__).resolve().parent / "train.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["cgn_train"] = module  # (dataclasses look their module up there)
+        spec.loader.exec_module(module)
+    return sys.modules["cgn_train"]
+
+
 def task_seed(task_id: str, seed: int) -> int:
     return int(hashlib.sha256(f"cgn-views|{task_id}|{seed}".encode()).hexdigest()[:8], 16)
 
@@ -82,9 +90,7 @@ def task_seed(task_id: str, seed: int) -> int:
 def hand_collides(world, T_base_hand: np.ndarray, exclude: tuple[str, ...]) -> np.ndarray:
     """(N,) whether the open hand at each pose ((N, 4, 4), base frame) reaches more than
     ``COLLISION_DEPTH`` into ``world`` (groups ``exclude`` left out: the grasped object)."""
-    from train import hand_points
-
-    local = hand_points()
+    local = _trainer().hand_points()
     if len(T_base_hand) == 0:
         return np.zeros(0, dtype=bool)
     points = np.einsum("nij,kj->nki", T_base_hand[:, :3, :3], local) + T_base_hand[:, None, :3, 3]
@@ -95,8 +101,6 @@ def hand_collides(world, T_base_hand: np.ndarray, exclude: tuple[str, ...]) -> n
 def scene_labels(task, world, T_base_objects: list[np.ndarray], max_grasps: int, rng: np.random.Generator) -> dict:
     """Finger contacts (base frame) of every object's verified grasps that are free in the
     scene, with their CGN-frame labels and widths; per object the grasps tested and kept."""
-    from train import finger_contacts
-
     from fetchbench_ms.grasps import load_grasps, objects_with_grasps
 
     with_grasps = set(objects_with_grasps())
@@ -111,7 +115,7 @@ def scene_labels(task, world, T_base_objects: list[np.ndarray], max_grasps: int,
         T_base_hand = T_base_object[None] @ grasps.T_object_hand[pick]
         group = "target" if k == task.target_index else f"object:{k}"
         free = ~hand_collides(world, T_base_hand, (group,))
-        c, lab, w = finger_contacts(T_base_hand[free], np.asarray(grasps.width, dtype=np.float64)[pick][free])
+        c, lab, w = _trainer().finger_contacts(T_base_hand[free], np.asarray(grasps.width, dtype=np.float64)[pick][free])
         contacts.append(c)
         labels.append(lab)
         widths.append(w)
@@ -192,21 +196,6 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- shards
-def save_npz_fixed(path: Path, arrays: dict) -> None:
-    """``np.savez`` with fixed zip metadata (names sorted, a fixed timestamp, stored), written
-    to a temporary file and renamed: the same arrays give the same bytes, and a shard is
-    either whole or absent."""
-    tmp = path.with_name(path.name + ".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
-        for name in sorted(arrays):
-            buffer = io.BytesIO()
-            np.lib.format.write_array(buffer, np.asarray(arrays[name]), allow_pickle=False)
-            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.external_attr = 0o644 << 16
-            archive.writestr(info, buffer.getvalue())
-    os.replace(tmp, path)
-
-
 def shard_arrays(views: list[dict]) -> dict:
     counts = np.array([len(v["pos_index"]) for v in views], dtype=np.int64)
     return {"points": np.stack([v["points"] for v in views]),
@@ -238,46 +227,42 @@ def _init_worker(suite: str) -> None:
 
 def _shard_job(job) -> dict:
     """Make and write one shard; returns its counts and seconds."""
+    from fetchbench_ms.utils.io import atomic_write_bytes, npz_bytes
+
     args, index, task_ids = job
     t = time.perf_counter()
     views = [v for task_id in task_ids for v in task_views(_ENV, task_id, args)]
     arrays = shard_arrays(views)
-    save_npz_fixed(shard_path(Path(args.out), index), arrays)
+    # fixed zip metadata, stored: the same arrays give the same bytes; renamed into place whole
+    atomic_write_bytes(shard_path(Path(args.out), index), npz_bytes(arrays, compress=False))
     return {"index": index, "views": len(views), "grasps_kept": int(arrays["grasps_kept"].sum()),
             "positives": int(len(arrays["pos_index"])), "seconds": time.perf_counter() - t}
-
-
-def file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def write_manifest(out: Path, config: dict) -> dict:
     """``<out>/manifest.json``: every shard in ``out`` (all slices made into it) with its
     sha256, and one sha256 over the config and the shards' hashes."""
+    from fetchbench_ms.utils.io import atomic_write_text, sha256_file
+
     entries = []
     for path in sorted(out.glob("shard-*.npz")):
         with np.load(path) as z:
             views, positives, task_ids = len(z["points"]), len(z["pos_index"]), list(dict.fromkeys(z["task_id"]))
         entries.append({"file": path.name, "tasks": [str(task_ids[0]), str(task_ids[-1])], "task_count": len(task_ids),
-                        "views": views, "positives": positives, "sha256": file_sha256(path)})
+                        "views": views, "positives": positives, "sha256": sha256_file(path)})
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     for entry in entries:
         digest.update(f"{entry['file']}:{entry['sha256']};".encode())
     manifest = {"config": config, "views": sum(e["views"] for e in entries),
                 "tasks": sum(e["task_count"] for e in entries), "shards": entries, "sha256": digest.hexdigest()}
-    tmp = out / "manifest.json.tmp"
-    tmp.write_text(json.dumps(manifest, indent=1) + "\n")
-    os.replace(tmp, out / "manifest.json")
+    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
     return manifest
 
 
 def main(args: Args) -> dict:
     from fetchbench_ms.tasks.splits import cli_guard, refuse_test, refuse_test_objects, refuse_test_task_ids
     from fetchbench_ms.tasks.suite import load_suite
+    from fetchbench_ms.utils.io import atomic_write_text
 
     cli_guard(refuse_test, args.suite, "Contact-GraspNet training views")  # exit 2 before anything is written
     if args.suite not in ALLOWED_SUITES:
@@ -319,9 +304,7 @@ def main(args: Args) -> dict:
                   file=sys.stderr)
             raise SystemExit(2)
     else:
-        tmp = out / "config.json.tmp"
-        tmp.write_text(json.dumps(config, indent=1, sort_keys=True) + "\n")
-        os.replace(tmp, config_path)
+        atomic_write_text(config_path, json.dumps(config, indent=1, sort_keys=True) + "\n")
     shards = [(start // args.shard_tasks + i, ids[s:s + args.shard_tasks])
               for i, s in enumerate(range(0, len(ids), args.shard_tasks))]
     todo = [(args, index, task_ids) for index, task_ids in shards if not shard_path(out, index).is_file()]
@@ -333,16 +316,15 @@ def main(args: Args) -> dict:
     if todo:
         import multiprocessing
 
-        from train import THREAD_VARIABLES
-
-        saved_env = {k: os.environ.get(k) for k in THREAD_VARIABLES}
-        os.environ.update({k: "1" for k in THREAD_VARIABLES})  # one thread per worker process
+        thread_variables = _trainer().THREAD_VARIABLES
+        saved_env = {k: os.environ.get(k) for k in thread_variables}
+        os.environ.update({k: "1" for k in thread_variables})  # one thread per worker process
         try:
             with multiprocessing.get_context("spawn").Pool(workers, _init_worker, (args.suite,)) as pool:
                 pending = pool.imap_unordered(_shard_job, todo)
                 for _ in todo:
                     if args.time_limit and time.perf_counter() - t_start > args.time_limit:
-                        pool.terminate()  # unfinished shards leave only .tmp files, never a shard
+                        pool.terminate()  # a shard cut short leaves only a temporary file, never a shard
                         break
                     result = next(pending)
                     made.append(result)

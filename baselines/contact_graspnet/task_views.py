@@ -12,9 +12,10 @@ Labels are scene-consistent, as the original's: every task object's physics-veri
 are placed at the object's pose, and a grasp whose open hand comes into the scene (the oracle
 mesh world of ``solutions.worlds.mesh_world``: furniture, robot table, floor, the other
 objects; more than 1 mm deep) is dropped. Each kept grasp's two finger contacts carry it in
-CGN's frame (``train.finger_contacts``); a cloud point on an object (segmentation: object or
-target) within ``--positive-radius`` of a contact is positive and carries the nearest
-contact's grasp. Only the positive points' labels are stored, as ``train.build_views`` does.
+CGN's frame (``train.finger_contacts``). A cloud point's object comes from the segmentation
+(target, or another object: then the one whose convex parts are within 5 mm); a point within
+``--positive-radius`` of a contact of its own object's kept grasps is positive and carries
+the nearest such contact's grasp. Only the positive points' labels are stored, as ``train.build_views`` does.
 
 Output: ``<out>/shard-NNNNN.npz``, one per ``--shard-tasks`` consecutive tasks of the slice,
 each written atomically with fixed zip metadata (``utils.io.npz_bytes``) (same seed and flags: same bytes); the arrays
@@ -104,7 +105,7 @@ def scene_labels(task, world, T_base_objects: list[np.ndarray], max_grasps: int,
     from fetchbench_ms.grasps import load_grasps, objects_with_grasps
 
     with_grasps = set(objects_with_grasps())
-    contacts, labels, widths, kept, total = [], [], [], [], []
+    contacts, labels, widths, owners, kept, total = [], [], [], [], [], []
     for k, (placement, T_base_object) in enumerate(zip(task.objects, T_base_objects)):
         if placement.object_id not in with_grasps:
             kept.append(0)
@@ -119,11 +120,13 @@ def scene_labels(task, world, T_base_objects: list[np.ndarray], max_grasps: int,
         contacts.append(c)
         labels.append(lab)
         widths.append(w)
+        owners.append(np.full(len(c), k))
         kept.append(int(free.sum()))
         total.append(len(pick))
     return {"contacts": np.concatenate(contacts) if contacts else np.zeros((0, 3)),
             "labels": np.concatenate(labels) if labels else np.zeros((0, 4, 4)),
-            "widths": np.concatenate(widths) if widths else np.zeros(0), "kept": kept, "total": total}
+            "widths": np.concatenate(widths) if widths else np.zeros(0),
+            "owner": np.concatenate(owners) if owners else np.zeros(0, int), "kept": kept, "total": total}
 
 
 def object_owner(points: np.ndarray, world, n_objects: int, target_index: int) -> np.ndarray:
@@ -135,17 +138,25 @@ def object_owner(points: np.ndarray, world, n_objects: int, target_index: int) -
     return np.where(distance.min(axis=0) < 0.005, owner, -1)
 
 
-def label_view(points: np.ndarray, on_object: np.ndarray, scene: dict, radius: float) -> dict:
-    """Per point of a view (base frame): positive (on an object, within ``radius`` of a kept
-    grasp's contact), grasp (4, 4) CGN-frame label and width of the nearest contact."""
+def label_view(points: np.ndarray, owner: np.ndarray, scene: dict, radius: float) -> dict:
+    """Per point of a view (base frame; ``owner``: the object it lies on, -1 for none):
+    positive (within ``radius`` of a finger contact of a kept grasp of its own object), and
+    the grasp ((4, 4), CGN frame) and width of that nearest contact."""
     from scipy.spatial import cKDTree
 
-    if len(scene["contacts"]) == 0:
-        zeros = np.zeros(len(points))
-        return {"positive": zeros.astype(bool), "grasp": np.zeros((len(points), 4, 4)), "width": zeros}
-    distance, nearest = cKDTree(scene["contacts"]).query(points)
-    positive = (distance < radius) & on_object
-    return {"positive": positive, "grasp": scene["labels"][nearest], "width": scene["widths"][nearest]}
+    positive = np.zeros(len(points), dtype=bool)
+    grasp, width = np.zeros((len(points), 4, 4)), np.zeros(len(points))
+    for k in np.unique(owner[owner >= 0]):
+        mine = np.flatnonzero(scene["owner"] == k)
+        on = np.flatnonzero(owner == k)
+        if len(mine) == 0:
+            continue
+        distance, nearest = cKDTree(scene["contacts"][mine]).query(points[on])
+        near = distance < radius
+        positive[on[near]] = True
+        grasp[on[near]] = scene["labels"][mine[nearest[near]]]
+        width[on[near]] = scene["widths"][mine[nearest[near]]]
+    return {"positive": positive, "grasp": grasp, "width": width}
 
 
 def task_views(env, task_id: str, args: Args) -> list[dict]:
@@ -182,7 +193,7 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
     for k in order[:args.views_per_task]:
         pick = region_index(points, owner == k, args.num_points, rng)
         view_points = points[pick].astype(np.float64)
-        labelled = label_view(view_points, is_object[pick], scene, args.positive_radius)
+        labelled = label_view(view_points, owner[pick], scene, args.positive_radius)
         mean = view_points.mean(0)
         index = np.flatnonzero(labelled["positive"])
         grasp = labelled["grasp"][index].copy()

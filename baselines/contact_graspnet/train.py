@@ -41,6 +41,11 @@ points, weighted by the predicted confidence; width L1 for positive points.
     # folder must survive between calls); the last call validates and exports
     python baselines/contact_graspnet/train.py --run /tmp/cgn-ours-v3 --workers 14 --train-seconds 900 \
         --time-limit 540 --export --export-dir $OUT
+    # views of train tasks through their own cameras (task_views.py) mixed in, checkpoints
+    # chosen on views of val tasks, data-parallel over 4 GPUs (torch DDP; --batch-size per
+    # process; the run folder spelled --run-dir under torchrun)
+    torchrun --standalone --nproc-per-node 4 baselines/contact_graspnet/train.py --run-dir /tmp/cgn-ours-v4 \
+        --task-views /data/cgn/train --val-task-views /data/cgn/val --val-every 250 --export --export-dir $OUT
     # a CPU smoke run: tiny network, few points
     python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --val-views 2 --steps 5
 

@@ -64,7 +64,7 @@ class Args:
     tasks: str = "0:960"  # slice of the suite's task order, "a:b"
     out: str = "/tmp/mppi/train"  # one .npz per task
     configs: int = 6000  # queries per task
-    workers: int = 1  # processes (each owns one env; 0: all cores)
+    workers: int = 0  # processes (each owns one env; 0: all cores)
     seed: int = 0
     carry_share: float = 0.3  # share of tasks labelled as "carry" (target held, fingers unchecked)
     time_limit: float = 0.0  # s; > 0: start no task after this long (re-run to continue)

@@ -20,7 +20,8 @@ the nearest such contact's grasp. Only the positive points' labels are stored, a
 Output: ``<out>/shard-NNNNN.npz``, one per ``--shard-tasks`` consecutive tasks of the slice,
 each written atomically with fixed zip metadata (``utils.io.npz_bytes``) (same seed and flags: same bytes); the arrays
 of ``train.build_views`` (points, pos_offset, pos_index, pos_grasp, pos_width) and per view
-``task_id``, ``object_id``, ``mean`` (base frame), ``grasps_kept`` / ``grasps_total``. A rerun
+``task_id``, ``object_id``, ``mean`` (base frame), ``grasps_kept`` / ``grasps_total``, and
+``shard_task_id``, the tasks the shard covers. A rerun
 skips the shards present (the flags are checked against ``<out>/config.json``); when every
 shard is there, ``<out>/manifest.json`` lists them with their sha256 and one hash over all.
 Worker processes (``--workers``, one env each) take shards from a queue, so the run scales
@@ -188,7 +189,9 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
     # the target first, then the other objects seen (with grasps kept), most points first
     seen = [(int((owner == k).sum()), k) for k in range(len(task.objects))
             if k != task.target_index and scene["kept"][k] > 0 and (owner == k).sum() >= MIN_SEEN_POINTS]
-    order = [task.target_index] + [k for _, k in sorted(seen, key=lambda s: (-s[0], s[1]))]
+    order = [k for _, k in sorted(seen, key=lambda s: (-s[0], s[1]))]
+    if is_target.any():  # (a target no camera sees has no crop: inference has nothing to grasp either)
+        order.insert(0, task.target_index)
     views = []
     for k in order[:args.views_per_task]:
         pick = region_index(points, owner == k, args.num_points, rng)
@@ -207,7 +210,10 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- shards
-def shard_arrays(views: list[dict]) -> dict:
+def shard_arrays(views: list[dict], num_points: int) -> dict:
+    if not views:  # tasks with no object seen
+        return {**_trainer().empty_views(num_points), "task_id": np.zeros(0, "<U1"), "object_id": np.zeros(0, "<U1"),
+                "mean": np.zeros((0, 3)), "grasps_kept": np.zeros(0, np.int64), "grasps_total": np.zeros(0, np.int64)}
     counts = np.array([len(v["pos_index"]) for v in views], dtype=np.int64)
     return {"points": np.stack([v["points"] for v in views]),
             "pos_offset": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
@@ -242,8 +248,13 @@ def _shard_job(job) -> dict:
 
     args, index, task_ids = job
     t = time.perf_counter()
-    views = [v for task_id in task_ids for v in task_views(_ENV, task_id, args)]
-    arrays = shard_arrays(views)
+    views = []
+    for task_id in task_ids:
+        try:
+            views += task_views(_ENV, task_id, args)
+        except Exception as error:  # name the task: a rerun would stop at it again
+            raise RuntimeError(f"{task_id}: {type(error).__name__}: {error}") from error
+    arrays = {**shard_arrays(views, args.num_points), "shard_task_id": np.array(task_ids)}
     # fixed zip metadata, stored: the same arrays give the same bytes; renamed into place whole
     atomic_write_bytes(shard_path(Path(args.out), index), npz_bytes(arrays, compress=False))
     return {"index": index, "views": len(views), "grasps_kept": int(arrays["grasps_kept"].sum()),
@@ -258,8 +269,8 @@ def write_manifest(out: Path, config: dict) -> dict:
     entries = []
     for path in sorted(out.glob("shard-*.npz")):
         with np.load(path) as z:
-            views, positives, task_ids = len(z["points"]), len(z["pos_index"]), list(dict.fromkeys(z["task_id"]))
-        entries.append({"file": path.name, "tasks": [str(task_ids[0]), str(task_ids[-1])], "task_count": len(task_ids),
+            views, positives, task_ids = len(z["points"]), len(z["pos_index"]), [str(t) for t in z["shard_task_id"]]
+        entries.append({"file": path.name, "tasks": [task_ids[0], task_ids[-1]], "task_count": len(task_ids),
                         "views": views, "positives": positives, "sha256": sha256_file(path)})
     digest = hashlib.sha256(json.dumps(config, sort_keys=True).encode())
     for entry in entries:

@@ -882,7 +882,9 @@ def export(model, config, args, data_hash, plan, figures, data_seconds, log) -> 
             "device": torch.cuda.get_device_name() if args.device.startswith("cuda") else "cpu",
             "args": dataclasses.asdict(args),
             "val_split": f"train-split objects with holdout(id, {args.val_fraction}) (sha256 of the id); never test-split",
-            "val_init": plan["val_init"], "val": figures,
+            # the held-out objects' table-top views under "val" (as ever), val task views beside
+            "val_init": plan["val_init"]["table_top"], "val": figures["table_top"],
+            **({"val_tasks_init": plan["val_init"]["tasks"], "val_tasks": figures["tasks"]} if "tasks" in figures else {}),
             "selected": {"step": plan["best"]["step"], "score": plan["best"]["score"],
                          "rule": selection_score.__doc__.split("\n\n")[0].replace("\n    ", " ")},
             "checkpoint_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}

@@ -624,7 +624,11 @@ def main(args: Args) -> dict:
             local = int(os.environ.get("LOCAL_RANK", "0"))
             torch.cuda.set_device(local)
             args = dataclasses.replace(args, device=f"cuda:{local}")
-        dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo")
+        import datetime
+
+        # the others wait at a barrier while process 0 makes the data: allow it hours, not minutes
+        dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo",
+                                timeout=datetime.timedelta(hours=3))
     lead = rank == 0
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)

@@ -2,7 +2,8 @@
 baselines/contact_graspnet/task_views.py (views of train tasks through their own cameras,
 scene-consistent labels), train.py reading them (alone and mixed, checkpoint selection,
 torch DDP over 2 CPU processes with gloo), baselines/mppi_collision/labels.py (sharded,
-resumable, manifest). Each makes real views / labels of real tasks (an env per process)."""
+resumable, manifest). Each makes real views / labels of real tasks (an env per process);
+all but the refusals are marked slow (``pytest -m slow tests/test_training_data_at_scale.py``)."""
 from __future__ import annotations
 
 import importlib.util
@@ -47,6 +48,7 @@ def train_views(views_module, tmp_path_factory):
     return args, result
 
 
+@pytest.mark.slow  # ~2.5 min on a busy 2-core machine: an env per worker, two tasks made twice
 def test_task_views_are_sharded_resumable_and_the_same_bytes_per_seed(views_module, train_views, capsys):
     args, result = train_views
     out = Path(args.out)
@@ -71,6 +73,7 @@ def test_task_views_are_sharded_resumable_and_the_same_bytes_per_seed(views_modu
     assert stop.value.code == 2
 
 
+@pytest.mark.slow  # ~3 min on a busy 2-core machine: every grasp of three objects against the world
 def test_a_view_is_the_evaluation_crop_and_no_label_is_a_colliding_grasp(views_module):
     """The labels of train/0000's views, checked against the task's oracle world: every
     positive point's grasp stays out of the furniture and of every object but the one it is
@@ -153,6 +156,7 @@ def run_trainer(tmp_path: Path, *flags: str, processes: int = 1) -> subprocess.C
     return subprocess.run(command, env=env, capture_output=True, text=True, timeout=1200, cwd=ROOT)
 
 
+@pytest.mark.slow  # ~45 s (with val task views made)
 def test_trainer_on_task_views_alone_chooses_the_checkpoint_on_val_task_views(train_views, val_views, tmp_path):
     args, _ = train_views
     done = run_trainer(tmp_path, "--views", "0", "--task-views", args.out, "--val-task-views", str(val_views),
@@ -166,6 +170,7 @@ def test_trainer_on_task_views_alone_chooses_the_checkpoint_on_val_task_views(tr
     assert "validation at step 2" in log and "task views:" in log
 
 
+@pytest.mark.slow  # ~20 s past the views
 def test_trainer_data_parallel_over_two_gloo_processes(train_views, val_views, tmp_path):
     """torchrun with 2 CPU processes: table-top and task views mixed, the batch split between
     the processes; process 0 alone writes the log, checkpoint and export."""
@@ -182,6 +187,7 @@ def test_trainer_data_parallel_over_two_gloo_processes(train_views, val_views, t
     assert saved["step"] == 3 and (tmp_path / "export" / "cgn_ours.pt").is_file()
 
 
+@pytest.mark.slow  # ~1.5 min on a busy 2-core machine
 def test_collision_labels_are_sharded_resumable_and_hashed_as_the_trainer_hashes(tmp_path, capsys):
     sys.path.insert(0, str(MPPI))
     import labels  # by its own name: its spawned workers import it so

@@ -69,11 +69,11 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import torch
 import tyro
-from typing_extensions import Annotated
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
 from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather

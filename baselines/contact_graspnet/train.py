@@ -81,11 +81,13 @@ from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, 
 DATA_VERSION = 3  # bump when make_scene / render_view change what a seed produces
 
 
+RUN_HELP = ("run folder: log, data cache, checkpoint (re-running resumes); spelled --run-dir under torchrun, whose "
+            "parser takes --run for its --run-path")
+
+
 @dataclass
 class Args:
-    # run folder: log, data cache, checkpoint (re-running resumes); under torchrun spell it
-    # --run-dir (torchrun's own parser takes --run for an abbreviation of its --run-path)
-    run: Annotated[str, tyro.conf.arg(aliases=("--run-dir",))] = "runs/cgn/ours"
+    run: Annotated[str, tyro.conf.arg(aliases=("--run-dir",), help=RUN_HELP)] = "runs/cgn/ours"
     device: str = "cuda" if torch.cuda.is_available() else "cpu"
     seed: int = 0
     views: int = 6000  # synthetic training views (of held-in train-split objects)

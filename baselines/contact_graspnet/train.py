@@ -35,12 +35,17 @@ Losses (the original's): confidence BCE over the 512 hardest of the 2048 contact
 ADD-S on gripper control points (min over the two finger-symmetric labels) for positive
 points, weighted by the predicted confidence; width L1 for positive points.
 
-    # the H100 run (docs/grasping.md, "Training our own weights"): fine-tunes the pretrained
+    # the H100 run (docs/grasping-training.md): fine-tunes the pretrained
     # weights; --train-seconds fixes --steps from the measured step time at the start, each
     # call stops at --time-limit with a checkpoint and the same command resumes it (the run
     # folder must survive between calls); the last call validates and exports
     python baselines/contact_graspnet/train.py --run /tmp/cgn-ours-v3 --workers 14 --train-seconds 900 \
         --time-limit 540 --export --export-dir runs/cgn/export
+    # views of train tasks through their own cameras (task_views.py) mixed in, checkpoints
+    # chosen on views of val tasks, data-parallel over 4 GPUs (torch DDP; --batch-size per
+    # process; the run folder spelled --run-dir under torchrun)
+    torchrun --standalone --nproc-per-node 4 baselines/contact_graspnet/train.py --run-dir /tmp/cgn-ours-v4 \
+        --task-views /data/cgn/train --val-task-views /data/cgn/val --val-every 250 --export --export-dir runs/cgn/export
     # a CPU smoke run: tiny network, few points
     python baselines/contact_graspnet/train.py --run /tmp/cgn-smoke --tiny --views 8 --val-views 2 --steps 5
 
@@ -64,9 +69,11 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import torch
+import tyro
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
 from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
@@ -74,9 +81,13 @@ from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, 
 DATA_VERSION = 3  # bump when make_scene / render_view change what a seed produces
 
 
+RUN_HELP = ("run folder: log, data cache, checkpoint (re-running resumes); spelled --run-dir under torchrun, whose "
+            "parser takes --run for its --run-path")
+
+
 @dataclass
 class Args:
-    run: str = "runs/cgn/ours"  # run folder: log, data cache, checkpoint (re-running resumes)
+    run: Annotated[str, tyro.conf.arg(aliases=("--run-dir",), help=RUN_HELP)] = "runs/cgn/ours"
     device: str = "cuda" if torch.cuda.is_available() else "cpu"
     seed: int = 0
     views: int = 6000  # synthetic training views (of held-in train-split objects)
@@ -107,13 +118,21 @@ class Args:
     export: bool = False  # write cgn_ours.{pt,json,log} into --export-dir when done
     export_dir: str = "assets/checkpoints"  # where --export writes (the repo's, or a folder to copy from)
     workers: int = 0  # data-generation processes (0: all cores)
+    # views of train-suite tasks through their own cameras (task_views.py folders, each with
+    # its manifest.json), trained on alongside the --views table-top ones (--views 0: alone)
+    task_views: tuple[str, ...] = ()
+    # views of val-suite tasks (task_views.py --suite val): every --val-every steps the
+    # checkpoint is judged on them, and the best one is what --export ships
+    val_task_views: str = ""
+    val_every: int = 0  # steps between validations (0: only at the end)
 
 
 # Flags that change what is trained (the retraining command names them all); the others
 # (run folder, device, workers, time limits, export) change only where and how fast.
 TRAINING_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
                   "steps", "batch_size", "lr", "lr_final", "warmup_steps", "init", "freeze_bn", "conf_topk",
-                  "adds_weight", "width_weight", "positive_radius", "tiny")
+                  "adds_weight", "width_weight", "positive_radius", "tiny", "task_views", "val_task_views",
+                  "val_every")
 DATA_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
               "positive_radius")
 # --tiny: fewer centres and narrow layers, for CPU tests (seconds per step, not minutes)
@@ -228,6 +247,20 @@ def collision_free(T_world_hand: np.ndarray, obstacles: list) -> np.ndarray:
     return free
 
 
+def finger_contacts(T_world_hand: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The two finger contacts of each grasp ((N, 4, 4) panda_hand poses, (N,) widths) and the
+    label each carries: (2N, 3) contacts, (2N, 4, 4) grasps in CGN's frame, (2N,) widths, the
+    +y finger's contacts first. On the +y finger the baseline is -y (hand y = -cgn x); on the
+    -y finger the label is the same grasp turned half about z (baseline +y)."""
+    tcp = T_world_hand[:, :3, 3] + GRIPPER_DEPTH * T_world_hand[:, :3, 2]
+    y = T_world_hand[:, :3, 1]
+    contacts, labels = [], []
+    for sign, T_extra in ((1.0, np.eye(4)), (-1.0, _yaw(np.pi))):
+        contacts.append(tcp + sign * 0.5 * width[:, None] * y)
+        labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
+    return np.concatenate(contacts).reshape(-1, 3), np.concatenate(labels).reshape(-1, 4, 4), np.concatenate([width, width])
+
+
 def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
     """1-3 objects on a table: surface points with their owner (-1: table), and the two finger
     contacts of every verified grasp that is collision-free in this scene (``collision_free``)
@@ -266,16 +299,12 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
         T_world_hand = poses[k][None] @ grasps.T_object_hand
         keep = collision_free(T_world_hand, others)
         T_world_hand = T_world_hand[keep]
-        tcp = T_world_hand[:, :3, 3] + GRIPPER_DEPTH * T_world_hand[:, :3, 2]
-        y = T_world_hand[:, :3, 1]
         w = np.asarray(grasps.width, dtype=np.float64)[keep]
-        # contact on the +y finger: baseline -y (hand y = -cgn x); on the -y finger: the same
-        # grasp turned half about z (baseline +y).
-        for sign, T_extra in ((1.0, np.eye(4)), (-1.0, _yaw(np.pi))):
-            contacts.append(tcp + sign * 0.5 * w[:, None] * y)
-            labels.append(T_world_hand @ T_HAND_CGN @ T_extra)
-            widths.append(w)
-            hands.append(T_world_hand)
+        c, lab, wid = finger_contacts(T_world_hand, w)
+        contacts.append(c)
+        labels.append(lab)
+        widths.append(wid)
+        hands.append(np.concatenate([T_world_hand, T_world_hand]))
     count = int((2 * TABLE_HALF) ** 2 / SURFACE_SPACING**2)
     table = np.c_[rng.uniform(-TABLE_HALF, TABLE_HALF, (count, 2)), np.zeros(count)]
     contacts = np.concatenate(contacts)
@@ -345,6 +374,8 @@ def build_views(ids: list[str], count: int, args: Args, seed: int, pool=None) ->
     """``count`` views of random scenes of ``ids`` (made in ``pool`` if given): points
     [count, N, 3], and the positive points' labels concatenated (``pos_*``) with
     ``pos_offset`` [count + 1] marking each view's run."""
+    if count == 0:
+        return empty_views(args.num_points)
     rng = np.random.default_rng(seed)
     lo, hi = args.objects_per_view
     cameras = max(1, args.views_per_scene)
@@ -359,6 +390,49 @@ def build_views(ids: list[str], count: int, args: Args, seed: int, pool=None) ->
     return {"points": np.stack([v["points"] for v in views]),
             "pos_offset": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
             **{k: np.concatenate([v[k] for v in views]) for k in ("pos_index", "pos_grasp", "pos_width")}}
+
+
+def empty_views(num_points: int) -> dict:
+    return {"points": np.zeros((0, num_points, 3), np.float32), "pos_offset": np.zeros(1, np.int64),
+            "pos_index": np.zeros(0, np.int32), "pos_grasp": np.zeros((0, 3, 4), np.float16),
+            "pos_width": np.zeros(0, np.float16)}
+
+
+def concat_views(parts: list[dict]) -> dict:
+    """One set of views from several (``build_views``'s arrays), their label runs re-based."""
+    offsets, base = [], 0
+    for part in parts:
+        offsets.append(part["pos_offset"][1:] + base)
+        base += int(part["pos_offset"][-1])
+    return {"points": np.concatenate([p["points"] for p in parts]),
+            "pos_offset": np.concatenate([np.zeros(1, np.int64), *offsets]).astype(np.int64),
+            **{k: np.concatenate([p[k] for p in parts]) for k in ("pos_index", "pos_grasp", "pos_width")}}
+
+
+def load_task_views(folder: str, suite: str, num_points: int) -> tuple[dict, str]:
+    """The views of a finished ``task_views.py`` folder of ``suite`` (every shard its manifest
+    lists, each checked against its sha256) and the manifest's sha256."""
+    from fetchbench_ms.tasks.splits import refuse_test_task_ids
+    from fetchbench_ms.utils.io import sha256_file
+
+    path = Path(folder)
+    if not (path / "manifest.json").is_file():
+        raise ValueError(f"{folder}: no manifest.json (task views unfinished or missing): run task_views.py into it")
+    manifest = json.loads((path / "manifest.json").read_text())
+    config = manifest["config"]
+    if config["suite"] != suite or config["num_points"] != num_points:
+        raise ValueError(f"{folder} holds views of suite {config['suite']!r} with {config['num_points']} points; "
+                         f"expected suite {suite!r} with {num_points} points (--num-points)")
+    parts, task_ids = [], set()
+    for entry in manifest["shards"]:
+        shard = path / entry["file"]
+        if sha256_file(shard) != entry["sha256"]:
+            raise ValueError(f"{shard}: its sha256 is not the manifest's: remake it (delete it, rerun task_views.py)")
+        with np.load(shard) as z:
+            parts.append({k: z[k] for k in ("points", "pos_offset", "pos_index", "pos_grasp", "pos_width")})
+            task_ids.update(str(t) for t in z["task_id"])
+    refuse_test_task_ids(sorted(task_ids), "Contact-GraspNet training")
+    return concat_views(parts), manifest["sha256"]
 
 
 @contextlib.contextmanager
@@ -418,7 +492,7 @@ def load_or_build_data(args: Args, run: Path, log) -> tuple[dict, dict, str]:
     log(f"data: {args.views} train views of {len(train_ids)} objects, {args.val_views} val views of {len(val_ids)} "
         f"held-out train-split objects, in {seconds:.0f} s ({seconds / (args.views + args.val_views):.3f} s per view "
         f"with {workers} workers); "
-        f"{len(train['pos_index']) / np.prod(train['points'].shape[:2]):.3f} of points positive")
+        f"{len(train['pos_index']) / max(1, np.prod(train['points'].shape[:2])):.3f} of training points positive")
     return train, val, data_digest(arrays)
 
 
@@ -511,6 +585,8 @@ def retrain_command(args: Args) -> str:
         flag = "--" + name.replace("_", "-")
         if isinstance(value, bool):
             words += [flag] if value else []
+        elif value in ((), ""):  # an unset folder flag
+            continue
         elif isinstance(value, tuple):
             words += [flag, *map(str, value)]
         else:
@@ -539,11 +615,30 @@ def main(args: Args) -> dict:
 
     # The objects the views are made of: train-split only (before anything is written).
     cli_guard(train_val_objects, args.val_fraction)
+    # data-parallel under torchrun (WORLD_SIZE > 1): every process trains on its own share of
+    # each step's batch (--batch-size per process); process 0 alone logs, validates and saves
+    world, rank = int(os.environ.get("WORLD_SIZE", "1")), int(os.environ.get("RANK", "0"))
+    dist = None
+    if world > 1:
+        import torch.distributed as dist
+
+        if args.device.startswith("cuda"):
+            local = int(os.environ.get("LOCAL_RANK", "0"))
+            torch.cuda.set_device(local)
+            args = dataclasses.replace(args, device=f"cuda:{local}")
+        import datetime
+
+        # the others wait at a barrier while process 0 makes the data: allow it hours, not minutes
+        dist.init_process_group("nccl" if args.device.startswith("cuda") else "gloo",
+                                timeout=datetime.timedelta(hours=3))
+    lead = rank == 0
     run = Path(args.run)
     run.mkdir(parents=True, exist_ok=True)
-    log_file = open(run / "log.txt", "a")
+    log_file = open(run / "log.txt", "a") if lead else None
 
     def log(message: str) -> None:
+        if not lead:
+            return
         line = f"[{time.strftime('%H:%M:%S')}] {message}"
         print(line, flush=True)
         log_file.write(line + "\n")
@@ -552,7 +647,7 @@ def main(args: Args) -> dict:
     t_start = time.perf_counter()
     if args.init not in ("scratch", "pretrained"):
         raise ValueError(f"--init {args.init!r}: valid: scratch, pretrained")
-    log(f"call: {' '.join(sys.argv)}")
+    log(f"call: {' '.join(sys.argv)}" + (f" ({world} processes, {dist.get_backend()})" if dist else ""))
     torch.manual_seed(args.seed)
     torch.set_num_threads(max(1, min(torch.get_num_threads(), args.workers or torch.get_num_threads())))
     torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = True
@@ -561,17 +656,46 @@ def main(args: Args) -> dict:
         args = dataclasses.replace(args, num_points=min(args.num_points, 1024))
     config = CGNConfig(**TINY) if args.tiny else CGNConfig()
     model = ContactGraspNet(config).to(args.device)
+    net = model  # what the training step calls: the DDP wrapper when data-parallel
     if args.init == "pretrained" and not args.tiny:  # before the data: a missing package fails at once
         from fetchbench_ms.grasping.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
     freeze_bn = args.freeze_bn and args.init == "pretrained" and not args.tiny
     log(f"farthest-point sampling on {args.device}: {fps_backend(torch.device(args.device))}")
+    if dist and not lead:
+        dist.barrier()  # process 0 makes (or finds) the cached data first; the others read it
     train, val, data_hash = load_or_build_data(args, run, log)
+    if dist and lead:
+        dist.barrier()
+    val_sets = {"table_top": val}
+    if args.task_views or args.val_task_views:
+        hashes = [data_hash]
+        parts = [train]
+        for folder in args.task_views:
+            views, digest = load_task_views(folder, "train", args.num_points)
+            parts.append(views)
+            hashes.append(f"train:{digest}")
+            log(f"task views: {len(views['points'])} from {folder} (manifest {digest[:12]})")
+        train = concat_views(parts)
+        if args.val_task_views:
+            val_sets["tasks"], digest = load_task_views(args.val_task_views, "val", args.num_points)
+            hashes.append(f"val:{digest}")
+            log(f"val task views: {len(val_sets['tasks']['points'])} from {args.val_task_views} (manifest {digest[:12]})")
+        data_hash = hashlib.sha256("|".join(hashes).encode()).hexdigest()
+    if len(train["points"]) == 0:
+        raise ValueError("no training views: give --views > 0 or --task-views folders")
     data_seconds = time.perf_counter() - t_start
+    if dist:
+        # set_abstract_final is in the state dict only so that the pretrained weights load
+        # strictly; forward never uses it, and DDP waits for a gradient of every trained parameter
+        model.set_abstract_final.requires_grad_(False)
+        net = torch.nn.parallel.DistributedDataParallel(model, device_ids=[args.device] if args.device.startswith("cuda")
+                                                        else None)
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr)
     # plan["steps"] is None while --train-seconds is still timing the first steps (all warm-up)
-    plan = {"steps": None if args.train_seconds > 0 else args.steps, "train_seconds": 0.0, "val_init": None}
+    plan = {"steps": None if args.train_seconds > 0 else args.steps, "train_seconds": 0.0, "val_init": None,
+            "best": None}
 
     def lr_factor(s: int) -> float:
         if s < args.warmup_steps:
@@ -607,17 +731,19 @@ def main(args: Args) -> dict:
     log(f"contact points of {len(train_contacts)} views in {time.perf_counter() - t:.1f} s")
 
     def save() -> None:
+        if not lead:
+            return
         _atomic_save({"model": model.state_dict(), "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
                       "step": step, "rng": rng, "plan": plan, "args": dataclasses.asdict(args), "data_sha256": data_hash},
                      ckpt)
 
     @torch.no_grad()
-    def validate() -> dict:
+    def validate_set(views: dict) -> dict:
         model.eval()
         sums: dict = {}
-        count = len(val["points"])
+        count = len(views["points"])
         for s in range(0, count, args.batch_size):
-            batch = batch_to_device(val, np.arange(s, min(count, s + args.batch_size)), args.device)
+            batch = batch_to_device(views, np.arange(s, min(count, s + args.batch_size)), args.device)
             index = farthest_point_sample(batch["points"], config.centers[0])
             out = model(batch["points"], index)
             for k, v in {**losses(out, batch, index, args), **pose_agreement(out, batch)}.items():
@@ -625,11 +751,24 @@ def main(args: Args) -> dict:
         train_mode(model, freeze_bn)
         return {k: round(v / count, 5) for k, v in sums.items()}
 
+    def validate() -> dict:
+        """Figures per validation set: ``table_top`` (held-out train-split objects) and, with
+        --val-task-views, ``tasks`` (val-suite tasks through their cameras)."""
+        return {name: validate_set(views) for name, views in val_sets.items()}
+
+    def consider(figures: dict) -> None:
+        """Keep the weights if their selection score is the best so far (``best.pt``)."""
+        score = selection_score(figures)
+        if plan["best"] is None or score > plan["best"]["score"]:
+            plan["best"] = {"step": step, "score": score, "val": figures}
+            _atomic_save({"model": model.state_dict(), "step": step}, run / "best.pt")
+            log(f"best so far at step {step}: selection score {score:.4f}")
+
     def sync() -> None:
         if args.device.startswith("cuda"):
             torch.cuda.synchronize()
 
-    if step == 0 and plan["val_init"] is None:
+    if lead and step == 0 and plan["val_init"] is None:
         plan["val_init"] = validate()
         log(f"validation at init ({args.init}; held-out train-split objects): {plan['val_init']}")
     train_mode(model, freeze_bn)
@@ -642,17 +781,20 @@ def main(args: Args) -> dict:
         if plan["steps"] is None and step == timing[0]:
             sync()
             t_timing = time.perf_counter()
-        rows = rng.choice(len(train["points"]), size=min(args.batch_size, len(train["points"])), replace=False)
+        # one draw for all processes (the same rng in each), each takes its share
+        rows = rng.choice(len(train["points"]), size=min(args.batch_size * world, len(train["points"])), replace=False)
+        angles = rng.uniform(0, 2 * np.pi, len(rows))
+        rows, angles = rows[rank::world], angles[rank::world]
         batch = batch_to_device(train, rows, args.device)
         # augmentation: a random yaw about z (the clouds are z up, as at inference)
-        angle = torch.as_tensor(rng.uniform(0, 2 * np.pi, len(rows)), device=args.device, dtype=torch.float32)
+        angle = torch.as_tensor(angles, device=args.device, dtype=torch.float32)
         R = torch.zeros(len(rows), 4, 4, device=args.device)
         R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1] = angle.cos(), -angle.sin(), angle.sin(), angle.cos()
         R[:, 2, 2] = R[:, 3, 3] = 1.0
         batch["points"] = batch["points"] @ R[:, :3, :3].transpose(1, 2)
         batch["grasp"] = R[:, None] @ batch["grasp"]
         index = train_contacts[torch.as_tensor(rows, device=args.device)]
-        parts = losses(model(batch["points"], index), batch, index, args)
+        parts = losses(net(batch["points"], index), batch, index, args)
         optimizer.zero_grad(set_to_none=True)
         parts["loss"].backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -664,6 +806,10 @@ def main(args: Args) -> dict:
             sync()
             per_step = (time.perf_counter() - t_timing) / (timing[1] - timing[0])
             plan["steps"] = max(step + 1, int(args.train_seconds / per_step))
+            if dist:  # process 0's figure for all, or they would stop at different steps
+                shared = [plan["steps"]]
+                dist.broadcast_object_list(shared, src=0)
+                plan["steps"] = shared[0]
             log(f"--train-seconds {args.train_seconds:.0f}: {per_step:.3f} s per step, so --steps {plan['steps']}")
         if step % args.log_every == 0 or step == plan["steps"]:
             log(f"step {step} " + " ".join(f"{k} {float(v.detach()):.4f}" for k, v in parts.items())
@@ -672,7 +818,20 @@ def main(args: Args) -> dict:
             plan["train_seconds"] += time.perf_counter() - t_call
             t_call = time.perf_counter()
             save()
-        if args.time_limit and time.perf_counter() - t_start > args.time_limit and step < (plan["steps"] or step + 1):
+        if args.val_every and step % args.val_every == 0 and step < (plan["steps"] or step + 1):
+            if lead:
+                figures = validate()
+                log(f"validation at step {step}: {figures}")
+                consider(figures)
+            if dist:
+                dist.barrier()
+        stop = bool(args.time_limit and time.perf_counter() - t_start > args.time_limit
+                    and step < (plan["steps"] or step + 1))
+        if dist and args.time_limit:  # process 0 decides for all
+            flag = torch.tensor([int(stop)], device=args.device)
+            dist.broadcast(flag, src=0)
+            stop = bool(flag.item())
+        if stop:
             plan["train_seconds"] += time.perf_counter() - t_call
             save()
             log(f"time limit: checkpoint at step {step}; run the same command again to resume")
@@ -681,14 +840,33 @@ def main(args: Args) -> dict:
             return {"step": step, "done": False, "losses": [float(v) for v in history]}
     plan["train_seconds"] += time.perf_counter() - t_call
     save()
+    if dist:
+        dist.barrier()
+        dist.destroy_process_group()
+    if not lead:
+        return {"step": step, "done": True, "losses": [float(v) for v in history]}
     figures = validate()
-    log(f"validation (held-out train-split objects): {figures}; training took {plan['train_seconds']:.0f} s")
+    log(f"validation: {figures}; training took {plan['train_seconds']:.0f} s")
+    consider(figures)
+    if plan["best"]["step"] != step:  # an earlier validation scored higher: those weights ship
+        model.load_state_dict(torch.load(run / "best.pt", map_location=args.device, weights_only=True)["model"])
+        figures = plan["best"]["val"]
+        log(f"selected the weights of step {plan['best']['step']} (selection score {plan['best']['score']:.4f})")
+    save()
     args = dataclasses.replace(args, steps=plan["steps"])
     if args.export:
         export(model, config, args, data_hash, plan, figures, data_seconds, log)
         copy_log(run, args)
     return {"step": step, "done": True, "losses": [float(v) for v in history], "val": figures,
-            "val_init": plan["val_init"]}
+            "val_init": plan["val_init"], "selected_step": plan["best"]["step"]}
+
+
+def selection_score(figures: dict) -> float:
+    """What checkpoints are chosen by: the mean of the top-1 and top-10 pose agreement
+    (``pose_agreement``: the best-scored grasps are scene-consistent verified ones) on the
+    val-suite task views when given, else on the table-top views of held-out objects."""
+    chosen = figures.get("tasks", figures["table_top"])
+    return 0.5 * (chosen["top1_pose_agree"] + chosen["top10_pose_agree"])
 
 
 def copy_log(run: Path, args: Args) -> None:
@@ -710,7 +888,11 @@ def export(model, config, args, data_hash, plan, figures, data_seconds, log) -> 
             "device": torch.cuda.get_device_name() if args.device.startswith("cuda") else "cpu",
             "args": dataclasses.asdict(args),
             "val_split": f"train-split objects with holdout(id, {args.val_fraction}) (sha256 of the id); never test-split",
-            "val_init": plan["val_init"], "val": figures,
+            # the held-out objects' table-top views under "val" (as ever), val task views beside
+            "val_init": plan["val_init"]["table_top"], "val": figures["table_top"],
+            **({"val_tasks_init": plan["val_init"]["tasks"], "val_tasks": figures["tasks"]} if "tasks" in figures else {}),
+            "selected": {"step": plan["best"]["step"], "score": plan["best"]["score"],
+                         "rule": selection_score.__doc__.split("\n\n")[0].replace("\n    ", " ")},
             "checkpoint_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
     tmp = path.with_name("cgn_ours.json.tmp")
     tmp.write_text(json.dumps(meta, indent=1) + "\n")
@@ -719,6 +901,4 @@ def export(model, config, args, data_hash, plan, figures, data_seconds, log) -> 
 
 
 if __name__ == "__main__":
-    import tyro
-
     main(tyro.cli(Args))

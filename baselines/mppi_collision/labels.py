@@ -23,20 +23,29 @@ world, held by one of its annotated grasps, its convex parts as ``checker.Attach
 spheres in the hand frame (their clearances are labelled too), the fingers not checked
 (as the retrieval's checker).
 
-Costs (this 2-core machine, one process): rendering a task ~1.5 s, grid 0.9 s, IK ~0.8 s,
-labels ~3 ms per query on the CPU (every convex plane of the scanned objects; a GPU does
-them much faster: ``--device cuda``). Resumable: finished tasks are skipped;
-``--time-limit`` stops between tasks.
+Costs (one process): rendering a task ~1.5 s, grid 0.9 s, IK ~0.8 s, labels ~3 ms per query
+on the CPU (every convex plane of the scanned objects; a GPU does them much faster:
+``--device cuda``).
 
-    python baselines/mppi_collision/labels.py --suite train --tasks 0:960 --out /tmp/mppi/train --workers 4
+Each task's file is a shard: written whole under a temporary name and renamed, with fixed
+zip metadata (``utils.io.npz_bytes``: the same seed and flags give the same bytes on one
+machine). Worker processes (one env each) take tasks from a shared queue, so the run scales
+with cores. Resumable: finished tasks are skipped (the flags are checked against
+``<out>/config.json``); ``--time-limit`` stops starting tasks. When every task of the slice
+is labelled, ``<out>/manifest.json`` lists every task file in the folder with its content
+hash and one sha256 over them all (the same hash ``train.py`` records as its data hash); the
+end line gives the labelled queries per core-minute.
+
+    python baselines/mppi_collision/labels.py --suite train --tasks 0:3000 --out /data/mppi/train --workers 60
     python baselines/mppi_collision/labels.py --suite val --tasks 0:64 --out /tmp/mppi/val --workers 4
 """
 from __future__ import annotations
 
 import hashlib
+import json
 import multiprocessing as mp
 import os
-import sys
+import queue as queue_module
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,11 +64,15 @@ class Args:
     tasks: str = "0:960"  # slice of the suite's task order, "a:b"
     out: str = "/tmp/mppi/train"  # one .npz per task
     configs: int = 6000  # queries per task
-    workers: int = 1  # processes (each owns one env)
+    workers: int = 0  # processes (each owns one env; 0: all cores)
     seed: int = 0
     carry_share: float = 0.3  # share of tasks labelled as "carry" (target held, fingers unchecked)
     time_limit: float = 0.0  # s; > 0: start no task after this long (re-run to continue)
     device: str = "cpu"  # where the exact distances are computed (cuda: faster labels)
+
+
+# Flags that change what a task's file holds (config.json; a rerun into the folder must match).
+DATA_FLAGS = ("suite", "configs", "seed", "carry_share")
 
 
 def task_seed(task_id: str, seed: int) -> int:
@@ -219,13 +232,50 @@ def label_task(env, task_id: str, args: Args) -> dict:
                 seconds=np.array([t_render, t_grid, t_ik, time.perf_counter() - t0 - t_render - t_grid - t_ik]))
 
 
+def task_path(out: Path, task_id: str) -> Path:
+    return out / (task_id.replace("/", "_") + ".npz")
+
+
 def _save(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez_compressed(tmp, **data)
-    tmp.replace(path)
+    """The task's file, whole or not at all, same arrays same bytes (timings left out)."""
+    from fetchbench_ms.utils.io import atomic_write_bytes, npz_bytes
+
+    atomic_write_bytes(path, npz_bytes({k: v for k, v in data.items() if k != "seconds"}))
 
 
-def _worker(args: Args, task_ids: list[str], t_start: float, queue) -> None:
+def labels_digest(files: list[Path]) -> str:
+    """sha256 over task files (sorted): each name and its q, clearance_mm, label and grid
+    bytes; ``train.py``'s data hash of a folder is this over its files."""
+    h = hashlib.sha256()
+    for f in sorted(files):
+        with np.load(f) as z:
+            h.update(f.name.encode())
+            for key in ("q", "clearance_mm", "label", "grid"):
+                h.update(np.ascontiguousarray(z[key]).tobytes())
+    return h.hexdigest()
+
+
+def write_manifest(out: Path, config: dict) -> dict:
+    """``<out>/manifest.json``: every task file in ``out`` with its queries, collision share and
+    content hash (``labels_digest`` of it alone), and ``labels_digest`` of them all."""
+    from fetchbench_ms.utils.io import atomic_write_text
+
+    files = sorted(f for f in out.glob("*.npz") if not f.name.endswith(".tmp.npz"))
+    entries = []
+    for f in files:
+        with np.load(f) as z:
+            entries.append({"file": f.name, "task_id": str(z["task_id"]), "carry": bool(z["carry"]),
+                            "queries": int(len(z["q"])), "collide": round(float(z["label"].mean()), 4),
+                            "sha256": labels_digest([f])})
+    manifest = {"config": config, "tasks": len(entries), "queries": sum(e["queries"] for e in entries),
+                "sha256": labels_digest(files), "files": entries}
+    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1) + "\n")
+    return manifest
+
+
+def _worker(args: Args, tasks, t_start: float, results) -> None:
+    """Label tasks taken from the shared ``tasks`` queue (None: no more) until it is empty or
+    the time limit has passed; one env for them all."""
     import gymnasium as gym
     import torch
 
@@ -234,20 +284,21 @@ def _worker(args: Args, task_ids: list[str], t_start: float, queue) -> None:
     torch.set_num_threads(1)
     env = gym.make("FetchBench-v0", obs_mode="pointcloud", task_suite=args.suite, control_mode="pd_joint_pos")
     out = Path(args.out)
-    for task_id in task_ids:
-        if args.time_limit > 0 and time.time() - t_start > args.time_limit:
+    while True:
+        task_id = tasks.get()
+        if task_id is None or (args.time_limit > 0 and time.time() - t_start > args.time_limit):
             break
-        path = out / (task_id.replace("/", "_") + ".npz")
+        path = task_path(out, task_id)
         if path.exists():
             continue
         data = label_task(env, task_id, args)
         _save(path, data)
-        queue.put((task_id, data["label"].mean(), data["seconds"].tolist()))
+        results.put((task_id, float(data["label"].mean()), len(data["q"]), data["seconds"].tolist()))
     env.close()
-    queue.put(None)
+    results.put(None)
 
 
-def main(args: Args, reporting_only: bool = False) -> None:
+def main(args: Args, reporting_only: bool = False) -> dict | None:
     """Label the tasks. ``reporting_only``: the test suite is allowed (the benchmark script
     measures the network there; nothing trains on its files, ``train.py`` refuses them)."""
     from fetchbench_ms.tasks.splits import cli_guard, refuse_test
@@ -257,35 +308,74 @@ def main(args: Args, reporting_only: bool = False) -> None:
         cli_guard(refuse_test, args.suite, "collision-net labelling")  # exit 2, before anything is written
     if args.suite not in ALLOWED_SUITES and not (reporting_only and args.suite == "test"):
         raise SystemExit(f"labels come from train-split suites only; got {args.suite!r}; valid: {', '.join(ALLOWED_SUITES)}")
-    ids = load_suite(args.suite).ids()
-    a, b = (int(x) if x else None for x in args.tasks.split(":"))
-    ids = ids[slice(a, b)]
+    if args.workers < 0 or args.configs < 1:
+        raise SystemExit(f"--workers must be >= 0 (0: all cores) and --configs >= 1; got {args.workers}, {args.configs}")
+    suite = load_suite(args.suite)
+    try:
+        a, b = (int(x) if x else None for x in args.tasks.split(":"))
+    except ValueError:
+        raise SystemExit(f"--tasks {args.tasks!r}: expected a slice a:b of the suite's {len(suite)} tasks") from None
+    ids = suite.ids()[slice(a, b)]
+    if not ids:
+        raise SystemExit(f"--tasks {args.tasks!r} selects none of the {len(suite)} tasks of suite {args.suite!r}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    todo = [t for t in ids if not (out / (t.replace("/", "_") + ".npz")).exists()]
-    print(f"{len(ids)} tasks, {len(todo)} to label, {args.workers} workers", flush=True)
+    config = {k: getattr(args, k) for k in DATA_FLAGS}
+    config_path = out / "config.json"
+    if config_path.is_file():
+        saved = json.loads(config_path.read_text())
+        if saved != config:
+            changed = sorted(k for k in set(saved) | set(config) if saved.get(k) != config.get(k))
+            raise SystemExit(f"{out} holds labels made with other {', '.join(changed)} ({saved}); use a new --out")
+    else:
+        from fetchbench_ms.utils.io import atomic_write_text
+
+        atomic_write_text(config_path, json.dumps(config, indent=1, sort_keys=True) + "\n")
+    todo = [t for t in ids if not task_path(out, t).exists()]
+    workers = max(1, min(args.workers or os.cpu_count() or 1, len(todo) or 1))
+    print(f"{len(ids)} tasks, {len(todo)} to label, {workers} workers", flush=True)
     t_start = time.time()
-    ctx = mp.get_context("spawn")
-    queue = ctx.Queue()
-    chunks = [todo[i::args.workers] for i in range(args.workers)]
-    procs = [ctx.Process(target=_worker, args=(args, c, t_start, queue)) for c in chunks if c]
-    for p in procs:
-        p.start()
-    done, running = 0, len(procs)
-    while running:
-        item = queue.get()
-        if item is None:
-            running -= 1
-            continue
-        done += 1
-        task_id, share, sec = item
-        print(f"{task_id} collide {share:.2f} render {sec[0]:.2f}s grid {sec[1]:.2f}s ik {sec[2]:.2f}s "
-              f"labels {sec[3]:.2f}s [{done}/{len(todo)} in {time.time() - t_start:.0f}s]", flush=True)
-    for p in procs:
-        p.join()
-    left = [t for t in ids if not (out / (t.replace("/", "_") + ".npz")).exists()]
+    done, queries = 0, 0
+    if todo:
+        ctx = mp.get_context("spawn")
+        tasks, results = ctx.Queue(), ctx.Queue()
+        for task_id in todo + [None] * workers:
+            tasks.put(task_id)
+        procs = [ctx.Process(target=_worker, args=(args, tasks, t_start, results)) for _ in range(workers)]
+        for p in procs:
+            p.start()
+        running = len(procs)
+        while running:
+            try:
+                item = results.get(timeout=60)
+            except queue_module.Empty:  # a worker that died (killed, out of memory) sends nothing
+                if not any(p.is_alive() for p in procs):
+                    break
+                continue
+            if item is None:
+                running -= 1
+                continue
+            done += 1
+            task_id, share, count, sec = item
+            queries += count
+            print(f"{task_id} collide {share:.2f} render {sec[0]:.2f}s grid {sec[1]:.2f}s ik {sec[2]:.2f}s "
+                  f"labels {sec[3]:.2f}s [{done}/{len(todo)} in {time.time() - t_start:.0f}s]", flush=True)
+        for p in procs:
+            p.join()
+        wall = time.time() - t_start
+        if done:
+            print(f"labelled {done} tasks, {queries} queries in {wall:.0f} s with {workers} workers: "
+                  f"{queries / (workers * wall / 60):.0f} labelled queries ({done / (workers * wall / 60):.2f} tasks) "
+                  "per core-minute", flush=True)
+    left = [t for t in ids if not task_path(out, t).exists()]
     print(f"done: {len(ids) - len(left)} of {len(ids)} tasks labelled in {out}" + (" (re-run to continue)" if left else ""),
           flush=True)
+    if left:
+        return None
+    manifest = write_manifest(out, config)
+    print(f"manifest {out / 'manifest.json'}: {manifest['tasks']} tasks, {manifest['queries']} queries, "
+          f"sha256 {manifest['sha256'][:16]}", flush=True)
+    return manifest
 
 
 if __name__ == "__main__":

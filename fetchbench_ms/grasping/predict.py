@@ -69,8 +69,8 @@ def load_model(name: str = "pretrained", device: str = "cpu") -> ContactGraspNet
         path = ours_checkpoint()
         if not path.is_file():
             raise FileNotFoundError(f"no trained Contact-GraspNet checkpoint at {path}: make it with "
-                                    "`python baselines/contact_graspnet/train.py --export` (a GPU run; docs/grasping.md, "
-                                    "\"Training our own weights\"), or use --grasp-model pretrained")
+                                    "`python baselines/contact_graspnet/train.py --export` (a GPU run; "
+                                    "docs/grasping-training.md), or use --grasp-model pretrained")
         saved = torch.load(path, map_location="cpu", weights_only=True)
         state, config = saved["state_dict"], CGNConfig(**saved.get("config", {}))
     model = ContactGraspNet(config)

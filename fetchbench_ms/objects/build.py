@@ -15,32 +15,17 @@ import json
 import multiprocessing as mp
 import os
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from ..utils.io import append_jsonl_atomic, atomic_write_bytes, atomic_write_text, canonical_json, sha256_bytes
+from ..utils.io import append_jsonl_atomic, atomic_write_bytes, atomic_write_text, canonical_json, npz_bytes, sha256_bytes
 from ..utils.mesh_cache import cache_dir
 from . import catalog, decompose, geometry as g, ycb
 
 
 def work_dir() -> Path:
     return cache_dir() / "objects_build"
-
-
-def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    """A compressed .npz with fixed timestamps, so equal arrays give equal bytes
-    (``np.savez_compressed`` stamps the current time into the zip)."""
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for name in sorted(arrays):
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asanyarray(arrays[name]), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, member.getvalue())
-    return buffer.getvalue()
 
 
 def _write_manifest(directory: Path, files: dict[str, bytes], extra: dict) -> None:

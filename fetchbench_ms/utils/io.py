@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +64,23 @@ def sha256_file(path: str | os.PathLike) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def npz_bytes(arrays: dict, compress: bool = True) -> bytes:
+    """An ``.npz`` (readable by ``np.load``) with its members sorted and fixed zip timestamps,
+    so equal arrays give equal bytes (``np.savez`` stamps the current time into the zip)."""
+    import numpy as np
+
+    kind = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=kind) as zf:
+        for name in sorted(arrays):
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(arrays[name]), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = kind
+            zf.writestr(info, member.getvalue())
+    return buffer.getvalue()
 
 
 def append_jsonl_atomic(path: str | os.PathLike, record: dict) -> None:

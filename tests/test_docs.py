@@ -37,7 +37,7 @@ COMMAND_STARTS = ("fetchbench ", "python", "make ", "bash ", "nice ", "PYTHONPAT
 # Shell words that are not project commands: not run by the --help check.
 SHELL_WORDS = {"for", "do", "done", "dpkg", "ldconfig", "export", "cd", "cp", "wait", "cat", "split",
                "sleep", "echo", "rm", "mkdir", "ls", "tar", "git", "pip", "sudo", "apt-get", "then",
-               "fi", "if", "while"}
+               "fi", "if", "while", "torchrun"}
 # Work-process words (docs/architecture.md, "Rules for contributors": docs speak of the project).
 PROCESS_WORDS = re.compile(r"session|\$OUT|\bour (?:GPU )?machines?\b|\bGPU machine's\b|\bdev(?:elopment)? machine"
                            r"|\bdevice (?:budget|time|tool)|\bmachine (?:loan|hold)s?\b|\bholds? of the\b",

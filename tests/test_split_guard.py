@@ -377,8 +377,11 @@ def test_collision_net_labels_refuse_test(tmp_path, capsys):
             labels.main(labels.Args(suite=suite, tasks="0:0", out=str(tmp_path / suite)))
         _refused(excinfo, capsys, "collision-net labelling")
         assert not (tmp_path / suite).exists()
-    labels.main(labels.Args(suite="val", tasks="0:0", out=str(tmp_path / "val")))  # past the guard: nothing to do
-    assert "0 tasks, 0 to label" in capsys.readouterr().out
+    # val passes the guard; an empty slice then fails as a run that would do nothing
+    with pytest.raises(SystemExit) as excinfo:
+        labels.main(labels.Args(suite="val", tasks="0:0", out=str(tmp_path / "val")))
+    assert "selects none of the" in str(excinfo.value) and "val" in str(excinfo.value)
+    assert not (tmp_path / "val").exists()
 
 
 def test_collision_net_training_refuses_test_labels(tmp_path, capsys):

@@ -18,7 +18,6 @@ import importlib
 import gymnasium as gym
 from gymnasium.envs.registration import WrapperSpec
 
-from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' agents)
 from ..scenes import SCENE_TYPES
 from ..tasks.spec import CATEGORY_LABELS
 

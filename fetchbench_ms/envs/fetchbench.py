@@ -25,6 +25,7 @@ from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
+from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' ManiSkill agents)
 from ..scenes import SCENE_TYPES
 from ..tasks.camera_views import paper_camera_pair
 from ..tasks.objects import check_object_source

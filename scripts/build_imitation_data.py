@@ -1,7 +1,7 @@
 """Train tasks -> expert demos -> imitation training files, in one resumable command.
 
     python scripts/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda --render-gpus 4 \
-        [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5]
+        [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5] [--demos N]
 
 1. ``fetchbench_ms.demos.generate``: the expert on ``train`` tasks START..END-1 (episode seed i
    = task i of the suite, up to --per-task trajectories each, --procs processes), one part per
@@ -10,7 +10,8 @@
 2. ``scripts/convert_demos_for_imitation.py``: those demos to training files in ``ROOT/data``
    (``chunk_NNNNN.imit.h5`` + ``manifest.json``; --procs replay processes and render workers),
    in ``--obs-mode`` (default ``policy_pointcloud``: the policies' points made by the env from
-   160x120 cameras, what a policy trained on them reads at deployment);
+   160x120 cameras, what a policy trained on them reads at deployment); ``--demos N`` converts
+   the merged file's first N demos only (its first chunks: the same bytes as those of the whole);
 3. prints the throughput: trajectories a core-hour of the expert (from each task's time in its
    worker), converted frames a second, and the projected hours of the paper's 27.5k
    trajectories on --procs cores at these rates.
@@ -60,6 +61,18 @@ def _manifest_totals(path: Path) -> dict:
     return {**manifest["totals"], "complete": bool(manifest["complete"])}
 
 
+def converter_args(args, merged: Path, data: Path) -> list[str]:
+    """``scripts/convert_demos_for_imitation.py``'s arguments for the merged demos."""
+    out = ["--traj-path", str(merged), "--out", str(data), "--chunk", str(args.chunk), "--num-envs", str(args.procs),
+           "--device", args.device, "--obs-mode", args.obs_mode, "--frame-stride", str(args.frame_stride),
+           "--render-gpus", str(args.render_gpus)]
+    if args.demos is not None:
+        out += ["--count", str(args.demos)]
+    if args.first_steps is not None:
+        out += ["--first-steps", str(args.first_steps)]
+    return out
+
+
 def main(argv=None) -> int:
     from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE
 
@@ -74,11 +87,14 @@ def main(argv=None) -> int:
     p.add_argument("--chunk", type=int, default=128, help="demos per training file")
     p.add_argument("--device", default="cpu", help="the converter's --device (cuda on a GPU machine)")
     p.add_argument("--render-gpus", type=int, default=1, help="the converter's --render-gpus (4 on a 4-GPU machine)")
+    p.add_argument("--demos", type=int, default=None,
+                   help="convert only the first N demos of the merged file (default: all)")
     p.add_argument("--first-steps", type=int, default=None, help="convert only each demo's first steps (tests)")
     args = p.parse_args(argv)
     start, end = parse_tasks(args.tasks)
-    if args.procs < 1 or args.per_task < 1 or args.chunk < 1 or args.frame_stride < 1:
-        raise SystemExit("--procs, --per-task, --chunk and --frame-stride must be >= 1")
+    if args.procs < 1 or args.per_task < 1 or args.chunk < 1 or args.frame_stride < 1 or \
+            (args.demos is not None and args.demos < 1):
+        raise SystemExit("--procs, --per-task, --chunk, --frame-stride and --demos must be >= 1")
     from fetchbench_ms.demos.generate import (TIMING_FILE, DemoJob, done_parts, generate, parts_dir,
                                               suite_task_ids)
 
@@ -113,11 +129,7 @@ def main(argv=None) -> int:
     # 2. training files (resumes from finished chunks)
     manifest = root / "data" / "manifest.json"
     before = _manifest_totals(manifest)
-    convert_args = ["--traj-path", str(merged), "--out", str(root / "data"), "--chunk", str(args.chunk),
-                    "--num-envs", str(args.procs), "--device", args.device, "--obs-mode", args.obs_mode,
-                    "--frame-stride", str(args.frame_stride), "--render-gpus", str(args.render_gpus)]
-    if args.first_steps is not None:
-        convert_args += ["--first-steps", str(args.first_steps)]
+    convert_args = converter_args(args, merged, root / "data")
     t0 = time.perf_counter()
     code = _converter().main(convert_args)
     t_convert = time.perf_counter() - t0

@@ -2,22 +2,18 @@
 command, the same bytes per seed."""
 from __future__ import annotations
 
-import importlib
 import json
-import sys
 from pathlib import Path
 
 import pytest
+
+from script_modules import import_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _build():
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        return importlib.import_module("build_imitation_data")
-    finally:
-        sys.path.remove(str(ROOT / "scripts"))
+    return import_script(ROOT / "scripts/build_imitation_data.py")
 
 
 def test_bad_task_ranges_are_refused(tmp_path):
@@ -25,6 +21,23 @@ def test_bad_task_ranges_are_refused(tmp_path):
     for tasks, message in (("5", "START:END"), ("3:3", "START < END"), ("0:10000000", "valid END")):
         with pytest.raises(SystemExit, match=message):
             build.main(["--root", str(tmp_path), "--tasks", tasks])
+
+
+def test_demos_limits_the_conversion_to_the_first_demos(tmp_path):
+    """--demos N converts the merged file's first N demos (the converter's --count); a
+    non-positive N is refused before anything runs."""
+    import argparse
+
+    build = _build()
+    args = argparse.Namespace(chunk=256, procs=64, device="cuda", obs_mode="compact_pointcloud", frame_stride=3,
+                              render_gpus=4, demos=256, first_steps=None)
+    out = build.converter_args(args, tmp_path / "train-0-600.h5", tmp_path / "data")
+    assert out[out.index("--count") + 1] == "256" and out[out.index("--chunk") + 1] == "256"
+    assert "--count" not in build.converter_args(argparse.Namespace(**{**vars(args), "demos": None}),
+                                                 tmp_path / "m.h5", tmp_path / "data")
+    with pytest.raises(SystemExit, match="--demos must be >= 1"):
+        build.main(["--root", str(tmp_path), "--tasks", "0:2", "--demos", "0"])
+    assert not any(tmp_path.iterdir())
 
 
 def test_one_task_to_training_files_resumes_with_the_same_bytes(tmp_path, capsys):

@@ -2,12 +2,12 @@
 same worlds, and so the same demos, as building every world from scratch."""
 from __future__ import annotations
 
-import importlib
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from script_modules import import_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -63,10 +63,6 @@ def test_cached_worlds_are_the_rebuilt_ones(monkeypatch):
 def test_the_generator_makes_the_same_demos_with_the_cache():
     """One train task through the generator's worker with every world rebuilt and with the
     cache: the same trajectories, dataset for dataset (scripts/bench/bench_expert_world.py)."""
-    sys.path.insert(0, str(ROOT / "scripts" / "bench"))
-    try:
-        bench = importlib.import_module("bench_expert_world")
-    finally:
-        sys.path.remove(str(ROOT / "scripts" / "bench"))
+    bench = import_script(ROOT / "scripts/bench/bench_expert_world.py")
     # train/0001 gives a trajectory at its first try (train/0000 none: nothing to compare)
     bench.main(["--start", "1", "--tasks", "1", "--per-task", "1"])  # exits non-zero when they differ

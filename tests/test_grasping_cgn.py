@@ -8,6 +8,8 @@ import torch
 
 from fetchbench_ms.grasping import pointops
 
+from script_modules import load_script
+
 needs_pretrained = pytest.mark.skipif(importlib.util.find_spec("cgn_pytorch") is None,
                                       reason="cgn-pytorch not installed (scripts/setup.sh installs it)")
 
@@ -236,16 +238,10 @@ def test_cgn_method_fetches_a_smoke_target_end_to_end(smoke_table_env):
 
 def load_trainer():
     """baselines/contact_graspnet/train.py as a module (it is a script, not a package)."""
-    import importlib.util
-    import sys
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "baselines" / "contact_graspnet" / "train.py"
-    spec = importlib.util.spec_from_file_location("cgn_train", path)
-    train = importlib.util.module_from_spec(spec)
-    sys.modules["cgn_train"] = train  # (dataclasses look their module up there)
-    spec.loader.exec_module(train)
-    return train
+    return load_script(path, "cgn_train")
 
 
 def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
@@ -472,14 +468,11 @@ def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
 def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_path):
     """scripts/bench/bench_cgn.py speed: the saved target region (20k points of smoke/0003), medians
     per device and batch size, printed as JSON (on a GPU: --device cuda cpu)."""
-    import importlib.util
     import json
     from pathlib import Path
 
     path = Path(__file__).resolve().parents[1] / "scripts" / "bench" / "bench_cgn.py"
-    spec = importlib.util.spec_from_file_location("bench_cgn", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script(path, "bench_cgn")
     saved = np.load(bench.DEFAULT_CLOUD)
     assert saved["points_base"].shape == (20000, 3) and saved["is_target"].sum() > 1000
     assert bench.main(["speed", "--points", "600", "--batch", "1", "2", "--cpu-warmup", "0", "--cpu-repeats", "1",

@@ -7,7 +7,6 @@ their number (the first 2 demos' first steps are converted, whatever they are)."
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import os
 import sys
@@ -25,6 +24,8 @@ from fetchbench_ms.policies.data import (load_training_files, observation_input,
                                          source_steps)
 from fetchbench_ms.envs.pointcloud import COMPACT_SIZES, LABEL_FURNITURE, LABEL_ROBOT, LABEL_TARGET
 
+from script_modules import import_script
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
 SIZES = dict(scene=128, target=64, robot=32)
@@ -40,12 +41,7 @@ TRAINER_KW = {"mlp": dict(hidden=64), "transformer": dict(d_model=32, layers=1, 
 TINY_ACT = dict(chunk=4, latent_dim=8, d_model=32, layers=1, heads=2, dropout=0.0)
 
 
-def _import(path: Path, name: str):
-    sys.path.insert(0, str(path.parent))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.remove(str(path.parent))
+_import = import_script
 
 
 @pytest.fixture(scope="module")

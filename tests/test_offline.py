@@ -4,21 +4,19 @@ bundle packed with a size split (a wheel cut into pieces over two parts) install
 wheel. No network: the wheel is made here."""
 import base64
 import hashlib
-import importlib.util
 import shutil
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
+from script_modules import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _load(path: Path, name: str):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(path, name)
 
 
 def _wheel(folder: Path) -> Path:

@@ -2,9 +2,7 @@
 same at conversion (rendered from recorded env states) and at deployment (the env stepped)."""
 from __future__ import annotations
 
-import importlib
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,18 +12,15 @@ import torch
 from fetchbench_ms.envs.pointcloud import (LABEL_FURNITURE, LABEL_NONE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET,
                                            POLICY_CLOUD_SIZES, POLICY_OBS_MODE, hash32, pixel_keys, policy_cloud)
 
+from script_modules import import_script
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
 FIRST_STEPS = 9
 N = sum(POLICY_CLOUD_SIZES.values())
 
 
-def _import(path: Path, name: str):
-    sys.path.insert(0, str(path.parent))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.remove(str(path.parent))
+_import = import_script
 
 
 def test_hash_is_the_reference_lowbias32():

@@ -3,14 +3,14 @@ one launcher (scripts/train_imitation_gpus.py, on the CPU here), the obs mode re
 checkpoint and read back by the eval methods."""
 from __future__ import annotations
 
-import importlib
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
 from fetchbench_ms.envs.pointcloud import POLICY_OBS_MODE
+
+from script_modules import import_script
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
@@ -21,11 +21,7 @@ KIND_ARGS = {"mlp": "--hidden 32", "transformer": "--d-model 32 --layers 1 --hea
 
 
 def _script(name: str):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.remove(str(ROOT / "scripts"))
+    return import_script(ROOT / "scripts" / f"{name}.py")
 
 
 @pytest.fixture(scope="module")

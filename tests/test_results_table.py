@@ -152,3 +152,25 @@ def test_packed_folder_follows_the_umask(tmp_path):
         os.umask(old)
     assert run.stat().st_mode & 0o777 == 0o755
     assert (run / "run.json").stat().st_mode & 0o777 == 0o644
+
+
+def test_other_robots_get_their_own_paper_figure_and_are_compared_only_with_themselves(tmp_path):
+    """A Kinova run is set beside the paper's "Other Manipulators" figure of its robot, never
+    beside the Panda's, and its ablation pairs it with the same robot's `paper` run."""
+    runs = tmp_path / "runs"
+    ok = [record(f"test/{i:04d}", "on_table", 6, True) for i in range(2)]
+    bad = [record(f"test/{i:04d}", "on_table", 1, False, "motion_planning_failure") for i in range(2)]
+    for name, records, opts in (("panda-paper", ok, {"pipeline": "paper"}),
+                                ("kinova-paper", ok[:1] + bad[1:], {"pipeline": "paper", "robot": "kinova_gen3_robotiq"}),
+                                ("kinova-ours", ok, {"pipeline": "ours",
+                                                     "robot": "kinova_gen3_robotiq"})):
+        pack(make_run(tmp_path / name, records, method="ga-mesh-trajopt", options={"retries": 1, **opts}), name, runs)
+    out = tables(load_runs(runs))
+    main_table, ablation = out.split("### Ablations")
+    kinova_row = next(line for line in main_table.splitlines() if line.startswith("| kinova-paper |"))
+    assert "`ga-mesh-trajopt` on `kinova_gen3_robotiq`" in kinova_row and "| 0.471 |" in kinova_row
+    assert "0.671" not in kinova_row
+    panda_row = next(line for line in main_table.splitlines() if line.startswith("| panda-paper |"))
+    assert "0.671 (funnel 0.865 / 0.861 / 0.776)" in panda_row
+    assert "| kinova-paper | 0.500 | 0.471 | kinova-ours | ours | 1.000 | +50.0 |" in ablation
+    assert "panda-paper | 1.000 | 0.671 | kinova" not in ablation

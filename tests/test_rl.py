@@ -3,8 +3,6 @@ and the PPO baseline on CPU vector envs (docs/rl.md)."""
 from __future__ import annotations
 
 import csv
-import sys
-import importlib.util
 from pathlib import Path
 
 import gymnasium as gym
@@ -20,6 +18,8 @@ from fetchbench_ms.envs.curriculum import (ADVANCE_STEP, CURRICULA, MIN_TARGET_D
 from fetchbench_ms.envs.fetchbench import DENSE_REWARD_MAX
 from fetchbench_ms.tasks.suite import load_suite
 from mani_skill.utils.structs.pose import Pose
+
+from script_modules import load_script
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLE = ROOT / "assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5"
@@ -206,11 +206,7 @@ def test_curriculum_pregrasp_start_is_near_the_target_and_prepared_once(tmp_path
 
 # ---------------------------------------------------------------------------- PPO
 def _ppo():
-    spec = importlib.util.spec_from_file_location("ppo", ROOT / "baselines/ppo/ppo.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["ppo"] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_script(ROOT / "baselines/ppo/ppo.py", "ppo")
 
 
 def _rows(path):

@@ -8,8 +8,6 @@ with the best val success (ties: the earlier step) and records every candidate's
 """
 from __future__ import annotations
 
-import importlib
-import importlib.util
 import json
 import subprocess
 import sys
@@ -23,20 +21,15 @@ from fetchbench_ms.tasks import splits
 from fetchbench_ms.tasks.splits import RefusalExit, TestSplitRefused
 from fetchbench_ms.tasks.suite import SUITES_DIR, load_suite
 
+from script_modules import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 MESSAGE = "refuses the test suite"
 RULE = "test tasks are never used for training or selection; use train (learning) or val (choices)"
 TINY_SIZES = {"scene": 8, "target": 4, "robot": 4}
 
 
-def _import(path: Path, name: str):
-    """A script as a module (its folder on sys.path while it imports, for ``from common import``)."""
-    sys.path.insert(0, str(path.parent))
-    try:
-        sys.modules.pop(name, None)
-        return importlib.import_module(name)
-    finally:
-        sys.path.remove(str(path.parent))
+_import = load_script  # a fresh copy each time (its folder on sys.path: ``from common import``)
 
 
 def _refused(excinfo, capsys, purpose: str) -> None:
@@ -362,12 +355,7 @@ def test_shipping_refuses_a_test_val_run(tmp_path, capsys, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- other trainers and data
-def _load_script(path: Path, name: str):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+_load_script = load_script
 
 
 def test_collision_net_labels_refuse_test(tmp_path, capsys):

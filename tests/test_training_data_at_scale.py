@@ -6,7 +6,6 @@ resumable, manifest). Each makes real views / labels of real tasks (an env per p
 all but the refusals are marked slow (``pytest -m slow tests/test_training_data_at_scale.py``)."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import subprocess
@@ -16,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from script_modules import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 CGN = ROOT / "baselines" / "contact_graspnet"
 MPPI = ROOT / "baselines" / "mppi_collision"
@@ -23,11 +24,7 @@ MPPI = ROOT / "baselines" / "mppi_collision"
 
 def load(path: Path, name: str):
     """A baselines script as a module (they are scripts, not a package)."""
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # (dataclasses look their module up there)
-    spec.loader.exec_module(module)
-    return module
+    return load_script(path, name)
 
 
 @pytest.fixture(scope="module")

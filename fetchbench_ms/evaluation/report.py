@@ -154,13 +154,13 @@ def paper_reference(run: Run) -> tuple[float, tuple | None] | None:
     """The FetchBench paper's success rate (and its funnel: approach plan, approach execution,
     retrieval plan) for a run of the paper's variant of a method the paper reports: the
     ``paper`` pipeline (or a method without one) and the env's defaults. None otherwise."""
-    from .results_table import PAPER, PAPER_FUNNEL
+    from . import results_table
 
     options = run.manifest.get("method_options") or {}
-    method = run.manifest.get("method")
-    if method not in PAPER or options.get("pipeline") not in ("paper", "none") or options.get("env_options"):
+    if run.manifest.get("method") is None or options.get("pipeline") not in ("paper", "none") \
+            or options.get("env_options"):
         return None
-    return PAPER[method], PAPER_FUNNEL.get(method)
+    return results_table.paper_reference(run.manifest)
 
 
 #: The paper's funnel stages in the report's funnel (the record's phase for each).

@@ -55,6 +55,12 @@ PAPER_FUNNEL = {
     "cgn-mesh-trajopt": (0.611, 0.602, 0.546),
     "cgn-mesh-rrt": (0.607, None, 0.478),
 }
+#: The paper's "Other Manipulators" table (appendix): the Kinova Gen3 with each hand, by our
+#: robot uid and method name (the Panda's figures are PAPER's).
+PAPER_ROBOTS = {
+    "kinova_gen3_panda_hand": {"ga-mesh-trajopt": 0.629, "ga-ptd-trajopt": 0.173, "cgn-ptd-trajopt": 0.088},
+    "kinova_gen3_robotiq": {"ga-mesh-trajopt": 0.471, "ga-ptd-trajopt": 0.108, "cgn-ptd-trajopt": 0.017},
+}
 #: The paper's funnel stages: the record's phase that stands for each (the last is the verdict).
 FUNNEL = (("approach plan", "pregrasp_plan"), ("approach exec", "approach_reached"),
           ("retrieval plan", "retrieval_plan"), ("final", "success"))
@@ -168,10 +174,28 @@ def is_legacy(manifest: dict) -> bool:
     return "pipeline" not in options(manifest)
 
 
+def robot(manifest: dict) -> str:
+    """The run's robot (``fetchbench eval --robot``; runs without one are the Panda's)."""
+    return options(manifest).get("robot") or "panda"
+
+
+def paper_reference(manifest: dict) -> tuple[float, tuple | None] | None:
+    """The paper's success rate and funnel (approach plan, approach execution, retrieval plan;
+    None where not given) for the method on the run's robot; None where the paper has none."""
+    method = manifest["method"]
+    if robot(manifest) != "panda":
+        rate = PAPER_ROBOTS.get(robot(manifest), {}).get(method)
+        return None if rate is None else (rate, None)
+    return (PAPER[method], PAPER_FUNNEL.get(method)) if method in PAPER else None
+
+
 def method_label(manifest: dict) -> str:
-    """The method, its grasp model (cgn-*), tries (xN) and policy stride (when not 1)."""
+    """The method, its grasp model (cgn-*), tries (xN), policy stride (when not 1) and robot
+    (when not the Panda)."""
     o, method = options(manifest), manifest["method"]
     label = f"`{method}`"
+    if robot(manifest) != "panda":
+        label += f" on `{robot(manifest)}`"
     if method.startswith("cgn-") and o.get("grasp_model"):
         label += f" {o['grasp_model']}"
     if (o.get("retries") or 1) > 1:
@@ -209,11 +233,12 @@ def _rate(v) -> str:
     return "-" if v is None else f"{v:.3f}"
 
 
-def paper_label(method: str) -> str:
-    if method not in PAPER:
+def paper_label(manifest: dict) -> str:
+    reference = paper_reference(manifest)
+    if reference is None:
         return "-"
-    funnel = PAPER_FUNNEL.get(method)
-    return f"{PAPER[method]:.3f}" + (f" (funnel {' / '.join(map(_rate, funnel))})" if funnel else "")
+    rate, funnel = reference
+    return f"{rate:.3f}" + (f" (funnel {' / '.join(map(_rate, funnel))})" if funnel else "")
 
 
 # ------------------------------------------------------------------------------- tables
@@ -232,7 +257,7 @@ def row(run: Run) -> str:
     time, clen = a["median_computation_time"], a["median_cspace_length_successes"]
     failures = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in a["failures"].items() if v) or "-"
     cells = ([run.name, method_label(run.manifest), pipeline_label(run.manifest), selection_label(run.manifest),
-              str(a["tasks"]), success, paper_label(run.manifest["method"])] + cats + funnel
+              str(a["tasks"]), success, paper_label(run.manifest)] + cats + funnel
              + [str(timeouts), "-" if time is None else f"{time:.2f} s", "-" if clen is None else f"{clen:.2f} rad",
                 failures])
     return "| " + " | ".join(cells) + " |"
@@ -267,6 +292,8 @@ def ablation_table(runs: list[Run]) -> str:
     for base in sorted((r for r in current if pipeline_label(r.manifest) == "paper"), key=lambda r: r.name):
         key, method = _comparable(base.manifest), base.manifest["method"]
         rate = summarize(base.records)["all"]["success_rate"]
+        reference = paper_reference(base.manifest)
+        paper = None if reference is None else reference[0]
         others = sorted((r for r in current if r is not base and _comparable(r.manifest) == key), key=lambda r: r.name)
         ours = next((r for r in others if pipeline_label(r.manifest) == "ours"), None)
         ours_rate = summarize(ours.records)["all"]["success_rate"] if ours else None
@@ -274,12 +301,12 @@ def ablation_table(runs: list[Run]) -> str:
             label, o = pipeline_label(run.manifest), options(run.manifest)
             r = summarize(run.records)["all"]["success_rate"]
             share = "-"
-            if method in PAPER and o["pipeline"] == "paper" and o.get("env_options"):
-                share = _share(rate - r, rate - PAPER[method])  # > 0: the factor moves us toward the paper
-            elif method in PAPER and label.startswith("ours minus ") and ours_rate is not None:
-                share = _share(ours_rate - r, ours_rate - PAPER[method])
+            if paper is not None and o["pipeline"] == "paper" and o.get("env_options"):
+                share = _share(rate - r, rate - paper)  # > 0: the factor moves us toward the paper
+            elif paper is not None and label.startswith("ours minus ") and ours_rate is not None:
+                share = _share(ours_rate - r, ours_rate - paper)
             lines.append(f"| {method_label(base.manifest)} | {selection_label(base.manifest)} | {base.name} | "
-                         f"{rate:.3f} | {_rate(PAPER.get(method))} | {run.name} | {label} | {r:.3f} | "
+                         f"{rate:.3f} | {_rate(paper)} | {run.name} | {label} | {r:.3f} | "
                          f"{_points(r - rate)} | {share} |")
     if not lines:
         return "No method has a `paper`-variant run and another run on the same tasks yet."

@@ -174,3 +174,25 @@ def test_other_robots_get_their_own_paper_figure_and_are_compared_only_with_them
     assert "0.671 (funnel 0.865 / 0.861 / 0.776)" in panda_row
     assert "| kinova-paper | 0.500 | 0.471 | kinova-ours | ours | 1.000 | +50.0 |" in ablation
     assert "panda-paper | 1.000 | 0.671 | kinova" not in ablation
+
+
+def test_task_times_compares_machine_kinds_on_the_tasks_they_share(tmp_path, capsys):
+    """scripts/bench/task_times.py: per method, the median and p90 seconds a task of each set,
+    over the tasks every set has; a method missing from a set is left out; no common method
+    exits 1 saying so."""
+    from script_modules import load_script
+
+    times = load_script(Path(__file__).resolve().parents[1] / "scripts/bench/task_times.py", "task_times")
+
+    def run(name, walls, method="ga-mesh-rrt"):
+        records = [{**record(f"test/{i:04d}", "on_table", 6, True), "wall_time": w} for i, w in enumerate(walls)]
+        return make_run(tmp_path / name, records, method=method)
+
+    laptop = [run("laptop-rrt", [3.0, 5.0, 7.0, 100.0]), run("laptop-mppi", [1.0], method="cgn-ptd-mppi")]
+    node = [run("node-rrt", [1.0, 2.0, 3.0])]
+    assert times.main(["--set", "laptop=" + ",".join(map(str, laptop)), "--set", f"node={node[0]}"]) == 0
+    out = capsys.readouterr().out
+    assert "| `ga-mesh-rrt` | 3 | 5.0 / 7.0 | 2.0 / 3.0 |" in out  # task 3 is the laptop's only
+    assert "cgn-ptd-mppi" not in out
+    assert times.main(["--set", f"laptop={laptop[1]}", "--set", f"node={node[0]}"]) == 1
+    assert "nothing to compare" in capsys.readouterr().err

@@ -24,10 +24,10 @@ def record(task_id: str, category: str, reached: int, success: bool, failure=Non
             "phases": {p: k < reached for k, p in enumerate(PHASES)}, "attempts": 1}
 
 
-def make_run(root: Path, records: list[dict], method="ga-mesh-rrt", options=None) -> Path:
+def make_run(root: Path, records: list[dict], method="ga-mesh-rrt", options=None, tasks="0:2") -> Path:
     store = ResultsStore(root)
     store.open_run({"method": method, "source": "suite.json", "source_sha256": "ab" * 32,
-                    "method_options": options or {"retries": 1}, "selection": {"suite": "test", "tasks": "0:2"}})
+                    "method_options": options or {"retries": 1}, "selection": {"suite": "test", "tasks": tasks}})
     for r in records:  # appended out of task order: the pack sorts them
         store.append({**r, "method": method})
     return root
@@ -131,6 +131,25 @@ def test_pack_refuses_bad_input(tmp_path, capsys):
     assert main(["results", "pack", str(other), "--name", "taken", "--runs-dir", str(runs), "--force"]) == 0
     assert len(ResultsStore(runs / "taken").records()) == 1
     assert [p.name for p in runs.iterdir()] == ["taken"]  # no staging folder left behind
+
+
+def test_shards_of_one_run_pack_as_that_run(tmp_path, capsys):
+    """A run split with --tasks over machines packs to the bytes of the same run made whole."""
+    whole = pack(make_run(tmp_path / "whole", TWO), "r", tmp_path / "runs1")
+    first, second = make_run(tmp_path / "s0", TWO[1:], tasks="0:1"), make_run(tmp_path / "s1", TWO[:1], tasks="1:2")
+    assert main(["results", "pack", str(second), str(first), "--name", "r", "--runs-dir", str(tmp_path / "runs2")]) == 0
+    for name in ("run.json", "results.jsonl.gz"):
+        assert (whole / name).read_bytes() == (tmp_path / "runs2" / "r" / name).read_bytes()
+    gap = make_run(tmp_path / "gap", TWO[:1], tasks="2:3")
+    other = make_run(tmp_path / "other", TWO[:1], tasks="1:2", options={"retries": 5})
+    overlap = make_run(tmp_path / "overlap", TWO[:1], tasks="0:2")
+    for shards, message in [([first, gap], "leave a gap (tasks 1 and 2)"), ([first, overlap], "overlap"),
+                            ([first, other], "is not a shard of the same run"),
+                            ([first, make_run(tmp_path / "dup", TWO[1:], tasks="1:2")], "records of the same task")]:
+        assert main(["results", "pack", *map(str, shards), "--name", "x", "--runs-dir", str(tmp_path / "runs3")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "runs3").exists()
 
 
 def test_packed_bytes_are_reproducible(tmp_path):

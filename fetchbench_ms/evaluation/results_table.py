@@ -100,14 +100,8 @@ def packed_bytes(manifest: dict, records: list[dict]) -> tuple[bytes, bytes]:
             gzip_bytes(lines.encode()))
 
 
-def pack(run_dir, name: str, runs_dir=None, force: bool = False) -> Path:
-    """Pack the results directory ``run_dir`` into ``runs_dir/name``; returns that folder.
-    Refuses a directory that is no run or has no record, a bad name, and a folder that holds
-    another run (unless ``force``). Packing the same run again changes nothing."""
-    run_dir, runs_dir = Path(run_dir), Path(runs_dir) if runs_dir is not None else default_runs_dir()
-    if not NAME_PATTERN.fullmatch(name):
-        raise ValueError(f"bad run name {name!r}: use lower-case letters, digits, '.', '_' and '-' "
-                         f"(e.g. cgn-ptd-rrt-pretrained-test600)")
+def _read_run(run_dir: Path) -> tuple[dict, list[dict]]:
+    """(manifest, records) of one results directory of `fetchbench eval --out`, checked."""
     if not run_dir.is_dir():
         raise FileNotFoundError(f"{run_dir} is not a directory")
     store = ResultsStore(run_dir)
@@ -120,6 +114,55 @@ def pack(run_dir, name: str, runs_dir=None, force: bool = False) -> Path:
     bad = next((r for r in records if "success" not in r), None)
     if bad is not None:
         raise ValueError(f"{run_dir}: the record of {bad['task_id']} has no 'success': not a task record")
+    return manifest, records
+
+
+def _shard_range(run_dir: Path, manifest: dict) -> tuple[int, int]:
+    tasks = str((manifest.get("selection") or {}).get("tasks") or "")
+    start, _, end = tasks.partition(":")
+    if not (start.strip().isdigit() and end.strip().isdigit()):
+        raise ValueError(f"{run_dir}: its selection {manifest.get('selection')} is no explicit START:END range "
+                         f"of a suite; only such shards can be packed together")
+    return int(start), int(end)
+
+
+def merge_shards(shards: list[tuple[Path, dict, list[dict]]]) -> tuple[dict, list[dict]]:
+    """One run from shards of it: the same method, options and suite, task ranges (``--tasks
+    START:END``) that tile one range without gap or overlap. Each task's outcome depends on its
+    id alone (count budgets, per-task seeds), so a run split over machines and packed here has
+    the records the same run on one machine would have."""
+    base = {k: v for k, v in shards[0][1].items() if k != "selection"}
+    suite = shards[0][1].get("selection", {}).get("suite")
+    for run_dir, manifest, _ in shards[1:]:
+        other = {k: v for k, v in manifest.items() if k != "selection"}
+        differ = sorted(k for k in set(base) | set(other) if base.get(k) != other.get(k))
+        if differ or manifest.get("selection", {}).get("suite") != suite:
+            raise ValueError(f"{run_dir} is not a shard of the same run as {shards[0][0]} "
+                             f"(its {', '.join(differ) or 'suite'} differ)")
+    ranges = sorted((_shard_range(d, m), d) for d, m, _ in shards)
+    for ((_, end), d), ((start, _), next_dir) in zip(ranges, ranges[1:]):
+        if start != end:
+            raise ValueError(f"the shards {d} and {next_dir} {'overlap' if start < end else 'leave a gap'} "
+                             f"(tasks {end} and {start})")
+    records = [r for _, _, rs in shards for r in rs]
+    if len({r["task_id"] for r in records}) != len(records):
+        raise ValueError("the shards hold records of the same task")
+    selection = {"suite": suite, "tasks": f"{ranges[0][0][0]}:{ranges[-1][0][1]}"}
+    return {**base, "selection": selection}, records
+
+
+def pack(run_dirs, name: str, runs_dir=None, force: bool = False) -> Path:
+    """Pack the results directory ``run_dirs`` (or several: shards of one run, see
+    ``merge_shards``) into ``runs_dir/name``; returns that folder. Refuses a directory that is
+    no run or has no record, a bad name, and a folder that holds another run (unless
+    ``force``). Packing the same run again changes nothing."""
+    dirs = [Path(d) for d in ([run_dirs] if isinstance(run_dirs, (str, os.PathLike)) else run_dirs)]
+    runs_dir = Path(runs_dir) if runs_dir is not None else default_runs_dir()
+    if not NAME_PATTERN.fullmatch(name):
+        raise ValueError(f"bad run name {name!r}: use lower-case letters, digits, '.', '_' and '-' "
+                         f"(e.g. cgn-ptd-rrt-pretrained-test600)")
+    shards = [(d, *_read_run(d)) for d in dirs]
+    manifest, records = merge_shards(shards) if len(shards) > 1 else shards[0][1:]
     files = dict(zip((MANIFEST_FILE, PACKED_RESULTS_FILE), packed_bytes(manifest, records)))
     target = runs_dir / name
     if target.exists():

@@ -23,14 +23,13 @@ kept frames (the robot's mostly); the others are the replay's to the bit.
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
-from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
 
 from .envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE, compact_pointcloud_obs, compact_seed
+from .utils.workers import WORKER_THREAD_VARS, one_thread_per_spawned_worker
 
 
 @dataclass
@@ -100,31 +99,6 @@ class StateRenderer:
 
 
 _worker_renderer: StateRenderer | None = None  # a worker process's env
-
-
-# The thread pools (OpenMP, BLAS) a worker may start: each worker is one of ``workers``
-# processes that already share the cores, so one thread each. Without this, on the H100 node
-# (2026-11-26, torch 2.11) each of 16 render workers ran 69 threads, the load rose to 195 on 16
-# cores and a 64-demo chunk had not rendered after 5 minutes; with it, 47 s.
-WORKER_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-
-
-@contextmanager
-def one_thread_per_spawned_worker():
-    """Processes spawned inside get one-thread pools (the variables are read at their import of
-    numpy / torch, so they must be in the environment they inherit); this process's own
-    environment is restored on exit. A variable the caller set is kept."""
-    saved = {k: os.environ.get(k) for k in WORKER_THREAD_VARS}
-    for k in WORKER_THREAD_VARS:
-        os.environ.setdefault(k, "1")
-    try:
-        yield
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def render_backends(gpus: int) -> list[str] | None:

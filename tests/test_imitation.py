@@ -1118,7 +1118,7 @@ def test_render_workers_are_spawned_with_one_thread_each(monkeypatch):
     one), the converter's own environment is left as it was, and a caller's setting is kept."""
     import multiprocessing as mp
 
-    from fetchbench_ms.render_env_states import WORKER_THREAD_VARS, one_thread_per_spawned_worker
+    from fetchbench_ms.utils.workers import WORKER_THREAD_VARS, one_thread_per_spawned_worker
 
     for var in WORKER_THREAD_VARS:
         monkeypatch.delenv(var, raising=False)

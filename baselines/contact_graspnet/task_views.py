@@ -338,27 +338,20 @@ def main(args: Args) -> dict:
     if todo:
         import multiprocessing
 
-        thread_variables = _trainer().THREAD_VARIABLES
-        saved_env = {k: os.environ.get(k) for k in thread_variables}
-        os.environ.update({k: "1" for k in thread_variables})  # one thread per worker process
-        try:
-            with multiprocessing.get_context("spawn").Pool(workers, _init_worker, (args.suite,)) as pool:
-                pending = pool.imap_unordered(_shard_job, todo)
-                for _ in todo:
-                    if args.time_limit and time.perf_counter() - t_start > args.time_limit:
-                        pool.terminate()  # a shard cut short leaves only a temporary file, never a shard
-                        break
-                    result = next(pending)
-                    made.append(result)
-                    print(f"shard {result['index']:05d}: {result['views']} views, {result['grasps_kept']} grasps kept, "
-                          f"{result['positives']} positive points, {result['seconds']:.1f} s "
-                          f"[{len(made)}/{len(todo)} in {time.perf_counter() - t_start:.0f} s]", flush=True)
-        finally:
-            for k, v in saved_env.items():
-                if v is None:
-                    os.environ.pop(k, None)
-                else:
-                    os.environ[k] = v
+        from fetchbench_ms.utils.workers import one_thread_per_spawned_worker
+
+        with one_thread_per_spawned_worker(), \
+                multiprocessing.get_context("spawn").Pool(workers, _init_worker, (args.suite,)) as pool:
+            pending = pool.imap_unordered(_shard_job, todo)
+            for _ in todo:
+                if args.time_limit and time.perf_counter() - t_start > args.time_limit:
+                    pool.terminate()  # a shard cut short leaves only a temporary file, never a shard
+                    break
+                result = next(pending)
+                made.append(result)
+                print(f"shard {result['index']:05d}: {result['views']} views, {result['grasps_kept']} grasps kept, "
+                      f"{result['positives']} positive points, {result['seconds']:.1f} s "
+                      f"[{len(made)}/{len(todo)} in {time.perf_counter() - t_start:.0f} s]", flush=True)
     wall = time.perf_counter() - t_start
     if made:
         core_minutes = workers * wall / 60

@@ -77,6 +77,7 @@ import tyro
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
 from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
+from fetchbench_ms.utils.workers import one_thread_per_spawned_worker
 
 DATA_VERSION = 3  # bump when make_scene / render_view change what a seed produces
 
@@ -136,7 +137,6 @@ TRAINING_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction
 DATA_FLAGS = ("seed", "views", "views_per_scene", "val_views", "val_fraction", "objects_per_view", "num_points",
               "positive_radius")
 # --tiny: fewer centres and narrow layers, for CPU tests (seconds per step, not minutes)
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 TINY = dict(centers=(128, 32, 8), mlps=(((8, 16),) * 3, ((16, 16),) * 3, ((16, 16),) * 3), global_mlp=(16,),
             fp_mlps=((16,), (16,), (16,)))
 CAMERA = dict(width=320, height=240, hfov_deg=70.0)
@@ -444,17 +444,8 @@ def view_pool(workers: int):
         return
     import multiprocessing
 
-    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
-    os.environ.update({k: "1" for k in THREAD_VARIABLES})  # inherited by the spawned workers
-    try:
-        with multiprocessing.get_context("spawn").Pool(workers) as pool:
-            yield pool
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                del os.environ[k]
-            else:
-                os.environ[k] = v
+    with one_thread_per_spawned_worker(), multiprocessing.get_context("spawn").Pool(workers) as pool:
+        yield pool
 
 
 def data_digest(arrays: dict) -> str:

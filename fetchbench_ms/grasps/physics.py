@@ -92,15 +92,30 @@ class GraspLabeller:
         self._object_id = None
         self.object_material = sapien.physx.PhysxMaterial(object_friction, object_friction, 0.0)
 
+    # The floating hand: its pad links, driven finger joints and hand link, its URDF and the
+    # set-up of its finger joints (the Franka hand's here; grasps.robotiq.RobotiqLabeller's
+    # Robotiq overrides them).
+    PAD_LINKS = franka.FINGER_LINKS
+    DRIVEN_FINGER_JOINTS = franka.FINGER_JOINTS
+    HAND_LINK = "panda_hand"
+
+    def _hand_urdf(self) -> str:
+        return franka.physics_urdf_path()
+
+    def _set_up_fingers(self, joints: dict) -> None:
+        """Drives of one floating hand's finger joints, by joint name."""
+        for name in franka.FINGER_JOINTS:
+            joints[name].set_drive_properties(franka.GRIPPER_STIFFNESS, franka.GRIPPER_DAMPING, franka.GRIPPER_FORCE_LIMIT)
+
     def _load_grippers(self, slots: int, config: TrialConfig) -> None:
-        """The floating Franka hands (``grasps.robotiq.RobotiqLabeller`` loads Robotiqs)."""
+        """One floating hand per slot, moved by its virtual joints."""
         loader = self.scene.create_urdf_loader()
         loader.fix_root_link = True
-        for link in franka.FINGER_LINKS:
+        for link in self.PAD_LINKS:
             loader.set_link_material(link, franka.FINGER_FRICTION, franka.FINGER_FRICTION, 0.0)
             loader.set_link_patch_radius(link, franka.FINGER_PATCH_RADIUS)
             loader.set_link_min_patch_radius(link, franka.FINGER_PATCH_RADIUS)
-        urdf = franka.physics_urdf_path()
+        urdf = self._hand_urdf()
         self.grippers = []
         for origin in self.slot_origins:
             gripper = loader.load(urdf)
@@ -111,17 +126,16 @@ class GraspLabeller:
             for name in franka.VIRTUAL_JOINTS:
                 joints[name].set_drive_properties(config.virtual_stiffness, config.virtual_damping, config.virtual_force_limit)
                 joints[name].set_friction(0.0)
-            for name in franka.FINGER_JOINTS:
-                joints[name].set_drive_properties(franka.GRIPPER_STIFFNESS, franka.GRIPPER_DAMPING, franka.GRIPPER_FORCE_LIMIT)
+            self._set_up_fingers(joints)
             self.grippers.append(gripper)
         names = [j.name for j in self.grippers[0].active_joints]
         self._virtual_idx = [names.index(n) for n in franka.VIRTUAL_JOINTS]
-        self._finger_idx = [names.index(n) for n in franka.FINGER_JOINTS]
+        self._finger_idx = [names.index(n) for n in self.DRIVEN_FINGER_JOINTS]
         self._joints = [[g.active_joints[i] for i in range(len(names))] for g in self.grippers]
-        self._hand_links = [next(link for link in g.links if link.name == "panda_hand") for g in self.grippers]
+        self._hand_links = [next(link for link in g.links if link.name == self.HAND_LINK) for g in self.grippers]
         # Contacts name their bodies by component; per-scene entity ids identify them.
         self._finger_owner = {
-            link.entity.per_scene_id: i for i, g in enumerate(self.grippers) for link in g.links if link.name in franka.FINGER_LINKS
+            link.entity.per_scene_id: i for i, g in enumerate(self.grippers) for link in g.links if link.name in self.PAD_LINKS
         }
 
     # The hand's gripper, in four hooks (the Franka hand's here).

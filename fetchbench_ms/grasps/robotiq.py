@@ -130,48 +130,31 @@ def collision_free(asset, T_object_hand: np.ndarray) -> np.ndarray:
 class RobotiqLabeller(physics.GraspLabeller):
     """``physics.GraspLabeller`` with floating Robotiqs instead of Franka hands."""
 
-    def _load_grippers(self, slots: int, config: physics.TrialConfig) -> None:
-        loader = self.scene.create_urdf_loader()
-        loader.fix_root_link = True
-        for link in PAD_LINKS:
-            loader.set_link_material(link, franka.FINGER_FRICTION, franka.FINGER_FRICTION, 0.0)
-            loader.set_link_patch_radius(link, franka.FINGER_PATCH_RADIUS)
-            loader.set_link_min_patch_radius(link, franka.FINGER_PATCH_RADIUS)
-        urdf = floating_robotiq_urdf()
+    PAD_LINKS = PAD_LINKS
+    DRIVEN_FINGER_JOINTS = DRIVEN_JOINTS
+    HAND_LINK = "float_hand"
+
+    def _hand_urdf(self) -> str:
+        return floating_robotiq_urdf()
+
+    def _set_up_fingers(self, joints: dict) -> None:
+        """The outer knuckles driven, the rest of the linkage passive, each inner finger tied
+        to its inner knuckle by a drive (the closed loop a URDF cannot state)."""
         anchors = robot_assets.urdf_extra("kinova_gen3_robotiq")["anchors"]
-        self.grippers = []
-        for origin in self.slot_origins:
-            gripper = loader.load(urdf)
-            gripper.set_root_pose(sapien.Pose(p=origin))
-            for link in gripper.links:
-                link.disable_gravity = True
-            joints = {j.name: j for j in gripper.active_joints}
-            for name in franka.VIRTUAL_JOINTS:
-                joints[name].set_drive_properties(config.virtual_stiffness, config.virtual_damping,
-                                                  config.virtual_force_limit)
-                joints[name].set_friction(0.0)
-            for name in DRIVEN_JOINTS:
-                joints[name].set_drive_properties(ROBOTIQ_STIFFNESS, ROBOTIQ_DAMPING, ROBOTIQ_FORCE_LIMIT)
-                joints[name].set_friction(0.05)
-            for name in PASSIVE_JOINTS:
-                joints[name].set_drive_properties(0.0, 0.0, 0.0)
-                joints[name].set_friction(0.0)
-            for side in ("left", "right"):
-                finger = joints[f"{side}_inner_finger_joint"].get_child_link()
-                knuckle = joints[f"{side}_inner_knuckle_joint"].get_child_link()
-                drive = self.scene.create_drive(knuckle, sapien.Pose(anchors[side]["knuckle"]),
-                                                finger, sapien.Pose(anchors[side]["finger"]))
-                drive.set_limit_x(0, 0)
-                drive.set_limit_y(0, 0)
-                drive.set_limit_z(0, 0)
-            self.grippers.append(gripper)
-        names = [j.name for j in self.grippers[0].active_joints]
-        self._virtual_idx = [names.index(n) for n in franka.VIRTUAL_JOINTS]
-        self._finger_idx = [names.index(n) for n in DRIVEN_JOINTS]
-        self._joints = [[g.active_joints[i] for i in range(len(names))] for g in self.grippers]
-        self._hand_links = [next(link for link in g.links if link.name == "float_hand") for g in self.grippers]
-        self._finger_owner = {link.entity.per_scene_id: i for i, g in enumerate(self.grippers)
-                              for link in g.links if link.name in PAD_LINKS}
+        for name in DRIVEN_JOINTS:
+            joints[name].set_drive_properties(ROBOTIQ_STIFFNESS, ROBOTIQ_DAMPING, ROBOTIQ_FORCE_LIMIT)
+            joints[name].set_friction(0.05)
+        for name in PASSIVE_JOINTS:
+            joints[name].set_drive_properties(0.0, 0.0, 0.0)
+            joints[name].set_friction(0.0)
+        for side in ("left", "right"):
+            finger = joints[f"{side}_inner_finger_joint"].get_child_link()
+            knuckle = joints[f"{side}_inner_knuckle_joint"].get_child_link()
+            drive = self.scene.create_drive(knuckle, sapien.Pose(anchors[side]["knuckle"]),
+                                            finger, sapien.Pose(anchors[side]["finger"]))
+            drive.set_limit_x(0, 0)
+            drive.set_limit_y(0, 0)
+            drive.set_limit_z(0, 0)
 
     def _open_gripper(self, i: int, qpos: np.ndarray) -> None:
         pass  # every joint at 0: open

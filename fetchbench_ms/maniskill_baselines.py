@@ -17,15 +17,21 @@ The script runs unchanged, as ``python SCRIPT ARGS`` would run it (its folder fi
   PickCube-v1 too). Within this launcher ``gymnasium.vector.SyncVectorEnv`` and
   ``AsyncVectorEnv`` reset a finished env in the same step (``AutoresetMode.SAME_STEP``) and
   give ``final_info`` as gymnasium 0.29 did, a list with one dict per env (``None`` for an
-  env that did not end), which both the ManiSkill 3.0.1 and the later ``evaluate()`` read.
+  env that did not end), which is what those ``evaluate()`` read on the CPU.
 
 The demos: ``python -m fetchbench_ms.replay_trajectory --traj-path DEMO.h5 -o state -c
-pd_joint_delta_pos --save-traj`` (docs/imitation.md). What the scripts import beyond this
-package (tensorboard, diffusers, torchvision, wandb) is the ``[baselines]`` extra.
+pd_joint_delta_pos --save-traj``. What the scripts import beyond this package (tensorboard,
+diffusers; wandb with ``--track``) is the ``[baselines]`` extra. ACT imports torchvision too,
+which must be the build made for the installed torch (a torchvision from the package index
+is built against CUDA torch and does not load beside torch's CPU build); a missing package or
+a torchvision of another build ends in one line that gives the pip command. docs/demos.md
+has the commands and their times.
 """
 from __future__ import annotations
 
+import importlib.metadata
 import os
+import re
 import runpy
 import sys
 
@@ -101,6 +107,52 @@ def install_final_info_compat() -> None:
             setattr(gym.vector, name, compat)
 
 
+# What the scripts import beyond this package that the [baselines] extra installs.
+EXTRA_MODULES = ("tensorboard", "diffusers", "wandb")
+
+
+def _installed(name: str) -> str:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return "(not installed)"
+
+
+def torchvision_install_command(replace: bool = False) -> str:
+    """The pip command for the torchvision build made for the installed torch: torchvision
+    0.(m+15).p pairs with torch 2.m.p, and torch's local tag (``+cpu``, ``+cu130``) names the
+    PyTorch index of its build; without one (the package index's torch) the package index.
+    ``replace``: over a torchvision of another build (its dependencies left as they are)."""
+    torch_version = _installed("torch")
+    base, _, local = torch_version.partition("+")
+    m = re.match(r"2\.(\d+)\.(\d+)", base)
+    if not m:
+        return f"pip install the torchvision release made for torch {torch_version}"
+    pip = "pip install --force-reinstall --no-deps" if replace else "pip install"
+    pin = f"torchvision==0.{int(m.group(1)) + 15}.{m.group(2)}"
+    if local:
+        return f'{pip} "{pin}+{local}" --index-url https://download.pytorch.org/whl/{local}'
+    return f'{pip} "{pin}"'
+
+
+def missing_dependency_message(exc: BaseException, script: str) -> str | None:
+    """One line naming the package a script could not import and the pip command that
+    installs it, or None when ``exc`` is not such a failure."""
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        top = exc.name.split(".")[0]
+        if top in EXTRA_MODULES:
+            return (f'{script} imports {top}, which is not installed: pip install "fetchbench_ms[baselines]" '
+                    f'(in a checkout: pip install -e ".[baselines]")')
+        if top == "torchvision":
+            return (f"{script} imports torchvision, which is not installed; the build made for torch "
+                    f"{_installed('torch')}: {torchvision_install_command()}")
+    if isinstance(exc, RuntimeError) and "torchvision::" in str(exc):
+        return (f"torchvision {_installed('torchvision')} is not built for the installed torch "
+                f"{_installed('torch')} (its operators do not load: {exc}); the build made for it: "
+                f"{torchvision_install_command(replace=True)}")
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
@@ -114,7 +166,14 @@ def main(argv: list[str] | None = None) -> int:
     install_final_info_compat()
     sys.argv = [script, *argv[1:]]
     sys.path.insert(0, os.path.dirname(script))  # as `python SCRIPT` puts its folder first
-    runpy.run_path(script, run_name="__main__")
+    try:
+        runpy.run_path(script, run_name="__main__")
+    except (ImportError, RuntimeError) as exc:
+        message = missing_dependency_message(exc, os.path.join(*script.split(os.sep)[-2:]))
+        if message is None:
+            raise
+        print(f"maniskill_baselines: error: {message}", file=sys.stderr)
+        return 2
     return 0
 
 

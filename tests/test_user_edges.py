@@ -451,45 +451,169 @@ def test_ppo_bad_flags_are_one_line_before_torch_loads():
 
 # ----------------------------------------------------------------------------- ManiSkill's own baselines
 MANISKILL_EVAL_CONTRACT = textwrap.dedent("""
-    # What ManiSkill's examples/baselines (bc, diffusion_policy, act) do to evaluate on the CPU:
-    # plain gymnasium vector envs of CPUGymWrapper envs (no autoreset argument, forkserver
-    # workers), then info["final_info"] read as one dict per env with its "episode" metrics.
+    # What ManiSkill's examples/baselines (bc.py, diffusion_policy/train.py, act/train.py) do with
+    # the env and the demos on the CPU, step for step:
+    # - read the converted demos: the control mode from the JSON's env kwargs, then per trajectory
+    #   obs (one more than actions), actions and success;
+    # - make the evaluation envs as their make_eval_envs() does: gym.make(env_id,
+    #   reconfiguration_freq=1, control_mode, reward_mode="sparse", obs_mode="state",
+    #   render_mode="rgb_array", max_episode_steps[, human_render_camera_configs]), diffusion
+    #   policy's FrameStack, CPUGymWrapper(ignore_terminations=True, record_metrics=True),
+    #   RecordEpisode with info on the video on env 0, spaces seeded, in a plain gymnasium vector
+    #   env (no autoreset argument): SyncVectorEnv for one env, AsyncVectorEnv on forkserver
+    #   workers for more;
+    # - size the policy from the env's spaces and train it on the demos (same dims), diffusion
+    #   policy asserting actions in [-1, 1];
+    # - evaluate: step until truncation, ACT counting each episode's steps to index its action
+    #   table, then read info["final_info"]: one dict per env with its "episode" metrics.
+    import json
     import sys
-    import gymnasium as gym
-    import numpy as np
-    from mani_skill.utils.wrappers import CPUGymWrapper
 
-    def thunk():
-        env = gym.make("FetchBench-v0", obs_mode="state", control_mode="pd_joint_delta_pos", max_episode_steps=3,
-                       render_backend="none", reconfiguration_freq=1)
-        return CPUGymWrapper(env, ignore_terminations=True, record_metrics=True)
+    import gymnasium as gym
+    import h5py
+    import numpy as np
+    from mani_skill.utils.wrappers import CPUGymWrapper, FrameStack, RecordEpisode
+
+    MAX_STEPS = 3
+
+
+    def make_thunk(env_id, seed, env_kwargs, video_dir, obs_horizon):
+        def thunk():
+            env = gym.make(env_id, reconfiguration_freq=1, **env_kwargs)
+            if obs_horizon:
+                env = FrameStack(env, num_stack=obs_horizon)
+            env = CPUGymWrapper(env, ignore_terminations=True, record_metrics=True)
+            if video_dir:
+                env = RecordEpisode(env, output_dir=video_dir, save_trajectory=False, info_on_video=True,
+                                    source_type="contract", source_desc="evaluation rollout")
+            env.action_space.seed(seed)
+            env.observation_space.seed(seed)
+            return env
+        return thunk
+
 
     if __name__ == "__main__":
-        n = int(sys.argv[1])
-        envs = gym.vector.SyncVectorEnv([thunk]) if n == 1 else gym.vector.AsyncVectorEnv([thunk] * n,
-                                                                                           context="forkserver")
-        envs.reset(seed=0)
-        while True:
-            _, _, _, truncated, info = envs.step(np.zeros(envs.action_space.shape, dtype=np.float32))
+        demo_path, num_envs, obs_horizon, video_dir = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+        meta = json.load(open(demo_path[:-2] + "json"))
+        env_info = meta["env_info"]
+        control_mode = env_info["env_kwargs"]["control_mode"]
+        with h5py.File(demo_path, "r") as f:
+            traj = f[f"traj_{meta['episodes'][0]['episode_id']}"]
+            obs, actions, success = traj["obs"][:], traj["actions"][:], traj["success"][:]
+        assert len(obs) == len(actions) + 1 and len(success) == len(actions), (obs.shape, actions.shape)
+
+        env_kwargs = dict(control_mode=control_mode, reward_mode="sparse", obs_mode="state", render_mode="rgb_array",
+                          max_episode_steps=MAX_STEPS)
+        if obs_horizon:
+            env_kwargs["human_render_camera_configs"] = dict(shader_pack="default")
+        thunks = [make_thunk(env_info["env_id"], seed, env_kwargs, video_dir if seed == 0 else None, obs_horizon)
+                  for seed in range(num_envs)]
+        envs = (gym.vector.SyncVectorEnv(thunks) if num_envs == 1
+                else gym.vector.AsyncVectorEnv(thunks, context="forkserver"))
+        space, action_space = envs.single_observation_space, envs.single_action_space
+        assert space.shape == (obs_horizon,) * bool(obs_horizon) + obs.shape[1:], (space.shape, obs.shape)
+        assert action_space.shape == actions.shape[1:], (action_space.shape, actions.shape)
+        assert (action_space.high == 1).all() and (action_space.low == -1).all()
+        assert np.abs(actions).max() <= 1
+
+        envs.reset(seed=1)
+        lengths, metrics, step = [], {}, 0
+        while len(lengths) < 2 * num_envs:
+            o, _, _, truncated, info = envs.step(np.repeat(actions[step][None], num_envs, axis=0))
+            step += 1
+            assert o.shape == (num_envs,) + space.shape
             if truncated.any():
-                print("episode lengths", [int(f["episode"]["episode_len"]) for f in info["final_info"]])
-                break
+                assert truncated.all() and step == MAX_STEPS, (truncated, step)
+                finals = info["final_info"]
+                assert len(finals) == num_envs
+                for final in finals:
+                    for k, v in final["episode"].items():
+                        metrics.setdefault(k, []).append(float(v))
+                    lengths.append(int(final["episode"]["episode_len"]))
+                step = 0
         envs.close()
+        print("episode lengths", lengths)
+        print("metrics", sorted(metrics), {k: float(np.mean(v)) for k, v in metrics.items()})
 """)
 
 
-@pytest.mark.parametrize("num_envs", [1, 2])
-def test_maniskill_baselines_launcher_registers_the_ids_and_gives_final_info(tmp_path, num_envs):
+@pytest.fixture(scope="module")
+def converted_sample(tmp_path_factory) -> Path:
+    """The sample's first demo converted as docs/demos.md tells a user (state, pd_joint_delta_pos)."""
+    path = _copy_sample(tmp_path_factory.mktemp("baselines-demos"))
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.replay_trajectory", "--traj-path", str(path), "-o",
+                          "state", "-c", "pd_joint_delta_pos", "--save-traj", "--count", "1"],
+                         capture_output=True, text=True, timeout=600, env=ENV)
+    assert out.returncode == 0, out.stderr[-3000:]
+    converted = path.with_name("sample.state.pd_joint_delta_pos.physx_cpu.h5")
+    assert converted.is_file() and converted.with_suffix(".json").is_file()
+    return converted
+
+
+@pytest.mark.parametrize("num_envs, obs_horizon", [(1, 0), (2, 2)], ids=["bc-act", "diffusion-policy-2-envs"])
+def test_maniskill_baselines_launcher_runs_their_evaluation_on_the_converted_demos(tmp_path, converted_sample,
+                                                                                   num_envs, obs_horizon):
     script = tmp_path / "evaluate_like_maniskill.py"
     script.write_text(MANISKILL_EVAL_CONTRACT)
-    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(script), str(num_envs)],
+    videos = tmp_path / "videos"
+    out = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(script), str(converted_sample),
+                          str(num_envs), str(obs_horizon), str(videos)],
                          capture_output=True, text=True, timeout=600, env=ENV, cwd=tmp_path)
     assert out.returncode == 0, out.stderr[-3000:]
-    assert f"episode lengths {[3] * num_envs}" in out.stdout
-    # without the launcher: the ids are unknown, and with them gymnasium 1.x gives no final_info
-    plain = subprocess.run([sys.executable, str(script), "1"], capture_output=True, text=True, timeout=600, env=ENV,
+    # two episodes an env, each ended at max_episode_steps in the step that truncated it
+    assert f"episode lengths {[3] * 2 * num_envs}" in out.stdout, out.stdout[-2000:]
+    # what bc/diffusion policy/ACT print and keep the best checkpoint by
+    assert "metrics ['episode_len', 'return', 'reward', 'success_at_end', 'success_once']" in out.stdout
+    assert [p.stat().st_size > 0 for p in videos.glob("*.mp4")] == [True, True]  # env 0's two episodes
+
+
+def test_maniskill_baselines_fail_without_the_launcher(tmp_path, converted_sample):
+    """Each of the launcher's two fixes is needed: without it the ids are unknown; with the
+    plugin imported but gymnasium 1.x's vector env as it is, their evaluate() finds no final_info."""
+    script = tmp_path / "evaluate_like_maniskill.py"
+    script.write_text(MANISKILL_EVAL_CONTRACT)
+    args = [str(script), str(converted_sample), "1", "0", ""]
+    plain = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=600, env=ENV,
                            cwd=tmp_path)
-    assert plain.returncode != 0 and "FetchBench-v0" in plain.stderr
+    assert plain.returncode != 0, plain.stdout[-2000:]
+    assert "NameNotFound: Environment `FetchBench` doesn't exist" in plain.stderr.strip().splitlines()[-1]
+    imported = subprocess.run([sys.executable, "-c", "import runpy, sys; import fetchbench_ms; sys.argv = sys.argv[1:]; "
+                               "runpy.run_path(sys.argv[0], run_name='__main__')", *args],
+                              capture_output=True, text=True, timeout=600, env=ENV, cwd=tmp_path)
+    assert imported.returncode != 0 and "KeyError: 'final_info'" in imported.stderr, imported.stderr[-2000:]
+
+
+def test_maniskill_baselines_launcher_names_what_to_install(tmp_path, monkeypatch):
+    """A script that imports what the [baselines] extra or torchvision of torch's build gives
+    ends in one line with the pip command, not a traceback; a bad path likewise."""
+    from fetchbench_ms import maniskill_baselines as launcher
+
+    versions = {"torch": "2.13.0+cpu", "torchvision": "0.28.0"}
+    monkeypatch.setattr(launcher.importlib.metadata, "version", lambda name: versions[name])
+    missing = launcher.missing_dependency_message(ModuleNotFoundError("no", name="diffusers"), "diffusion_policy/train.py")
+    assert missing.startswith("diffusion_policy/train.py imports diffusers") and '".[baselines]"' in missing
+    assert launcher.missing_dependency_message(ModuleNotFoundError("no", name="torch.utils.tensorboard._x"), "b") is None
+    tv = launcher.missing_dependency_message(ModuleNotFoundError("no", name="torchvision"), "act/train.py")
+    assert tv.endswith('pip install "torchvision==0.28.0+cpu" --index-url https://download.pytorch.org/whl/cpu')
+    other_build = launcher.missing_dependency_message(RuntimeError("operator torchvision::nms does not exist"), "x")
+    assert other_build.startswith("torchvision 0.28.0 is not built for the installed torch 2.13.0+cpu")
+    assert 'pip install --force-reinstall --no-deps "torchvision==0.28.0+cpu"' in other_build
+    versions["torch"] = "2.14.1"
+    assert launcher.torchvision_install_command() == 'pip install "torchvision==0.29.1"'
+    versions["torch"] = "2.9.1+cu130"
+    assert launcher.torchvision_install_command().endswith('"torchvision==0.24.1+cu130" --index-url '
+                                                          'https://download.pytorch.org/whl/cu130')
+    assert launcher.missing_dependency_message(RuntimeError("CUDA out of memory"), "x") is None
+    assert launcher.missing_dependency_message(ModuleNotFoundError("no", name="numpyy"), "x") is None
+
+    script = tmp_path / "train.py"
+    script.write_text("import fetchbench_missing_dependency_probe\n")
+    out = subprocess.run([sys.executable, "-c", "import sys; from fetchbench_ms import maniskill_baselines as m; "
+                          "m.EXTRA_MODULES = ('fetchbench_missing_dependency_probe',); sys.exit(m.main(sys.argv[1:]))",
+                          str(script)], capture_output=True, text=True, timeout=300, env=ENV)
+    assert out.returncode == 2, out.stderr[-2000:]
+    assert "fetchbench_missing_dependency_probe, which is not installed" in _one_error_line(
+        out.stderr, "maniskill_baselines: error: ")
     bad = subprocess.run([sys.executable, "-m", "fetchbench_ms.maniskill_baselines", str(tmp_path / "none.py")],
                          capture_output=True, text=True, timeout=120, env=ENV)
     assert bad.returncode == 2 and "is not a Python file" in bad.stderr

@@ -1,0 +1,65 @@
+"""Pack the shipped assets into their compact lossless forms, in place (maintainer).
+
+    python scripts/maint/pack_assets.py            # pack what is not packed yet; report what changed
+    python scripts/maint/pack_assets.py --check    # exit 1 if anything is left to pack
+
+What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packed``):
+
+- ``assets/checkpoints/*.pt`` -> ``*.pt.planes.xz``: the file's even and odd bytes (the fp16
+  weights' low and high bytes) apart, xz; unpacks to the same bytes (checked before the
+  ``.pt`` is removed), so the sha256 that records and the checkpoints' JSON name holds.
+
+Each packed file is checked to unpack to what it replaces before the old file goes. The
+output is byte-reproducible (fixed xz settings, no timestamps), and a second run finds
+nothing to do.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from fetchbench_ms.utils.io import atomic_write_bytes
+from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes
+
+ROOT = Path(__file__).resolve().parents[2]
+PARTS = ("checkpoints",)
+
+
+def pack_checkpoints(assets: Path, write: bool) -> list[str]:
+    """Every ``checkpoints/*.pt`` into ``*.pt.planes.xz``; returns what changed (or would)."""
+    done = []
+    for path in sorted((assets / "checkpoints").glob("*.pt")):
+        target = path.with_name(path.name + PLANES_SUFFIX)
+        if write:
+            raw = path.read_bytes()
+            packed = pack_planes(raw)
+            if unpack_planes(packed, target) != raw:
+                raise SystemExit(f"{path}: its packed form does not unpack to the same bytes; nothing written")
+            atomic_write_bytes(target, packed)
+            path.unlink()
+            done.append(f"{path.relative_to(assets)}: {len(raw)} -> {target.name} {len(packed)} bytes")
+        else:
+            done.append(f"{path.relative_to(assets)}: not packed")
+    return done
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--assets", default=str(ROOT / "assets"), help="the assets folder (default: the checkout's)")
+    p.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts (default all: {', '.join(PARTS)})")
+    p.add_argument("--check", action="store_true", help="change nothing; exit 1 if anything is left to pack")
+    args = p.parse_args(argv)
+    parts = [x for x in args.only.split(",") if x]
+    unknown = sorted(set(parts) - set(PARTS))
+    if unknown or not parts:
+        p.error(f"--only {args.only!r}: unknown {', '.join(unknown) or '(none given)'}; valid: {', '.join(PARTS)}")
+    assets, write = Path(args.assets), not args.check
+    steps = {"checkpoints": lambda: pack_checkpoints(assets, write)}
+    changed = [line for part in parts for line in steps[part]()]
+    print("\n".join(changed) if changed else "nothing to pack")
+    return 1 if changed and args.check else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

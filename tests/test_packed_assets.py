@@ -2,6 +2,7 @@
 are lossless: each unpacks to exactly what it replaced, and packing is byte-reproducible."""
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -9,7 +10,9 @@ import numpy as np
 import pytest
 import torch
 
+from fetchbench_ms.grasps import store as grasp_store
 from fetchbench_ms.utils import packed
+from grasp_dirs import write_npz_form
 from script_modules import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,6 +27,18 @@ PT_SHA256 = {
     "imit_mlp": "d1709d1994719a66b6a9ccba48560b1b0daeda3cfcb4100155f4ad48c5855cb9",
     "imit_transformer": "c9f433c681f8e2f449a39415392bd30132eea1e53f6edfd365d280c13ba6ee2d",
 }
+#: sha256 over every shard's arrays (shard, name, dtype, shape, bytes) as the .npz shards held them.
+GRASP_ARRAYS_SHA256 = "40979e5f57528fae9a9c7224ec42aaa2bb5e400c093ec048e0f3bcbc19e8f362"
+
+
+def _grasp_arrays_sha256(directory: Path) -> str:
+    digest = hashlib.sha256()
+    manifest = grasp_store.read_manifest(directory)
+    for shard in sorted(manifest["shards"], key=int):
+        for name, array in grasp_store.read_shard_arrays(directory / manifest["shards"][shard]["file"]).items():
+            digest.update(f"{shard}|{name}|{array.dtype.str}|{array.shape}|".encode())
+            digest.update(array.tobytes())
+    return digest.hexdigest()
 
 
 @pytest.mark.parametrize("size", [0, 1, 2, 3, 64, 1001])
@@ -93,3 +108,43 @@ def test_the_pack_script_is_idempotent_and_reproducible(tmp_path, capsys):
     raw.with_name("net.pt.planes.xz").unlink()
     assert script.main(["--assets", str(tmp_path), "--only", "checkpoints"]) == 0
     assert raw.with_name("net.pt.planes.xz").read_bytes() == first
+
+
+def test_the_shipped_grasp_shards_hold_the_arrays_of_the_npz_shards():
+    directory = ROOT / "assets" / "grasps"
+    assert sorted(p.name for p in directory.iterdir()) == sorted(
+        ["manifest.json.xz"] + [grasp_store.shard_name(int(s)) for s in grasp_store.read_manifest(directory)["shards"]])
+    assert grasp_store.GraspStore(directory).verify() == []
+    assert _grasp_arrays_sha256(directory) == GRASP_ARRAYS_SHA256
+
+
+def test_quaternions_pack_to_a_w_correction_and_back_bit_for_bit():
+    rng = np.random.default_rng(0)
+    quat = rng.normal(size=(500, 4))
+    quat[:5] = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1], [0.5, 0.5, 0.5, 0.5], [0, 0.6, 0.8, 0]]
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
+    quat = quat.astype(np.float16)
+    quat[5, 0] = np.float16(-0.0)  # a w the sign rule leaves negative zero
+    arrays = {"meta": np.array("{}"), "quat_wxyz": quat, "position": rng.normal(size=(500, 3)).astype(np.float32)}
+    back = grasp_store.decode_shard(grasp_store.encode_shard_arrays(arrays))
+    assert list(back) == list(arrays) and back["quat_wxyz"].tobytes() == quat.tobytes()
+    assert back["meta"].shape == () and back["position"].tobytes() == arrays["position"].tobytes()
+    stored = packed.unpack_arrays(grasp_store.encode_shard_arrays(arrays))
+    tampered = {**stored, "quat_w_correction": stored["quat_w_correction"] + np.uint16(1)}
+    with pytest.raises(ValueError, match="decode to other values"):
+        grasp_store.decode_shard(packed.pack_arrays(tampered), "shard_xx")
+
+
+def test_the_pack_script_packs_an_npz_grasp_directory(tmp_path):
+    script = load_script(ROOT / "scripts/maint/pack_assets.py", "pack_assets")
+    shipped, legacy = ROOT / "assets" / "grasps", tmp_path / "grasps"
+    first = sorted(int(k) for k in grasp_store.read_manifest(shipped)["shards"])[:2]
+    write_npz_form(shipped, legacy, shards=first)
+    before = _grasp_arrays_sha256(legacy)
+    assert script.main(["--assets", str(tmp_path), "--only", "grasps"]) == 0
+    assert sorted(p.name for p in legacy.iterdir()) == sorted(["manifest.json.xz"] + [grasp_store.shard_name(k) for k in first])
+    assert _grasp_arrays_sha256(legacy) == before and grasp_store.GraspStore(legacy).verify() == []
+    for k in first:  # the same bytes as the shipped shards
+        assert (legacy / grasp_store.shard_name(k)).read_bytes() == (shipped / grasp_store.shard_name(k)).read_bytes()
+    assert script.main(["--assets", str(tmp_path), "--only", "grasps", "--check"]) == 0

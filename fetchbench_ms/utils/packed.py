@@ -125,9 +125,9 @@ def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
     """The ``.arrays.xz`` form of named arrays (in the given order)."""
     header, planes = [], []
     for name, array in arrays.items():
-        array = np.ascontiguousarray(array)
+        array = np.asarray(array)  # (not ascontiguousarray: it makes a 0-d array 1-d)
         header.append([name, array.dtype.str, list(array.shape)])
-        planes.append(split_planes(array.tobytes(), _plane_width(array.dtype)))
+        planes.append(split_planes(array.tobytes(order="C"), _plane_width(array.dtype)))
     line = json.dumps({"format": ARRAYS_FORMAT, "version": ARRAYS_VERSION, "arrays": header},
                       sort_keys=True, separators=(",", ":"))
     return xz_bytes(line.encode() + b"\n" + b"".join(planes))

@@ -8,6 +8,9 @@ What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packe
 - ``assets/checkpoints/*.pt`` -> ``*.pt.planes.xz``: the file's even and odd bytes (the fp16
   weights' low and high bytes) apart, xz; unpacks to the same bytes (checked before the
   ``.pt`` is removed), so the sha256 that records and the checkpoints' JSON name holds.
+- ``assets/grasps/shard_NN.npz`` -> ``shard_NN.arrays.xz`` (the same arrays, byte planes, xz;
+  ``fetchbench_ms.grasps.store``) and ``manifest.json`` -> ``manifest.json.xz`` (its JSON, xz),
+  whose entries name the new files and their sha256; nothing else in it changes.
 
 Each packed file is checked to unpack to what it replaces before the old file goes. The
 output is byte-reproducible (fixed xz settings, no timestamps), and a second run finds
@@ -16,14 +19,18 @@ nothing to do.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
-from fetchbench_ms.utils.io import atomic_write_bytes
-from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes
+import numpy as np
+
+from fetchbench_ms.grasps import store as grasp_store
+from fetchbench_ms.utils.io import atomic_write_bytes, sha256_bytes
+from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes, xz_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
-PARTS = ("checkpoints",)
+PARTS = ("checkpoints", "grasps")
 
 
 def pack_checkpoints(assets: Path, write: bool) -> list[str]:
@@ -44,6 +51,44 @@ def pack_checkpoints(assets: Path, write: bool) -> list[str]:
     return done
 
 
+def _same_arrays(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> bool:
+    return list(a) == list(b) and all(a[k].dtype == b[k].dtype and a[k].shape == b[k].shape
+                                      and a[k].tobytes() == b[k].tobytes() for k in a)
+
+
+def pack_grasps(assets: Path, write: bool) -> list[str]:
+    """The grasp directory's ``.npz`` shards and ``manifest.json`` into their packed forms."""
+    directory = assets / "grasps"
+    legacy_manifest = directory / grasp_store.LEGACY_MANIFEST
+    if not legacy_manifest.exists():
+        return []
+    if not write:
+        return [f"{legacy_manifest.relative_to(assets)} and its shards: not packed"]
+    manifest = json.loads(legacy_manifest.read_text())
+    done, sources = [], []
+    for entry in manifest["shards"].values():
+        source = directory / entry["file"]
+        if not source.name.endswith(grasp_store.LEGACY_SHARD_SUFFIX):
+            continue
+        arrays = grasp_store.read_shard_arrays(source)
+        data = grasp_store.encode_shard_arrays(arrays)
+        target = source.with_name(source.name[: -len(grasp_store.LEGACY_SHARD_SUFFIX)] + grasp_store.ARRAYS_SUFFIX)
+        if not _same_arrays(grasp_store.decode_shard(data, target), arrays):
+            raise SystemExit(f"{source}: its packed form does not decode to the same arrays; nothing written")
+        atomic_write_bytes(target, data)
+        entry.update(file=target.name, sha256=sha256_bytes(data))
+        sources.append(source)
+        done.append(f"{source.relative_to(assets)}: {source.stat().st_size} -> {target.name} {len(data)} bytes")
+    text = json.dumps(manifest, indent=1, sort_keys=True) + "\n"
+    target = directory / grasp_store.MANIFEST
+    atomic_write_bytes(target, xz_bytes(text.encode()))
+    done.append(f"{legacy_manifest.relative_to(assets)}: {legacy_manifest.stat().st_size} -> {target.name} "
+                f"{target.stat().st_size} bytes")
+    for path in [legacy_manifest, *sources]:  # only once the new manifest names the packed shards
+        path.unlink()
+    return done
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--assets", default=str(ROOT / "assets"), help="the assets folder (default: the checkout's)")
@@ -55,7 +100,7 @@ def main(argv=None) -> int:
     if unknown or not parts:
         p.error(f"--only {args.only!r}: unknown {', '.join(unknown) or '(none given)'}; valid: {', '.join(PARTS)}")
     assets, write = Path(args.assets), not args.check
-    steps = {"checkpoints": lambda: pack_checkpoints(assets, write)}
+    steps = {"checkpoints": lambda: pack_checkpoints(assets, write), "grasps": lambda: pack_grasps(assets, write)}
     changed = [line for part in parts for line in steps[part]()]
     print("\n".join(changed) if changed else "nothing to pack")
     return 1 if changed and args.check else 0

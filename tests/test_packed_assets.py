@@ -2,6 +2,7 @@
 are lossless: each unpacks to exactly what it replaced, and packing is byte-reproducible."""
 from __future__ import annotations
 
+import gzip
 import hashlib
 import json
 from pathlib import Path
@@ -11,7 +12,10 @@ import pytest
 import torch
 
 from fetchbench_ms.grasps import store as grasp_store
+from fetchbench_ms.tasks import suite_packed
+from fetchbench_ms.tasks.suite import load_suite, shipped_suite_file, suite_file_sha256, suite_text
 from fetchbench_ms.utils import packed
+from fetchbench_ms.utils.io import sha256_bytes
 from grasp_dirs import write_npz_form
 from script_modules import load_script
 
@@ -26,6 +30,18 @@ PT_SHA256 = {
     "imit_diffusion": "9c3a6598835ea9701446ba3a6f740b0cca1d883d658d19011687979c4a6be823",
     "imit_mlp": "d1709d1994719a66b6a9ccba48560b1b0daeda3cfcb4100155f4ad48c5855cb9",
     "imit_transformer": "c9f433c681f8e2f449a39415392bd30132eea1e53f6edfd365d280c13ba6ee2d",
+}
+#: Per shipped suite: the sha256 inside it (of its canonical JSON) and that of the .json.gz file
+#: it was packed from, which run records name it by (``source_sha256``).
+SUITES = {
+    "smoke": ("fed8de59cef40f8fa72379a8c0eed03c3a948e730b2a983f16557b48e43b843b",
+              "e69c4b7863ee2e71e444244eb6f4b8019153eb967747fa983f49ab7943009fad"),
+    "test": ("ca5f64c2d9feadc3183f7ac8d3db11359f3e2b3c4fa99816da3917b3097b98c6",
+             "deba668f3a22ab82cdd38c218179c63c86232a190fac6941f8b29ca55eb921c6"),
+    "train": ("6cc8d140fc2691cf157721977cbdc9e32c4d07310d7b57d241dcf7196459e858",
+              "6256fae7bd5b04914b96307b86ca7dfe0daec49c8d4acf552c6d3f3b3fac1c7c"),
+    "val": ("df58b8091fd7e308a1ebe526052e965957d0fe5de4f0123c047bd346c8972d92",
+            "f54fb7aab5418716a371abb2e16e315f9cedb006745aad17e964d0343d98993e"),
 }
 #: sha256 over every shard's arrays (shard, name, dtype, shape, bytes) as the .npz shards held them.
 GRASP_ARRAYS_SHA256 = "40979e5f57528fae9a9c7224ec42aaa2bb5e400c093ec048e0f3bcbc19e8f362"
@@ -148,3 +164,59 @@ def test_the_pack_script_packs_an_npz_grasp_directory(tmp_path):
     for k in first:  # the same bytes as the shipped shards
         assert (legacy / grasp_store.shard_name(k)).read_bytes() == (shipped / grasp_store.shard_name(k)).read_bytes()
     assert script.main(["--assets", str(tmp_path), "--only", "grasps", "--check"]) == 0
+
+
+@pytest.mark.parametrize("name", sorted(SUITES))
+def test_the_shipped_suites_load_to_the_content_they_hash_to(name):
+    content_sha, gz_sha = SUITES[name]
+    path = shipped_suite_file(name)
+    assert path.name == f"{name}.suite.xz"
+    suite = load_suite(name)  # checks the canonical JSON against the sha256 inside
+    assert json.loads(suite_text(path.read_bytes(), path))["sha256"] == content_sha and len(suite) > 0
+    assert suite_file_sha256(path) == gz_sha
+
+
+def test_every_shipped_record_names_a_shipped_suite():
+    """The suite identity each shipped run recorded (``source_sha256``, the checkpoints'
+    ``suite_sha256``) is a shipped suite's: a new run of the same tasks compares with them."""
+    known = {suite_file_sha256(shipped_suite_file(name)) for name in SUITES}
+    recorded = {json.loads(p.read_text()).get("source_sha256") for p in (ROOT / "results").rglob("run.json")}
+    recorded |= {json.loads(p.read_text()).get("selection", {}).get("suite_sha256") for p in CHECKPOINTS.glob("*.json")}
+    assert recorded - {None} and recorded - {None} <= known
+
+
+def test_a_suite_saved_packed_reads_back_and_keeps_its_gzip_identity(tmp_path):
+    smoke = load_suite("smoke")
+    smoke.save(tmp_path / "a.suite.xz")
+    smoke.save(tmp_path / "b.suite.xz")
+    smoke.save(tmp_path / "a.json.gz")
+    assert (tmp_path / "a.suite.xz").read_bytes() == (tmp_path / "b.suite.xz").read_bytes()
+    again = load_suite(tmp_path / "a.suite.xz")
+    assert again.ids() == smoke.ids() and again.tasks == smoke.tasks and again.info == smoke.info
+    assert suite_text((tmp_path / "a.suite.xz").read_bytes(), "a") == gzip.decompress((tmp_path / "a.json.gz").read_bytes())
+    assert suite_file_sha256(tmp_path / "a.suite.xz") == sha256_bytes((tmp_path / "a.json.gz").read_bytes())
+    data = bytearray((tmp_path / "a.suite.xz").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (tmp_path / "c.suite.xz").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="c.suite.xz is corrupt"):
+        load_suite(tmp_path / "c.suite.xz")
+
+
+def test_packing_puts_every_float_back_and_refuses_a_nul_string():
+    body = {"a": [0.1, -0.0, 1e-07, 2.5, 3], "b": {"x": 1.2345678901234567, "y": "0.5"}, "c": [{"x": 0.25}, {"x": True}]}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
+    assert suite_packed.unpack(suite_packed.pack(text, "0" * 64))[0] == text
+    with pytest.raises(ValueError, match="cannot be packed"):
+        suite_packed.pack(json.dumps({"a": "\0", "b": 0.5}, sort_keys=True, separators=(",", ":")).encode(), "0" * 64)
+
+
+def test_the_pack_script_packs_a_gzip_suite(tmp_path):
+    script = load_script(ROOT / "scripts/maint/pack_assets.py", "pack_assets")
+    (tmp_path / "suites").mkdir()
+    load_suite("smoke").save(tmp_path / "suites" / "smoke.json.gz")
+    gz = (tmp_path / "suites" / "smoke.json.gz").read_bytes()
+    assert script.main(["--assets", str(tmp_path), "--only", "suites", "--check"]) == 1
+    assert script.main(["--assets", str(tmp_path), "--only", "suites"]) == 0
+    assert [p.name for p in (tmp_path / "suites").iterdir()] == ["smoke.suite.xz"]
+    assert suite_file_sha256(tmp_path / "suites" / "smoke.suite.xz") == sha256_bytes(gz)
+    assert load_suite(tmp_path / "suites" / "smoke.suite.xz").tasks == load_suite("smoke").tasks

@@ -133,18 +133,23 @@ def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
     return xz_bytes(line.encode() + b"\n" + b"".join(planes))
 
 
-def unpack_arrays(packed: bytes, what: str | os.PathLike = "data") -> dict[str, np.ndarray]:
-    """Inverse of ``pack_arrays``: the same names, dtypes, shapes and values, in order."""
-    data = unxz_bytes(packed, what)
-    line, _, body = data.partition(b"\n")
+def header_line(line: bytes, file_format: str, version: int, what: str | os.PathLike = "data") -> dict:
+    """The JSON header line of a packed file, checked to be of ``file_format`` and ``version``."""
     try:
         header = json.loads(line)
     except (json.JSONDecodeError, UnicodeDecodeError):
         header = None
-    if not isinstance(header, dict) or header.get("format") != ARRAYS_FORMAT:
-        raise ValueError(f"{what} is not a {ARRAYS_FORMAT} file")
-    if header.get("version") != ARRAYS_VERSION:
-        raise ValueError(f"{what}: {ARRAYS_FORMAT} version {header.get('version')}, this code reads {ARRAYS_VERSION}")
+    if not isinstance(header, dict) or header.get("format") != file_format:
+        raise ValueError(f"{what} is not a {file_format} file")
+    if header.get("version") != version:
+        raise ValueError(f"{what}: {file_format} version {header.get('version')!r}, this code reads {version}")
+    return header
+
+
+def unpack_arrays(packed: bytes, what: str | os.PathLike = "data") -> dict[str, np.ndarray]:
+    """Inverse of ``pack_arrays``: the same names, dtypes, shapes and values, in order."""
+    line, _, body = unxz_bytes(packed, what).partition(b"\n")
+    header = header_line(line, ARRAYS_FORMAT, ARRAYS_VERSION, what)
     arrays, start = {}, 0
     for name, dtype_str, shape in header["arrays"]:
         dtype = np.dtype(dtype_str)

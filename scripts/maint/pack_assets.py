@@ -11,6 +11,9 @@ What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packe
 - ``assets/grasps/shard_NN.npz`` -> ``shard_NN.arrays.xz`` (the same arrays, byte planes, xz;
   ``fetchbench_ms.grasps.store``) and ``manifest.json`` -> ``manifest.json.xz`` (its JSON, xz),
   whose entries name the new files and their sha256; nothing else in it changes.
+- ``assets/suites/<name>.json.gz`` -> ``<name>.suite.xz`` (``fetchbench_ms.tasks.suite_packed``):
+  the same canonical JSON text, floats in columns; its header keeps the ``.json.gz`` file's
+  sha256, the suite's identity in run records (``suite_file_sha256``).
 
 Each packed file is checked to unpack to what it replaces before the old file goes. The
 output is byte-reproducible (fixed xz settings, no timestamps), and a second run finds
@@ -19,6 +22,7 @@ nothing to do.
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import sys
 from pathlib import Path
@@ -26,11 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from fetchbench_ms.grasps import store as grasp_store
-from fetchbench_ms.utils.io import atomic_write_bytes, sha256_bytes
+from fetchbench_ms.tasks import suite_packed
+from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256
+from fetchbench_ms.utils.io import atomic_write_bytes, canonical_json, sha256_bytes
 from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes, xz_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
-PARTS = ("checkpoints", "grasps")
+PARTS = ("checkpoints", "grasps", "suites")
 
 
 def pack_checkpoints(assets: Path, write: bool) -> list[str]:
@@ -89,6 +95,26 @@ def pack_grasps(assets: Path, write: bool) -> list[str]:
     return done
 
 
+def pack_suites(assets: Path, write: bool) -> list[str]:
+    """Every ``suites/<name>.json.gz`` into ``<name>.suite.xz``."""
+    done = []
+    for path in sorted((assets / "suites").glob("*.json.gz")):
+        target = path.with_name(path.name[: -len(".json.gz")] + suite_packed.SUFFIX)
+        if not write:
+            done.append(f"{path.relative_to(assets)}: not packed")
+            continue
+        raw = path.read_bytes()
+        data = suite_packed.pack(gzip.decompress(raw), sha256_bytes(raw))  # checks its own round trip
+        atomic_write_bytes(target, data)
+        same = canonical_json(load_suite(target).to_body()) == canonical_json(load_suite(path).to_body())
+        if suite_file_sha256(target) != sha256_bytes(raw) or not same:
+            target.unlink()
+            raise SystemExit(f"{path}: its packed form is another suite; nothing written")
+        path.unlink()
+        done.append(f"{path.relative_to(assets)}: {len(raw)} -> {target.name} {len(data)} bytes")
+    return done
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--assets", default=str(ROOT / "assets"), help="the assets folder (default: the checkout's)")
@@ -100,7 +126,8 @@ def main(argv=None) -> int:
     if unknown or not parts:
         p.error(f"--only {args.only!r}: unknown {', '.join(unknown) or '(none given)'}; valid: {', '.join(PARTS)}")
     assets, write = Path(args.assets), not args.check
-    steps = {"checkpoints": lambda: pack_checkpoints(assets, write), "grasps": lambda: pack_grasps(assets, write)}
+    steps = {"checkpoints": lambda: pack_checkpoints(assets, write), "grasps": lambda: pack_grasps(assets, write),
+             "suites": lambda: pack_suites(assets, write)}
     changed = [line for part in parts for line in steps[part]()]
     print("\n".join(changed) if changed else "nothing to pack")
     return 1 if changed and args.check else 0

@@ -220,3 +220,20 @@ def test_the_pack_script_packs_a_gzip_suite(tmp_path):
     assert [p.name for p in (tmp_path / "suites").iterdir()] == ["smoke.suite.xz"]
     assert suite_file_sha256(tmp_path / "suites" / "smoke.suite.xz") == sha256_bytes(gz)
     assert load_suite(tmp_path / "suites" / "smoke.suite.xz").tasks == load_suite("smoke").tasks
+
+
+def test_the_shipped_runs_are_packed_and_the_pack_script_packs_a_gzip_run(tmp_path):
+    folders = [p.parent for p in (ROOT / "results").rglob("run.json")]
+    assert folders and all((f / "results.jsonl.xz").is_file() and not (f / "results.jsonl.gz").exists() for f in folders)
+    script = load_script(ROOT / "scripts/maint/pack_assets.py", "pack_assets")
+    shipped = ROOT / "results" / "runs" / "ga-mesh-rrt-paper-val100"
+    run = tmp_path / "results" / "runs" / "r"
+    run.mkdir(parents=True)
+    (run / "run.json").write_bytes((shipped / "run.json").read_bytes())
+    (run / "results.jsonl.gz").write_bytes(gzip.compress(packed.unxz_bytes((shipped / "results.jsonl.xz").read_bytes())))
+    args = ["--results", str(tmp_path / "results"), "--only", "results"]
+    assert script.main([*args, "--check"]) == 1
+    assert script.main(args) == 0
+    assert sorted(p.name for p in run.iterdir()) == ["results.jsonl.xz", "run.json"]
+    assert (run / "results.jsonl.xz").read_bytes() == (shipped / "results.jsonl.xz").read_bytes()
+    assert script.main([*args, "--check"]) == 0

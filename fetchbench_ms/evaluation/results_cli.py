@@ -32,7 +32,7 @@ def cmd_table(args) -> int:
 def add_commands(subparsers) -> None:
     p = subparsers.add_parser("results", help="the shipped evaluation records (results/runs) and their tables")
     sub = p.add_subparsers(dest="results_command", required=True, metavar="ACTION")
-    k = sub.add_parser("pack", help="pack a results directory into results/runs/NAME (run.json + results.jsonl.gz)")
+    k = sub.add_parser("pack", help="pack a results directory into results/runs/NAME (run.json + results.jsonl.xz)")
     k.add_argument("run_dir", metavar="RUN_DIR", help="a results directory of `fetchbench eval --out`")
     k.add_argument("--name", required=True, help="the run's stable name, e.g. cgn-ptd-rrt-pretrained-test600")
     k.add_argument("--force", action="store_true", help="replace a packed run of that name that holds another run")

@@ -14,6 +14,8 @@ What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packe
 - ``assets/suites/<name>.json.gz`` -> ``<name>.suite.xz`` (``fetchbench_ms.tasks.suite_packed``):
   the same canonical JSON text, floats in columns; its header keeps the ``.json.gz`` file's
   sha256, the suite's identity in run records (``suite_file_sha256``).
+- ``results/**/results.jsonl.gz`` (packed evaluation runs) -> ``results.jsonl.xz``: the same
+  JSON lines, as ``fetchbench results pack`` writes them.
 
 Each packed file is checked to unpack to what it replaces before the old file goes. The
 output is byte-reproducible (fixed xz settings, no timestamps), and a second run finds
@@ -29,14 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
+from fetchbench_ms.evaluation.results_table import packed_bytes
+from fetchbench_ms.evaluation.store import LEGACY_PACKED_RESULTS_FILE, PACKED_RESULTS_FILE, ResultsStore
 from fetchbench_ms.grasps import store as grasp_store
 from fetchbench_ms.tasks import suite_packed
 from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256
 from fetchbench_ms.utils.io import atomic_write_bytes, canonical_json, sha256_bytes
-from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes, xz_bytes
+from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes, unxz_bytes, xz_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
-PARTS = ("checkpoints", "grasps", "suites")
+PARTS = ("checkpoints", "grasps", "suites", "results")
 
 
 def pack_checkpoints(assets: Path, write: bool) -> list[str]:
@@ -115,9 +119,31 @@ def pack_suites(assets: Path, write: bool) -> list[str]:
     return done
 
 
+def pack_results(results: Path, write: bool) -> list[str]:
+    """Every packed run's ``results.jsonl.gz`` under ``results`` into ``results.jsonl.xz``."""
+    done = []
+    for path in sorted(results.rglob(LEGACY_PACKED_RESULTS_FILE)):
+        if path.parent.is_symlink() or not (path.parent / "run.json").is_file():
+            continue  # a link to a run packed where it lies; not a packed run
+        if not write:
+            done.append(f"{path.relative_to(results.parent)}: not packed")
+            continue
+        store = ResultsStore(path.parent)
+        records = store.records()
+        manifest_bytes, data = packed_bytes(store.manifest(), records)
+        if manifest_bytes != (path.parent / "run.json").read_bytes() or gzip.decompress(path.read_bytes()) != \
+                unxz_bytes(data):
+            raise SystemExit(f"{path}: not a run as `fetchbench results pack` writes it; nothing written")
+        atomic_write_bytes(path.with_name(PACKED_RESULTS_FILE), data)
+        path.unlink()
+        done.append(f"{path.relative_to(results.parent)}: {path.with_name(PACKED_RESULTS_FILE).name} {len(data)} bytes")
+    return done
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--assets", default=str(ROOT / "assets"), help="the assets folder (default: the checkout's)")
+    p.add_argument("--results", default=str(ROOT / "results"), help="the records folder (default: the checkout's)")
     p.add_argument("--only", default=",".join(PARTS), help=f"comma-separated parts (default all: {', '.join(PARTS)})")
     p.add_argument("--check", action="store_true", help="change nothing; exit 1 if anything is left to pack")
     args = p.parse_args(argv)
@@ -127,7 +153,7 @@ def main(argv=None) -> int:
         p.error(f"--only {args.only!r}: unknown {', '.join(unknown) or '(none given)'}; valid: {', '.join(PARTS)}")
     assets, write = Path(args.assets), not args.check
     steps = {"checkpoints": lambda: pack_checkpoints(assets, write), "grasps": lambda: pack_grasps(assets, write),
-             "suites": lambda: pack_suites(assets, write)}
+             "suites": lambda: pack_suites(assets, write), "results": lambda: pack_results(Path(args.results), write)}
     changed = [line for part in parts for line in steps[part]()]
     print("\n".join(changed) if changed else "nothing to pack")
     return 1 if changed and args.check else 0

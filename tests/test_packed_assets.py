@@ -5,6 +5,7 @@ from __future__ import annotations
 import gzip
 import hashlib
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -237,3 +238,38 @@ def test_the_shipped_runs_are_packed_and_the_pack_script_packs_a_gzip_run(tmp_pa
     assert sorted(p.name for p in run.iterdir()) == ["results.jsonl.xz", "run.json"]
     assert (run / "results.jsonl.xz").read_bytes() == (shipped / "results.jsonl.xz").read_bytes()
     assert script.main([*args, "--check"]) == 0
+
+
+#: sha256 of the object index's canonical JSON (the text catalog.json.gz held).
+CATALOG_JSON_SHA256 = "0d8f697098f25d7873c32d183bc88937f681dd798eba66be72ef0d48e2e6c670"
+
+
+def test_the_catalog_index_reads_in_either_form_and_packs_to_the_shipped_bytes(tmp_path, monkeypatch):
+    from fetchbench_ms.objects import catalog
+
+    shipped = ROOT / "assets" / "objects"
+    text = packed.unxz_bytes((shipped / catalog.INDEX_NAME).read_bytes())
+    assert sha256_bytes(text) == CATALOG_JSON_SHA256
+    assert not (shipped / catalog.LEGACY_INDEX_NAME).exists()
+    legacy = tmp_path / "objects"
+    shutil.copytree(shipped, legacy)
+    gz = gzip.compress(text, compresslevel=9, mtime=0)
+    (legacy / catalog.INDEX_NAME).unlink()
+    (legacy / catalog.LEGACY_INDEX_NAME).write_bytes(gz)
+    manifest = json.loads((legacy / catalog.MANIFEST_NAME).read_text())
+    del manifest["files"][catalog.INDEX_NAME]
+    manifest["files"][catalog.LEGACY_INDEX_NAME] = {"bytes": len(gz), "sha256": sha256_bytes(gz)}
+    (legacy / catalog.MANIFEST_NAME).write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    monkeypatch.setenv("FETCHBENCH_OBJECT_ASSETS", str(legacy))
+    catalog.clear_caches()
+    try:
+        assert catalog.load_index() == json.loads(text)
+        script = load_script(ROOT / "scripts/maint/pack_assets.py", "pack_assets")
+        assert script.main(["--assets", str(tmp_path), "--only", "catalog"]) == 0
+        catalog.clear_caches()
+        assert catalog.load_index() == json.loads(text) and catalog.verify_files(legacy)
+        for name in (catalog.INDEX_NAME, catalog.MANIFEST_NAME):
+            assert (legacy / name).read_bytes() == (shipped / name).read_bytes()
+    finally:
+        monkeypatch.delenv("FETCHBENCH_OBJECT_ASSETS")
+        catalog.clear_caches()

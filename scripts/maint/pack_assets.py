@@ -14,6 +14,8 @@ What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packe
 - ``assets/suites/<name>.json.gz`` -> ``<name>.suite.xz`` (``fetchbench_ms.tasks.suite_packed``):
   the same canonical JSON text, floats in columns; its header keeps the ``.json.gz`` file's
   sha256, the suite's identity in run records (``suite_file_sha256``).
+- ``assets/objects/catalog.json.gz`` -> ``catalog.json.xz`` (the same JSON, xz), and the
+  objects' ``manifest.json`` names it with its sha256 and size.
 - ``results/**/results.jsonl.gz`` (packed evaluation runs) -> ``results.jsonl.xz``: the same
   JSON lines, as ``fetchbench results pack`` writes them.
 
@@ -34,13 +36,14 @@ import numpy as np
 from fetchbench_ms.evaluation.results_table import packed_bytes
 from fetchbench_ms.evaluation.store import LEGACY_PACKED_RESULTS_FILE, PACKED_RESULTS_FILE, ResultsStore
 from fetchbench_ms.grasps import store as grasp_store
+from fetchbench_ms.objects import catalog
 from fetchbench_ms.tasks import suite_packed
 from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256
 from fetchbench_ms.utils.io import atomic_write_bytes, canonical_json, sha256_bytes
 from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes, unxz_bytes, xz_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
-PARTS = ("checkpoints", "grasps", "suites", "results")
+PARTS = ("checkpoints", "grasps", "suites", "catalog", "results")
 
 
 def pack_checkpoints(assets: Path, write: bool) -> list[str]:
@@ -119,6 +122,28 @@ def pack_suites(assets: Path, write: bool) -> list[str]:
     return done
 
 
+def pack_catalog(assets: Path, write: bool) -> list[str]:
+    """The object index ``catalog.json.gz`` into ``catalog.json.xz``, renamed in the manifest."""
+    directory = assets / "objects"
+    source, target = directory / catalog.LEGACY_INDEX_NAME, directory / catalog.INDEX_NAME
+    if not source.exists():
+        return []
+    if not write:
+        return [f"{source.relative_to(assets)}: not packed"]
+    raw = source.read_bytes()
+    data = xz_bytes(gzip.decompress(raw))
+    manifest_path = directory / catalog.MANIFEST_NAME
+    manifest = json.loads(manifest_path.read_text())
+    if manifest["files"].get(source.name, {}).get("sha256") != sha256_bytes(raw):
+        raise SystemExit(f"{source} is not the index its manifest names; nothing written")
+    atomic_write_bytes(target, data)
+    del manifest["files"][source.name]
+    manifest["files"][target.name] = {"bytes": len(data), "sha256": sha256_bytes(data)}
+    atomic_write_bytes(manifest_path, (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode())
+    source.unlink()
+    return [f"{source.relative_to(assets)}: {len(raw)} -> {target.name} {len(data)} bytes"]
+
+
 def pack_results(results: Path, write: bool) -> list[str]:
     """Every packed run's ``results.jsonl.gz`` under ``results`` into ``results.jsonl.xz``."""
     done = []
@@ -153,7 +178,8 @@ def main(argv=None) -> int:
         p.error(f"--only {args.only!r}: unknown {', '.join(unknown) or '(none given)'}; valid: {', '.join(PARTS)}")
     assets, write = Path(args.assets), not args.check
     steps = {"checkpoints": lambda: pack_checkpoints(assets, write), "grasps": lambda: pack_grasps(assets, write),
-             "suites": lambda: pack_suites(assets, write), "results": lambda: pack_results(Path(args.results), write)}
+             "suites": lambda: pack_suites(assets, write), "catalog": lambda: pack_catalog(assets, write),
+             "results": lambda: pack_results(Path(args.results), write)}
     changed = [line for part in parts for line in steps[part]()]
     print("\n".join(changed) if changed else "nothing to pack")
     return 1 if changed and args.check else 0

@@ -273,3 +273,10 @@ def test_the_catalog_index_reads_in_either_form_and_packs_to_the_shipped_bytes(t
     finally:
         monkeypatch.delenv("FETCHBENCH_OBJECT_ASSETS")
         catalog.clear_caches()
+
+
+def test_nothing_shipped_is_left_unpacked(capsys):
+    """A plain .pt, .npz shard, .json.gz suite or index, or .gz run added to the tree fails here:
+    `python scripts/maint/pack_assets.py` packs it."""
+    script = load_script(ROOT / "scripts/maint/pack_assets.py", "pack_assets")
+    assert script.main(["--check"]) == 0, capsys.readouterr().out

@@ -55,7 +55,7 @@ declare -A STEPS=([mlp]=${STEPS_MLP:-30000} [transformer]=${STEPS_TRANSFORMER:-1
 read -r -a kinds <<< "${KINDS:-mlp transformer diffusion}"
 for kind in "${kinds[@]}"; do
     [[ -n "${STEPS[$kind]:-}" ]] || { echo "KINDS: unknown trainer '$kind'; valid: ${!STEPS[*]}" >&2; exit 2; }
-    if [[ -n "${INIT_FROM:-}" && ! -f "$INIT_FROM/imit_$kind.pt" ]]; then
+    if [[ -n "${INIT_FROM:-}" && ! -f "$INIT_FROM/imit_$kind.pt" && ! -f "$INIT_FROM/imit_$kind.pt.planes.xz" ]]; then
         echo "INIT_FROM: no $INIT_FROM/imit_$kind.pt for the $kind trainer" >&2; exit 2
     fi
 done

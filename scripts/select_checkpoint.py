@@ -149,7 +149,7 @@ def main(argv=None, evaluate: Callable[[dict, Path, dict], list[dict]] = run_fet
 
     from fetchbench_ms.evaluation.runner import parse_range
     from fetchbench_ms.policies.deploy import POLICY_METHODS, default_checkpoint
-    from fetchbench_ms.tasks.suite import load_suite, suite_path
+    from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256, suite_path
 
     try:
         suite = load_suite(args.suite)
@@ -192,7 +192,7 @@ def main(argv=None, evaluate: Callable[[dict, Path, dict], list[dict]] = run_fet
               f"{f['errors']} errors", flush=True)
     best = choose(figures)
     chosen = next(c for c in candidates if c["sha256"] == best["sha256"])
-    selection = {"rule": RULE, "suite": suite.name, "suite_sha256": sha256_file(suite_path(args.suite)),
+    selection = {"rule": RULE, "suite": suite.name, "suite_sha256": suite_file_sha256(suite_path(args.suite)),
                  "tasks": args.tasks, "task_count": len(expected), "method": method,
                  "policy_stride": settings["policy_stride"], "eval_args": args.eval_args,
                  "chosen_step": best["step"], "chosen_sha256": best["sha256"], "candidates": figures,

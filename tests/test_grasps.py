@@ -15,6 +15,8 @@ from fetchbench_ms.grasps.build import LabelSettings, build
 from fetchbench_ms.grasps.physics import GraspLabeller
 from fetchbench_ms.grasps.sampler import SamplerConfig, object_collision_manager, sample_candidates
 from fetchbench_ms.objects.asset import ObjectAsset, ObjectRecord
+from fetchbench_ms.utils.packed import xz_bytes
+from grasp_dirs import write_npz_form
 
 SHIPPED = Path(__file__).resolve().parents[1] / "assets" / "grasps"
 
@@ -118,10 +120,11 @@ def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
     build(tmp_path / "one_by_one", ids[:1], loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
     build(tmp_path / "one_by_one", ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
     manifest = build(tmp_path, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
-    for f in tmp_path.glob("shard_*.npz"):
+    for f in tmp_path.glob("shard_*.arrays.xz"):
         assert (tmp_path / "one_by_one" / f.name).read_bytes() == f.read_bytes()
     assert sorted(i for e in manifest["shards"].values() for i in e["successes_per_object"]) == ids
-    files = sorted(tmp_path.glob("shard_*.npz"))
+    files = sorted(tmp_path.glob("shard_*.arrays.xz"))
+    assert files and store.read_manifest(tmp_path) == manifest
     before = {f.name: f.read_bytes() for f in files}
 
     grasps = store.load_grasps("test/box_a", tmp_path)
@@ -160,12 +163,30 @@ def test_build_store_round_trip_resume_and_errors(tmp_path, capsys):
     assert {f.name: f.read_bytes() for f in files} == before
     assert cli_main(["grasps", "verify", "--dir", str(tmp_path)]) == 0
     # A manifest from another code version is refused as stale.
-    manifest_path = tmp_path / store.MANIFEST
-    stale = json.loads(manifest_path.read_text())
+    stale = store.read_manifest(tmp_path)
     stale["version"] = store.GRASPS_VERSION + 1
-    manifest_path.write_text(json.dumps(stale))
+    (tmp_path / store.MANIFEST).write_bytes(xz_bytes(json.dumps(stale).encode()))
     with pytest.raises(ValueError, match="stale grasp labels"):
         store.GraspStore(tmp_path)
+
+
+def test_a_grasp_directory_of_the_npz_form_is_read_and_rebuilt_packed(tmp_path):
+    """``manifest.json`` + ``shard_NN.npz`` (the earlier form) reads as it is; the builder
+    rewrites it into the packed form with the same labels, relabelling nothing."""
+    settings = LabelSettings(candidates_per_round=16, max_rounds=1, target_successes=8)
+    ids = sorted(PRIMITIVES)
+    packed_dir, legacy_dir = tmp_path / "packed", tmp_path / "legacy"
+    build(packed_dir, ids, loader=primitive_asset, settings=settings, workers=0, log=lambda m: None)
+    write_npz_form(packed_dir, legacy_dir)
+    for object_id in ids:
+        old, new = store.GraspStore(legacy_dir).load(object_id), store.GraspStore(packed_dir).load(object_id)
+        assert np.array_equal(old.T_object_hand, new.T_object_hand) and np.array_equal(old.success, new.success)
+    messages = []
+    build(legacy_dir, ids, loader=primitive_asset, settings=settings, workers=0, log=messages.append)
+    rewritten = [m for m in messages if m.startswith("shard ")]
+    assert rewritten and all(" 0 trials " in m for m in rewritten)  # rewritten, not relabelled
+    assert sorted(p.name for p in legacy_dir.iterdir()) == sorted(p.name for p in packed_dir.iterdir())
+    assert all((legacy_dir / p.name).read_bytes() == p.read_bytes() for p in packed_dir.iterdir())
 
 
 def manifest_count(manifest: dict, object_id: str) -> int:

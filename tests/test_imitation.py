@@ -1013,12 +1013,13 @@ def _shipped(kind: str, frames_by_stride: dict):
     trainers see them."""
     common = _import(ROOT / "baselines/imitation/common.py", "common")
     from fetchbench_ms.policies.deploy import default_checkpoint
+    from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
 
-    path = default_checkpoint(kind)
+    path = packed_or_plain(default_checkpoint(kind))  # shipped packed: imit_<kind>.pt.planes.xz
     model, _ = load_model(path)
-    record = json.loads(path.with_suffix(".json").read_text())
+    record = json.loads(default_checkpoint(kind).with_suffix(".json").read_text())
     frames_dir = frames_by_stride[int(record.get("frame_stride", 1))]
-    assert path.stat().st_size <= 8e6 and record["checkpoint_sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert path.stat().st_size <= 8e6 and record["checkpoint_sha256"] == content_sha256(path)
     assert record["retrain_command"] and len(record["data_sha256"]) == 64 and record["validation"]["loss"]
     assert record["data_manifest"]["totals"]["demos"] >= 250
     model = model.float().eval()
@@ -1030,7 +1031,7 @@ def _shipped(kind: str, frames_by_stride: dict):
 
 @pytest.mark.parametrize("kind", ["mlp", "transformer", "act"])
 def test_shipped_checkpoint_imitates_the_expert(kind, sample_frames_by_stride):
-    """The shipped checkpoints (assets/checkpoints/imit_<kind>.pt) load, carry their training
+    """The shipped checkpoints (assets/checkpoints/imit_<kind>.pt.planes.xz) load, carry their training
     record (command, data hash, validation) and imitate: on expert frames of the demo sample,
     at the checkpoint's frame stride, their actions' squared error to the expert's is at most
     60 % of holding still's (a zero action; the shipped ones: MLP 4 %, ACT 35 %, Transformer
@@ -1078,10 +1079,10 @@ def test_val_runs_join_the_shipped_checkpoints_by_their_bytes(tmp_path, monkeypa
     for kind in ship.KINDS:
         if kind == "act":  # left out here: the case of a kind without a shipped checkpoint, below
             continue
-        for suffix in (".pt", ".json"):
+        for suffix in (".pt.planes.xz", ".json"):
             shutil.copyfile(ROOT / f"assets/checkpoints/imit_{kind}{suffix}", tmp_path / f"imit_{kind}{suffix}")
     monkeypatch.setattr(ship, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
-    sha = ship.sha256_file(tmp_path / "imit_mlp.pt")
+    sha = ship.content_sha256(tmp_path / "imit_mlp.pt.planes.xz")  # of the .pt bytes it packs
 
     def run(name: str, task_prefix: str, checkpoint_sha: str, method: str = "e2e-mlp") -> Path:
         folder = tmp_path / name

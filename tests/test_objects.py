@@ -1,7 +1,6 @@
 """The object catalog: sources, limits, split, regeneration, physics, bad input."""
 from __future__ import annotations
 
-import gzip
 import hashlib
 import json
 import math
@@ -12,6 +11,7 @@ import pytest
 
 from fetchbench_ms.objects import build, catalog, decompose, geometry as g, procedural
 from fetchbench_ms.objects.asset import SOURCES, SPLITS
+from fetchbench_ms.utils.packed import unxz_bytes, xz_bytes
 
 
 @pytest.fixture(scope="module")
@@ -235,10 +235,10 @@ def test_tampered_files_are_refused(asset_copy, name):
 
 def test_stale_index_is_refused(asset_copy):
     """An index whose fingerprint no longer matches the regenerated geometry fails."""
-    index = json.loads(gzip.decompress((asset_copy / catalog.INDEX_NAME).read_bytes()))
+    index = json.loads(unxz_bytes((asset_copy / catalog.INDEX_NAME).read_bytes()))
     oid = sorted(i for i in index["objects"] if i.startswith("procedural/"))[0]
     index["objects"][oid]["fingerprint"] = "0" * 16
-    data = gzip.compress(json.dumps(index).encode(), mtime=0)
+    data = xz_bytes(json.dumps(index).encode())
     (asset_copy / catalog.INDEX_NAME).write_bytes(data)
     manifest = json.loads((asset_copy / catalog.MANIFEST_NAME).read_text())
     manifest["files"][catalog.INDEX_NAME]["sha256"] = hashlib.sha256(data).hexdigest()
@@ -261,7 +261,7 @@ def test_builder_is_resumable_and_byte_identical(tmp_path, monkeypatch):
     for name in (catalog.INDEX_NAME, catalog.YCB_CONVEX_NAME):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     # Entries built here equal the shipped ones.
-    built = json.loads(gzip.decompress((tmp_path / "a" / catalog.INDEX_NAME).read_bytes()))
+    built = json.loads(unxz_bytes((tmp_path / "a" / catalog.INDEX_NAME).read_bytes()))
     shipped = catalog.load_index()
     for oid, entry in built["objects"].items():
         assert entry == shipped["objects"][oid], oid

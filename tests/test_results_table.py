@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import lzma
 import os
 from pathlib import Path
 
@@ -64,8 +65,8 @@ def test_pack_and_table_round_trip(tmp_path, capsys):
     assert main(["results", "pack", str(make_run(tmp_path / "a", TWO)), "--name", "ga-mesh-rrt-test2-legacy",
                  "--runs-dir", str(runs)]) == 0
     folder = runs / "ga-mesh-rrt-test2-legacy"
-    assert sorted(p.name for p in folder.iterdir()) == ["results.jsonl.gz", "run.json"]
-    lines = gzip.decompress((folder / "results.jsonl.gz").read_bytes()).decode().splitlines()
+    assert sorted(p.name for p in folder.iterdir()) == ["results.jsonl.xz", "run.json"]
+    lines = lzma.decompress((folder / "results.jsonl.xz").read_bytes()).decode().splitlines()
     assert [json.loads(line)["task_id"] for line in lines] == ["test/0000", "test/0001"]
     capsys.readouterr()
     assert main(["results", "table", "--runs-dir", str(runs)]) == 0
@@ -127,7 +128,7 @@ def test_pack_refuses_bad_input(tmp_path, capsys):
     assert pack(make_run(tmp_path / "b", TWO), "taken", runs) == runs / "taken"  # the same run: no change
     other = make_run(tmp_path / "c", TWO[:1])
     assert main(["results", "pack", str(other), "--name", "taken", "--runs-dir", str(runs)]) == 2
-    assert "holds another run (its results.jsonl.gz differ)" in capsys.readouterr().err
+    assert "holds another run (its results.jsonl.xz differ)" in capsys.readouterr().err
     assert main(["results", "pack", str(other), "--name", "taken", "--runs-dir", str(runs), "--force"]) == 0
     assert len(ResultsStore(runs / "taken").records()) == 1
     assert [p.name for p in runs.iterdir()] == ["taken"]  # no staging folder left behind
@@ -138,7 +139,7 @@ def test_shards_of_one_run_pack_as_that_run(tmp_path, capsys):
     whole = pack(make_run(tmp_path / "whole", TWO), "r", tmp_path / "runs1")
     first, second = make_run(tmp_path / "s0", TWO[1:], tasks="0:1"), make_run(tmp_path / "s1", TWO[:1], tasks="1:2")
     assert main(["results", "pack", str(second), str(first), "--name", "r", "--runs-dir", str(tmp_path / "runs2")]) == 0
-    for name in ("run.json", "results.jsonl.gz"):
+    for name in ("run.json", "results.jsonl.xz"):
         assert (whole / name).read_bytes() == (tmp_path / "runs2" / "r" / name).read_bytes()
     gap = make_run(tmp_path / "gap", TWO[:1], tasks="2:3")
     other = make_run(tmp_path / "other", TWO[:1], tasks="1:2", options={"retries": 5})
@@ -155,10 +156,23 @@ def test_shards_of_one_run_pack_as_that_run(tmp_path, capsys):
 def test_packed_bytes_are_reproducible(tmp_path):
     a = pack(make_run(tmp_path / "a", TWO), "r", tmp_path / "runs1")
     b = pack(make_run(tmp_path / "b", TWO[::-1]), "r", tmp_path / "runs2")  # other append order, later mtime
-    for name in ("run.json", "results.jsonl.gz"):
+    for name in ("run.json", "results.jsonl.xz"):
         assert (a / name).read_bytes() == (b / name).read_bytes()
-    data = (a / "results.jsonl.gz").read_bytes()
-    assert data[3:10] == b"\0\0\0\0\0\x02\xff"  # no file name, mtime 0, level 9, OS "unknown"
+    assert (a / "results.jsonl.xz").read_bytes()[:6] == b"\xfd7zXZ\0"  # xz: no name, no time in it
+
+
+def test_a_run_packed_with_gzip_reads_and_repacks_to_xz(tmp_path):
+    """A folder in the earlier form (``results.jsonl.gz``) reads as a run; packing the same
+    run over it rewrites it in the present form without --force."""
+    a = pack(make_run(tmp_path / "a", TWO), "r", tmp_path / "runs")
+    lines = lzma.decompress((a / "results.jsonl.xz").read_bytes())
+    (a / "results.jsonl.gz").write_bytes(gzip.compress(lines, mtime=0))
+    (a / "results.jsonl.xz").unlink()
+    assert [r["task_id"] for r in ResultsStore(a).records()] == ["test/0000", "test/0001"]
+    assert [r.name for r in load_runs(tmp_path / "runs")] == ["r"]
+    assert pack(make_run(tmp_path / "b", TWO), "r", tmp_path / "runs") == a
+    assert sorted(p.name for p in a.iterdir()) == ["results.jsonl.xz", "run.json"]
+    assert lzma.decompress((a / "results.jsonl.xz").read_bytes()) == lines
 
 
 def test_packed_folder_follows_the_umask(tmp_path):

@@ -19,7 +19,7 @@ import pytest
 
 from fetchbench_ms.tasks import splits
 from fetchbench_ms.tasks.splits import RefusalExit, TestSplitRefused
-from fetchbench_ms.tasks.suite import SUITES_DIR, load_suite
+from fetchbench_ms.tasks.suite import load_suite, shipped_suite_file
 
 from script_modules import load_script
 
@@ -51,16 +51,17 @@ def _train_objects(n: int = 2) -> list[str]:
 
 # ----------------------------------------------------------------------------- the guard
 def test_the_guard_knows_the_test_suite_and_what_is_made_of_it(tmp_path):
-    for suite in ("test", "smoke", SUITES_DIR / "smoke.json.gz", load_suite("smoke")):
+    for suite in ("test", "smoke", shipped_suite_file("smoke"), load_suite("smoke")):
         assert splits.suite_is_test(suite), suite
-    for suite in ("train", "val", SUITES_DIR / "val.json.gz", None, "no-such-suite"):
+    for suite in ("train", "val", shipped_suite_file("val"), None, "no-such-suite"):
         assert not splits.suite_is_test(suite), suite
     # a renamed copy of test tasks is still test: by its objects (and where it came from)
     val, smoke = load_suite("val"), load_suite("smoke")
     mixed = smoke.subset("mine", smoke.ids()[:2], info={"what": "a hand-made suite"})
     assert splits.suite_is_test(mixed)
-    mixed.save(tmp_path / "mine.json.gz")
-    assert splits.suite_is_test(tmp_path / "mine.json.gz")
+    for name in ("mine.json.gz", "mine.suite.xz"):
+        mixed.save(tmp_path / name)
+        assert splits.suite_is_test(tmp_path / name)
     assert not splits.suite_is_test(val.subset("few", val.ids()[:3]))
     assert {"test", "smoke"} <= splits.test_suite_names()
 
@@ -307,7 +308,7 @@ def test_selection_runs_fetchbench_eval_on_val(candidates, tmp_path, monkeypatch
 def test_selection_refuses_test_and_small_val_sets(candidates, tmp_path, capsys):
     select = _import(ROOT / "scripts/select_checkpoint.py", "select_checkpoint")
     export = tmp_path / "imit_mlp.pt"
-    for suite in ("test", "smoke", str(SUITES_DIR / "test.json.gz")):
+    for suite in ("test", "smoke", str(shipped_suite_file("test"))):
         with pytest.raises(SystemExit) as excinfo:
             select.main(["--candidates", str(candidates), "--suite", suite, "--out", str(tmp_path / "sel"),
                          "--export-path", str(export)], evaluate=_fake_evaluate({}, []))

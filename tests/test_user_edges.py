@@ -176,8 +176,10 @@ def test_demos_pair_stays_consistent_for_readers_across_a_kill(tmp_path, capsys)
 
 # ----------------------------------------------------------------------------- eval: a bad checkpoint
 def test_eval_with_a_truncated_policy_checkpoint_fails_before_any_task(tmp_path):
+    from fetchbench_ms.utils.packed import file_bytes, packed_or_plain
+
     checkpoint = tmp_path / "policy.pt"
-    data = (REPO / "assets/checkpoints/imit_mlp.pt").read_bytes()
+    data = file_bytes(packed_or_plain(REPO / "assets/checkpoints/imit_mlp.pt"))
     checkpoint.write_bytes(data[: len(data) // 2])
     t0 = time.perf_counter()
     out = _cli("eval", "--method", "e2e-mlp", "--suite", "smoke", "--tasks", "0:2", "--workers", "1",

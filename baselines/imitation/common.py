@@ -30,6 +30,7 @@ from fetchbench_ms.policies.deploy import E2E_METHODS
 from fetchbench_ms.policies.networks import EncoderConfig, config_to_dict
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
+from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
 
 EVAL_METHOD = {kind: method for method, kind in E2E_METHODS.items()}  # the val-success method of each kind
 EVAL_SUITE = "val"  # success is measured on val tasks, never test
@@ -213,6 +214,7 @@ def lr_at(step: int, args: TrainArgs, restart: int = 0) -> float:
 def init_from_export(path: str, model: torch.nn.Module, frames: Frames, dhash: str, args: TrainArgs) -> dict:
     """Load an exported checkpoint's weights into ``model`` (built from ``args``: the export's
     network must be the same) for ``--init-from``; returns the run's starting history."""
+    path = packed_or_plain(path)  # a shipped checkpoint is read from its packed copy
     exported, meta = load_model(path)
     if exported.kind != model.kind:
         raise ValueError(f"--init-from {path} is a {exported.kind} checkpoint, this trainer trains {model.kind}")
@@ -234,7 +236,7 @@ def init_from_export(path: str, model: torch.nn.Module, frames: Frames, dhash: s
     if meta["data_sha256"] != dhash:
         data.append({"data_sha256": dhash, "from_step": step})
     return {"step": step, "val_loss": [], "val_success": [], "data": data,
-            "init_from": {"path": str(path), "sha256": sha256_file(path), "step": step}}
+            "init_from": {"path": str(path), "sha256": content_sha256(path), "step": step}}
 
 
 def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],

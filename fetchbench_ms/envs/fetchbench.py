@@ -211,7 +211,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
     env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets.
     A ``curriculum`` (``envs.curriculum``) narrows the pool to its target labels and its
     first ``max_tasks``."""
-    from ..tasks.suite import SUITES_DIR, load_suite
+    from ..tasks.suite import SUITES_DIR, load_suite, shipped_suite_file
 
     defaulted = task_source is None and task_suite is None  # nothing asked for: the default suite
     if task_source is None:
@@ -221,7 +221,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
             # Test objects: the default suite holds train objects only (evaluation on
             # test objects samples them, or names the test suite).
             task_source = "sampled"
-        elif not (SUITES_DIR / f"{DEFAULT_TASK_SUITE}.json.gz").exists():
+        elif shipped_suite_file(DEFAULT_TASK_SUITE) is None:
             warnings.warn(f"the default task suite {DEFAULT_TASK_SUITE!r} is not shipped with this install "
                           f"({SUITES_DIR}); seed resets sample raw, unfiltered tasks (task_source='sampled'). "
                           "Give task_suite=NAME_OR_PATH for filtered tasks.", stacklevel=3)
@@ -239,7 +239,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
                              f"{DEFAULT_TASK_SUITE!r} has {DEFAULT_OBJECT_SPLIT} objects only; valid: "
                              "task_suite='test' (filtered test tasks) or task_source='sampled'")
         task_suite = DEFAULT_TASK_SUITE
-        if not (SUITES_DIR / f"{DEFAULT_TASK_SUITE}.json.gz").exists():
+        if shipped_suite_file(DEFAULT_TASK_SUITE) is None:
             from ..tasks.suite import shipped_suites
 
             raise ValueError(f"task_source='suite' draws from the default task suite {DEFAULT_TASK_SUITE!r}, which is "

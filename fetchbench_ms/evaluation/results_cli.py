@@ -33,7 +33,7 @@ def add_commands(subparsers) -> None:
     p = subparsers.add_parser("results", help="the shipped evaluation records (results/runs) and their tables")
     sub = p.add_subparsers(dest="results_command", required=True, metavar="ACTION")
     k = sub.add_parser("pack", help="pack a results directory (or the shards of one run) into results/runs/NAME "
-                                          "(run.json + results.jsonl.gz)")
+                                    "(run.json + results.jsonl.xz)")
     k.add_argument("run_dir", metavar="RUN_DIR", nargs="+",
                    help="a results directory of `fetchbench eval --out`; several: shards of one run "
                         "(the same method and options, --tasks ranges that tile one range), packed as one run")

@@ -1,10 +1,11 @@
 """The shipped evaluation records and the tables printed from them (``fetchbench results``).
 
 Every success figure in README.md and docs/ comes from a packed run in ``results/runs/<name>/``:
-``run.json`` (the run's manifest, as ``fetchbench eval`` wrote it) and ``results.jsonl.gz``
-(its records, one JSON line per task, sorted by task id, gzipped with mtime 0 so the same
-records always give the same bytes). ``pack`` makes such a folder from a results directory;
-``tables`` prints the Markdown tables of docs/results.md from every packed run.
+``run.json`` (the run's manifest, as ``fetchbench eval`` wrote it) and ``results.jsonl.xz``
+(its records, one JSON line per task, sorted by task id, xz with fixed settings so the same
+records always give the same bytes; a folder with the earlier ``results.jsonl.gz`` reads
+too). ``pack`` makes such a folder from a results directory; ``tables`` prints the Markdown
+tables of docs/results.md from every packed run.
 
 Runs whose ``method_options`` have no ``pipeline`` were made with the earlier code (the
 extended pipeline with wall-clock planning budgets): they are labelled ``legacy`` and get a
@@ -12,8 +13,6 @@ table of their own. Functions take manifests and records and return strings.
 """
 from __future__ import annotations
 
-import gzip
-import io
 import json
 import os
 import re
@@ -23,8 +22,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, current_umask
+from ..utils.packed import unxz_bytes, xz_bytes
 from .metrics import CATEGORIES, summarize
-from .store import MANIFEST_FILE, PACKED_RESULTS_FILE, ResultsStore
+from .store import MANIFEST_FILE, PACKED_RESULTS_FILE, ResultsStore, read_packed_records
 
 BEGIN = "<!-- results-table:begin -->"
 END = "<!-- results-table:end -->"
@@ -83,21 +83,19 @@ def default_runs_dir() -> Path:
     return checkout if checkout.is_dir() else Path("results") / "runs"
 
 
-def gzip_bytes(data: bytes) -> bytes:
-    """gzip with a fixed header (no file name, mtime 0, OS "unknown"): the same data give the
-    same bytes on every machine."""
-    buffer = io.BytesIO()
-    with gzip.GzipFile(filename="", mode="wb", compresslevel=9, fileobj=buffer, mtime=0) as f:
-        f.write(data)
-    return buffer.getvalue()
-
-
 def packed_bytes(manifest: dict, records: list[dict]) -> tuple[bytes, bytes]:
-    """(run.json, results.jsonl.gz) of a packed run: records sorted by task id, one canonical
-    JSON line each, gzipped with mtime 0 (the same records give the same bytes)."""
+    """(run.json, results.jsonl.xz) of a packed run: records sorted by task id, one canonical
+    JSON line each, xz with fixed settings (the same records give the same bytes)."""
     lines = "".join(canonical_json(r) + "\n" for r in sorted(records, key=lambda r: r["task_id"]))
-    return ((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode(),
-            gzip_bytes(lines.encode()))
+    return ((json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode(), xz_bytes(lines.encode()))
+
+
+def _packed_content(folder: Path) -> tuple[bytes, bytes] | None:
+    """(run.json, the records' JSON lines) of a packed run folder in either form; None if not one."""
+    records = ResultsStore(folder).packed_records_file()
+    if records is None or not (folder / MANIFEST_FILE).is_file():
+        return None
+    return (folder / MANIFEST_FILE).read_bytes(), read_packed_records(records)
 
 
 def _read_run(run_dir: Path) -> tuple[dict, list[dict]]:
@@ -169,7 +167,9 @@ def pack(run_dirs, name: str, runs_dir=None, force: bool = False) -> Path:
         old = {f: (target / f).read_bytes() if (target / f).is_file() else None for f in files}
         if old == files:
             return target
-        if not force:
+        # the same run in the earlier .gz form: rewritten in the present one, as a repack
+        same_run = _packed_content(target) == (files[MANIFEST_FILE], unxz_bytes(files[PACKED_RESULTS_FILE]))
+        if not force and not same_run:
             raise ValueError(f"{target} holds another run (its {' and '.join(f for f in files if old[f] != files[f])} "
                              f"differ); choose another --name, or --force to replace it")
     runs_dir.mkdir(parents=True, exist_ok=True)
@@ -178,7 +178,7 @@ def pack(run_dirs, name: str, runs_dir=None, force: bool = False) -> Path:
     try:
         for file, data in files.items():
             atomic_write_bytes(staging / file, data)
-        if target.exists():  # (--force) the old folder goes only once the new one is complete
+        if target.exists():  # (--force, or a repack) the old folder goes only once the new one is complete
             trash = Path(tempfile.mkdtemp(prefix=f".{name}.old.", dir=runs_dir))
             os.replace(target, trash / name)
             os.replace(staging, target)

@@ -5,7 +5,6 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from ..utils.io import sha256_bytes
 from .methods import (SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, check_robot, pipeline_fields, resolve_method,
                       task_seed)
 from .store import VIDEO_DIR, ResultsStore
@@ -15,11 +14,11 @@ BACKENDS = ("local", "ray")
 
 def open_suite(name_or_path: str):
     """A shipped suite by name (``test``, ``val``, ``smoke``) or a suite file; returns
-    (TaskSuite, its file, the file's sha256)."""
-    from ..tasks.suite import load_suite, suite_path
+    (TaskSuite, its file, the file's identity: ``suite_file_sha256``)."""
+    from ..tasks.suite import load_suite, suite_file_sha256, suite_path
 
     path = suite_path(name_or_path)
-    return load_suite(path), str(path.resolve()), sha256_bytes(path.read_bytes())
+    return load_suite(path), str(path.resolve()), suite_file_sha256(path)
 
 
 def parse_range(text: Optional[str], total: int) -> range:

@@ -16,9 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..utils.io import append_jsonl_atomic, atomic_write_text, canonical_json
+from ..utils.packed import unxz_bytes
 
 RESULTS_FILE = "results.jsonl"
-PACKED_RESULTS_FILE = "results.jsonl.gz"  # a packed run (results/runs/<name>/, read-only)
+PACKED_RESULTS_FILE = "results.jsonl.xz"  # a packed run (results/runs/<name>/, read-only)
+#: The earlier form of a packed run's records (gzip), read as well.
+LEGACY_PACKED_RESULTS_FILE = "results.jsonl.gz"
 MANIFEST_FILE = "run.json"
 SUMMARY_FILE = "summary.json"
 VIDEO_DIR = "videos"  # <task id>.gif of failed tasks, when recorded
@@ -28,6 +31,12 @@ STORE_VERSION = "1"
 
 class RunMismatchError(ValueError):
     """The results directory holds another run (method, suite content or options differ)."""
+
+
+def read_packed_records(path: Path) -> bytes:
+    """The JSON lines of a packed run's records file (xz, or the earlier gzip)."""
+    data = path.read_bytes()
+    return unxz_bytes(data, path) if path.name == PACKED_RESULTS_FILE else gzip.decompress(data)
 
 
 @dataclass
@@ -78,12 +87,17 @@ class ResultsStore:
                 f.flush()
                 os.fsync(f.fileno())
 
+    def packed_records_file(self) -> Path | None:
+        """The records of a packed run: ``results.jsonl.xz``, or the earlier ``.gz``; None if neither."""
+        return next((p for p in (self.root / PACKED_RESULTS_FILE, self.root / LEGACY_PACKED_RESULTS_FILE)
+                     if p.exists()), None)
+
     def records(self) -> list[dict]:
         """Every finished task's record (the last line of a task id wins), in file order."""
         path = self.results_path
-        if not path.exists() and (self.root / PACKED_RESULTS_FILE).exists():
-            path = self.root / PACKED_RESULTS_FILE
-            data = gzip.decompress(path.read_bytes())
+        if not path.exists() and self.packed_records_file() is not None:
+            path = self.packed_records_file()
+            data = read_packed_records(path)
         elif not path.exists():
             if not self.manifest_path.exists():
                 self.manifest()  # raises: not a results directory

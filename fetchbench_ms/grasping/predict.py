@@ -14,7 +14,7 @@ needs choosing.
 Weight sets (``--grasp-model``): ``pretrained``, the checkpoint inside the ``cgn-pytorch``
 package (read from its install directory; the package's own code is never imported, it
 needs PyG extensions), and ``ours``, ``assets/checkpoints/cgn_ours.pt`` trained by
-``baselines/contact_graspnet/train.py``.
+``baselines/contact_graspnet/train.py`` (shipped packed: ``cgn_ours.pt.planes.xz``, ``utils.packed``).
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..utils.packed import packed_or_plain, torch_load
 from .network import NUM_CONTACTS, NUM_POINTS, CGNConfig, ContactGraspNet
 
 GRASP_MODELS = ("pretrained", "ours")
@@ -66,12 +67,12 @@ def load_model(name: str = "pretrained", device: str = "cpu") -> ContactGraspNet
         state = torch.load(pretrained_checkpoint(), map_location="cpu", weights_only=True)["state_dict"]
         config = CGNConfig()
     else:
-        path = ours_checkpoint()
+        path = packed_or_plain(ours_checkpoint())
         if not path.is_file():
             raise FileNotFoundError(f"no trained Contact-GraspNet checkpoint at {path}: make it with "
                                     "`python baselines/contact_graspnet/train.py --export` (a GPU run; "
                                     "docs/grasping-training.md), or use --grasp-model pretrained")
-        saved = torch.load(path, map_location="cpu", weights_only=True)
+        saved = torch_load(path, map_location="cpu", weights_only=True)
         state, config = saved["state_dict"], CGNConfig(**saved.get("config", {}))
     model = ContactGraspNet(config)
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()}, strict=True)

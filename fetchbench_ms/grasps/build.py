@@ -30,6 +30,7 @@ from .store import (
     GRASPS_VERSION,
     ObjectTrials,
     encode_trials,
+    legacy_shard_name,
     read_shard_arrays,
     shard_name,
     shard_of,
@@ -128,9 +129,12 @@ def label_shard(directory: str, shard: int, object_ids: list[str], loader: str |
     started = time.perf_counter()
     load = resolve_loader(loader) if isinstance(loader, str) else loader
     path = Path(directory) / shard_name(shard)
+    legacy = Path(directory) / legacy_shard_name(shard)  # the earlier .npz form: its labels are kept
     meta = shard_meta(shard, settings)
     objects, skipped = {}, set()
     existing = _read_if_same_settings(path, meta)
+    if existing is None:
+        existing = _read_if_same_settings(legacy, meta)
     if existing is not None:
         objects = split_shard(existing)
         skipped = set(json.loads(str(existing["meta"])).get("skipped", []))
@@ -145,6 +149,7 @@ def label_shard(directory: str, shard: int, object_ids: list[str], loader: str |
         objects[object_id] = encode_trials(trials)
         labelled += len(trials.success)
     write_shard(Path(directory), shard, objects, {**meta, "skipped": sorted(skipped)})
+    legacy.unlink(missing_ok=True)
     return {"shard": shard, "seconds": time.perf_counter() - started, "trials": labelled, "objects": len(objects)}
 
 

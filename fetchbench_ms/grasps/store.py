@@ -1,15 +1,22 @@
-"""Shipped grasp labels: sharded ``.npz`` files plus a manifest with hashes.
+"""Shipped grasp labels: sharded array files plus a manifest with hashes.
 
 Layout of ``assets/grasps`` (or ``$FETCHBENCH_GRASPS_DIR``)::
 
-    manifest.json        version, labelling settings, per shard: file name, sha256,
+    manifest.json.xz     version, labelling settings, per shard: file name, sha256,
                          object count, trial count, ids kept (>= MIN_SUCCESSES successes)
-    shard_00.npz ...     one per non-empty shard (object ids hash into NUM_SHARDS shards)
+    shard_00.arrays.xz   one per non-empty shard (object ids hash into NUM_SHARDS shards)
+    ...
 
 A shard holds every trial of its objects, concatenated, with ``offsets`` marking where
 each object's trials start: ``quat_wxyz`` (float16) and ``position`` (float32) of the
 ``panda_hand`` pose in the object frame, ``success`` (uint8) and ``width`` (float16, the
 finger gap measured after closing, m). See ``fetchbench_ms.grasps`` for the hand frame.
+
+The files are packed losslessly (``utils.packed``): the manifest is its JSON, xz; a shard
+is an ``.arrays.xz`` of those arrays, except that a quaternion's w, which its unit norm
+nearly fixes, is stored as the float16 steps between it and sqrt(1 - x^2 - y^2 - z^2)
+(``encode_shard``; a fifth of the bytes ``quat_wxyz`` took). Directories in the earlier
+form (``manifest.json``, ``shard_NN.npz``) are read as well; the builder rewrites them.
 
 Every read checks the shard's sha256 against the manifest and the manifest's version
 against ``GRASPS_VERSION``: a stale or corrupt file is an error, never silently used.
@@ -17,17 +24,16 @@ against ``GRASPS_VERSION``: a stale or corrupt file is an error, never silently 
 from __future__ import annotations
 
 import functools
-import io
 import json
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, sha256_bytes, sha256_file
+from ..utils.io import atomic_write_bytes, canonical_json, sha256_bytes, sha256_file
+from ..utils.packed import ARRAYS_SUFFIX, pack_arrays, unpack_arrays, unxz_bytes, xz_bytes
 from ..utils.paths import assets_root
 
 #: Bump when the sampler, the physics test or the file layout changes: old files become stale.
@@ -35,7 +41,10 @@ GRASPS_VERSION = 2
 NUM_SHARDS = 64
 #: Objects with fewer verified successful grasps than this are dropped from the benchmark.
 MIN_SUCCESSES = 16
-MANIFEST = "manifest.json"
+MANIFEST = "manifest.json.xz"
+#: The earlier forms of a grasp directory (read, never written): ``manifest.json``, ``shard_NN.npz``.
+LEGACY_MANIFEST = "manifest.json"
+LEGACY_SHARD_SUFFIX = ".npz"
 
 
 def default_dir() -> Path:
@@ -51,7 +60,11 @@ def shard_of(object_id: str) -> int:
 
 
 def shard_name(shard: int) -> str:
-    return f"shard_{shard:02d}.npz"
+    return f"shard_{shard:02d}{ARRAYS_SUFFIX}"
+
+
+def legacy_shard_name(shard: int) -> str:
+    return f"shard_{shard:02d}{LEGACY_SHARD_SUFFIX}"
 
 
 @dataclass(frozen=True)
@@ -99,9 +112,8 @@ def encode_trials(trials: ObjectTrials) -> dict[str, np.ndarray]:
 TRIAL_FIELDS = ("quat_wxyz", "position", "success", "width")
 
 
-def encode_shard(objects: dict[str, dict[str, np.ndarray]], meta: dict) -> bytes:
-    """The bytes of one shard file from each object's encoded trials (``encode_trials``);
-    deterministic for the same input (objects sorted by id, no timestamps)."""
+def shard_arrays(objects: dict[str, dict[str, np.ndarray]], meta: dict) -> dict[str, np.ndarray]:
+    """One shard's arrays from each object's encoded trials (``encode_trials``), objects by id."""
     ids = sorted(objects)
     counts = [len(objects[i]["success"]) for i in ids]
     arrays = {
@@ -112,7 +124,54 @@ def encode_shard(objects: dict[str, dict[str, np.ndarray]], meta: dict) -> bytes
     empty = encode_trials(ObjectTrials("", np.zeros((0, 4, 4)), np.zeros(0, bool), np.zeros(0)))
     for field in TRIAL_FIELDS:
         arrays[field] = np.concatenate([objects[i][field] for i in ids]) if ids else empty[field]
-    return _npz_bytes(arrays)
+    return arrays
+
+
+def _unit_quat_w(quat_xyz: np.ndarray) -> np.ndarray:
+    """float16 sqrt(1 - x^2 - y^2 - z^2): the w >= 0 that makes the quaternion a unit one."""
+    x, y, z = (quat_xyz[:, k].astype(np.float64) for k in range(3))
+    return np.sqrt(np.maximum(0.0, 1.0 - (x * x + y * y + z * z))).astype(np.float16)
+
+
+def encode_shard_arrays(arrays: dict[str, np.ndarray]) -> bytes:
+    """The bytes of one shard file (``shard_arrays``'s arrays); the same arrays give the same
+    bytes. ``quat_wxyz`` goes in as ``quat_xyz`` and ``quat_w_correction``, w's float16 bits
+    less those of ``_unit_quat_w`` (modulo 2^16; mostly within a few steps of 0), with the
+    sha256 of ``quat_wxyz``: the prediction is float arithmetic, and a reader whose rounding
+    differed would notice (``decode_shard``)."""
+    quat = np.ascontiguousarray(arrays["quat_wxyz"], dtype=np.float16)
+    stored = {}
+    for name, array in arrays.items():
+        if name != "quat_wxyz":
+            stored[name] = array
+            continue
+        stored["quat_xyz"] = np.ascontiguousarray(quat[:, 1:])
+        stored["quat_w_correction"] = quat[:, 0].view(np.uint16) - _unit_quat_w(quat[:, 1:]).view(np.uint16)
+        stored["quat_wxyz_sha256"] = np.array(sha256_bytes(quat.tobytes()))
+    return pack_arrays(stored)
+
+
+def decode_shard(data: bytes, what: str | os.PathLike = "shard") -> dict[str, np.ndarray]:
+    """Inverse of ``encode_shard_arrays``: the arrays in their order, bit for bit."""
+    stored = unpack_arrays(data, what)
+    arrays = {}
+    for name, array in stored.items():
+        if name == "quat_xyz":
+            w = (_unit_quat_w(array).view(np.uint16) + stored["quat_w_correction"]).view(np.float16)
+            quat = np.concatenate([w[:, None], array], axis=1)
+            if sha256_bytes(quat.tobytes()) != str(stored["quat_wxyz_sha256"]):
+                raise ValueError(f"{what}: its quaternions decode to other values on this machine (float16 "
+                                 "rounding differs): rebuild the shard here with `fetchbench grasps build`")
+            arrays["quat_wxyz"] = quat
+        elif name not in ("quat_w_correction", "quat_wxyz_sha256"):
+            arrays[name] = array
+    return arrays
+
+
+def encode_shard(objects: dict[str, dict[str, np.ndarray]], meta: dict) -> bytes:
+    """The bytes of one shard file from each object's encoded trials (``encode_trials``);
+    deterministic for the same input (objects sorted by id, no timestamps)."""
+    return encode_shard_arrays(shard_arrays(objects, meta))
 
 
 def split_shard(arrays: dict[str, np.ndarray]) -> dict[str, dict[str, np.ndarray]]:
@@ -124,20 +183,6 @@ def split_shard(arrays: dict[str, np.ndarray]) -> dict[str, dict[str, np.ndarray
     }
 
 
-def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    """An ``.npz`` (readable by ``np.load``) with fixed zip timestamps: ``np.savez_compressed``
-    stamps the current time, so the same labels would hash differently on every build."""
-    buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-        for key, array in arrays.items():
-            member = io.BytesIO()
-            np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
-            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            archive.writestr(info, member.getvalue(), compresslevel=9)
-    return buffer.getvalue()
-
-
 def write_shard(directory: Path, shard: int, objects: dict[str, dict[str, np.ndarray]], meta: dict) -> Path:
     path = Path(directory) / shard_name(shard)
     atomic_write_bytes(path, encode_shard(objects, meta))
@@ -145,8 +190,27 @@ def write_shard(directory: Path, shard: int, objects: dict[str, dict[str, np.nda
 
 
 def read_shard_arrays(path: Path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as data:
-        return {key: data[key] for key in data.files}
+    """A shard file's arrays: packed (``shard_NN.arrays.xz``) or an earlier ``.npz``."""
+    path = Path(path)
+    if path.name.endswith(LEGACY_SHARD_SUFFIX):
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    return decode_shard(path.read_bytes(), path)
+
+
+def manifest_path(directory: str | os.PathLike) -> Path:
+    """The directory's manifest: ``manifest.json.xz``, else an earlier ``manifest.json``."""
+    packed = Path(directory) / MANIFEST
+    legacy = Path(directory) / LEGACY_MANIFEST
+    return legacy if not packed.exists() and legacy.exists() else packed
+
+
+def read_manifest(directory: str | os.PathLike) -> dict:
+    path = manifest_path(directory)
+    if not path.exists():
+        raise FileNotFoundError(f"no grasp manifest at {path}; build it with `fetchbench grasps build`")
+    data = path.read_bytes()
+    return json.loads(unxz_bytes(data, path) if path.name == MANIFEST else data)
 
 
 def shard_summary(path: Path, object_ids=None, min_successes: int = MIN_SUCCESSES) -> dict:
@@ -181,7 +245,9 @@ def write_manifest(directory: Path, settings: dict, shard_entries: list[dict]) -
         "settings": settings,
         "shards": {str(e["meta"]["shard"]): {k: v for k, v in e.items() if k != "meta"} for e in shard_entries},
     }
-    atomic_write_text(Path(directory) / MANIFEST, json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+    text = json.dumps(manifest, indent=1, sort_keys=True) + "\n"
+    atomic_write_bytes(Path(directory) / MANIFEST, xz_bytes(text.encode()))
+    (Path(directory) / LEGACY_MANIFEST).unlink(missing_ok=True)  # it would describe the old files
     return manifest
 
 
@@ -190,10 +256,7 @@ class GraspStore:
 
     def __init__(self, directory: str | os.PathLike | None = None):
         self.directory = Path(directory) if directory is not None else default_dir()
-        path = self.directory / MANIFEST
-        if not path.exists():
-            raise FileNotFoundError(f"no grasp manifest at {path}; build it with `fetchbench grasps build`")
-        self.manifest = json.loads(path.read_text())
+        self.manifest = read_manifest(self.directory)
         if self.manifest.get("version") != GRASPS_VERSION:
             raise ValueError(
                 f"stale grasp labels in {self.directory}: built by version {self.manifest.get('version')}, "

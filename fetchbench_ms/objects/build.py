@@ -5,11 +5,10 @@ Resumable: per-object results are appended (atomically, one JSON line each) to a
 file under ``$FETCHBENCH_CACHE/objects_build/`` tagged with the code versions, and a
 rerun skips what is there. Parallel: objects are built in ``spawn`` worker processes.
 Outputs are written to temporary names and renamed, and are byte-identical for the
-same sources and code (sorted keys, fixed zip and gzip timestamps).
+same sources and code (sorted keys, fixed zip timestamps, fixed xz settings).
 """
 from __future__ import annotations
 
-import gzip
 import io
 import json
 import multiprocessing as mp
@@ -21,6 +20,7 @@ import numpy as np
 
 from ..utils.io import append_jsonl_atomic, atomic_write_bytes, atomic_write_text, canonical_json, npz_bytes, sha256_bytes
 from ..utils.mesh_cache import cache_dir
+from ..utils.packed import xz_bytes
 from . import catalog, decompose, geometry as g, ycb
 
 
@@ -179,13 +179,14 @@ def build(
     objects = {oid: done[oid]["entry"] for oid in sorted(ids) if "entry" in done[oid]}
     dropped = {oid: done[oid]["dropped"] for oid in sorted(ids) if "dropped" in done[oid]}
     index = {"versions": catalog.version_info(), "objects": objects, "dropped": dropped}
-    index_data = gzip.compress(canonical_json(index).encode("utf-8"), compresslevel=9, mtime=0)
+    index_data = xz_bytes(canonical_json(index).encode("utf-8"))
     atomic_write_bytes(directory / catalog.INDEX_NAME, index_data)
     _write_manifest(
         directory,
         {catalog.YCB_CONVEX_NAME: ycb_data, catalog.INDEX_NAME: index_data},
         {"coacd_params": decompose.COACD_PARAMS, "counts": {"objects": len(objects), "dropped": len(dropped)}},
     )
+    (directory / catalog.LEGACY_INDEX_NAME).unlink(missing_ok=True)  # the manifest no longer names it
     catalog.clear_caches()
     summary = {
         "objects": len(objects),

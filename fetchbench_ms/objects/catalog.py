@@ -14,8 +14,8 @@ Split: test when a hash of the id falls in one eighth of its range, else train (
 
 What is derived once for all objects (extents, mass properties, stable poses, a
 geometry fingerprint, and which source objects were dropped and why) is kept in the
-catalog index, ``assets/objects/catalog.json.gz``, written by ``fetchbench objects
-build``; every shipped file's hash is in ``assets/objects/manifest.json`` and a file
+catalog index, ``assets/objects/catalog.json.xz`` (canonical JSON, xz; an index written as
+``catalog.json.gz`` reads too), written by ``fetchbench objects build``; every shipped file's hash is in ``assets/objects/manifest.json`` and a file
 whose hash does not match is refused. ``get_object`` rebuilds the geometry from the
 sources and checks it against the index fingerprint, so a stale index fails loudly.
 """
@@ -33,6 +33,7 @@ import trimesh
 
 from ..utils.canonical import canonical_fraction, canonical_lengths, canonical_lengths_array, canonical_quat
 from ..utils.io import sha256_bytes, sha256_file
+from ..utils.packed import unxz_bytes
 from ..utils.paths import assets_root
 from . import blobs, geometry as g, procedural, ycb
 from .asset import SOURCES, SPLITS, ObjectAsset, ObjectRecord
@@ -51,7 +52,8 @@ MIN_STABLE_PROB = 0.01
 #: One object in this many goes to the test split.
 TEST_ONE_IN = 8
 
-INDEX_NAME = "catalog.json.gz"
+INDEX_NAME = "catalog.json.xz"
+LEGACY_INDEX_NAME = "catalog.json.gz"  # the index's earlier form (gzip): read, not written
 YCB_CONVEX_NAME = "ycb_convex.npz"
 MANIFEST_NAME = "manifest.json"
 
@@ -272,9 +274,16 @@ def ycb_convex_parts() -> dict[str, list[np.ndarray]]:
     return _ycb_convex_cached(str(asset_dir()))
 
 
+def index_text(data: bytes, name: str) -> bytes:
+    """The index's JSON from its file's bytes (``INDEX_NAME``: xz; ``LEGACY_INDEX_NAME``: gzip)."""
+    return gzip.decompress(data) if name == LEGACY_INDEX_NAME else unxz_bytes(data, name)
+
+
 @functools.lru_cache(maxsize=4)
 def _index_cached(directory: str) -> dict:
-    index = json.loads(gzip.decompress(verified_bytes(INDEX_NAME, Path(directory))))
+    files = read_manifest(Path(directory)).get("files", {})
+    name = LEGACY_INDEX_NAME if LEGACY_INDEX_NAME in files and INDEX_NAME not in files else INDEX_NAME
+    index = json.loads(index_text(verified_bytes(name, Path(directory)), name))
     if index.get("versions") != version_info():
         raise ValueError(
             f"object index in {directory} was built by versions {index.get('versions')}, code is {version_info()}; "

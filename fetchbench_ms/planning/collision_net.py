@@ -36,6 +36,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..utils.packed import packed_or_plain, torch_load
+
 GRID_RESOLUTION = 0.02  # m between scene-grid vertices
 GRID_BOUNDS = ((-1.0, -1.1, -0.4), (1.2, 1.1, 1.4))  # base frame, m: the arm's reach and a carried object's
 GRID_SHAPE = tuple(int(round((hi - lo) / GRID_RESOLUTION)) + 1 for lo, hi in zip(*GRID_BOUNDS))
@@ -266,13 +268,13 @@ def save_checkpoint(model: SceneCollisionNet, path, extra: dict | None = None) -
 def load_collision_net(path: str | None = None, device: str = "cpu") -> SceneCollisionNet:
     """The trained network (strict load, eval mode), cached per process. A missing
     checkpoint is an error that says how to make one."""
-    p = Path(path) if path else checkpoint_path()
+    p = packed_or_plain(Path(path) if path else checkpoint_path())
     if not p.is_file():
         raise FileNotFoundError(
             f"no scene-collision network checkpoint at {p}: make one with baselines/mppi_collision/labels.py and "
             "baselines/mppi_collision/train.py --export (docs/planning.md, 'MPPI'), or plan with the distance "
             "fields instead: method ga-mesh-mppi, SolveConfig(mppi_cost='distance') or MppiConfig(cost='distance')")
-    saved = torch.load(p, map_location="cpu", weights_only=True)
+    saved = torch_load(p, map_location="cpu", weights_only=True)
     cfg = dict(saved.get("config", {}))
     model = SceneCollisionNet(NetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()}))
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in saved["state_dict"].items()},

@@ -165,7 +165,9 @@ def check_obs_mode(obs: dict, trained_on: str) -> None:
 
 def checkpoint_obs_mode(path: str | Path) -> str:
     """The env obs mode a checkpoint's policy reads (its encoder config; before the field: compact)."""
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+    from ..utils.packed import packed_or_plain, torch_load
+
+    payload = torch_load(packed_or_plain(path), map_location="cpu", weights_only=False)
     return payload["config"]["encoder"].get("obs_mode", COMPACT_OBS_MODE)
 
 
@@ -186,11 +188,15 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: 
 
 
 def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
-    path = Path(path)
+    """A policy checkpoint's network (eval mode) and meta; ``path`` is a ``.pt`` file or its
+    packed copy (``utils.packed``: ``X.pt`` reads ``X.pt.planes.xz`` when only that exists)."""
+    from ..utils.packed import packed_or_plain, torch_load
+
+    path = packed_or_plain(path)
     if not path.is_file():
         raise FileNotFoundError(f"no policy checkpoint at {path}")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=False)
+        payload = torch_load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # truncated or not a torch file: zip, pickle and EOF errors alike
         raise ValueError(f"{path} is not a readable policy checkpoint ({type(error).__name__}: "
                          f"{str(error).splitlines()[0] if str(error) else 'no detail'}); copy it again or "

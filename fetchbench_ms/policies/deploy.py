@@ -9,8 +9,8 @@
   target, the point-cloud world, the planner to the pre-grasp, the straight approach, the
   gripper closing) and then the policy retrieves (``SolveConfig.retrieval``).
 
-Each loads its checkpoint from ``assets/checkpoints/imit_<kind>.pt`` (``default_checkpoint``; none
-ships for ``act`` yet)
+Each loads its checkpoint from ``assets/checkpoints/imit_<kind>.pt`` (``default_checkpoint``; shipped
+packed as ``imit_<kind>.pt.planes.xz``, ``utils.packed``, which is read when no plain ``.pt`` is there)
 or from the one given (``fetchbench eval --policy-checkpoint PATH``); its policy observes every
 control step, or every K-th with ``--policy-stride K`` (``ImitationPolicy``). Policies speak
 ``pd_joint_delta_pos``; the evaluation env drives ``pd_joint_pos`` (as the planners do), so a
@@ -73,11 +73,14 @@ def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
 
 
 def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
-    """The checkpoint a policy method loads; a clear error naming the trainer when absent."""
+    """The checkpoint file a policy method loads (``X.pt``, or its packed copy
+    ``X.pt.planes.xz`` when only that exists); a clear error naming the trainer when absent."""
+    from ..utils.packed import packed_or_plain
+
     if method not in POLICY_METHODS:
         raise ValueError(f"unknown imitation method {method!r}; valid: {', '.join(POLICY_METHODS)}")
     kind = POLICY_METHODS[method]
-    path = Path(checkpoint) if checkpoint else default_checkpoint(kind)
+    path = packed_or_plain(Path(checkpoint) if checkpoint else default_checkpoint(kind))
     if not path.is_file():
         raise FileNotFoundError(
             f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
@@ -100,14 +103,15 @@ def check_checkpoint(method: str, checkpoint: str | None = None) -> Path:
 
 @functools.lru_cache(maxsize=None)
 def _sha256(path: str) -> str:
-    from ..utils.io import sha256_file
+    from ..utils.packed import content_sha256
 
-    return sha256_file(path)
+    return content_sha256(path)
 
 
 def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
-    """What a record says of the policy it ran: the checkpoint's path and its sha256 (the
-    shipped checkpoint's JSON names the val runs made with exactly these bytes)."""
+    """What a record says of the policy it ran: the checkpoint's path and the sha256 of its
+    ``.pt`` bytes (unpacked: the shipped checkpoint's JSON names the val runs made with
+    exactly these bytes)."""
     path = resolve_checkpoint(method, checkpoint)
     return {"checkpoint": str(path), "checkpoint_sha256": _sha256(str(path.resolve()))}
 

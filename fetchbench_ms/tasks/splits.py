@@ -29,8 +29,6 @@ What counts as test:
 from __future__ import annotations
 
 import functools
-import gzip
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -61,10 +59,9 @@ def is_test_object(object_id: str) -> bool:
 @functools.lru_cache(maxsize=32)
 def _file_is_test(path: str, mtime_ns: int, size: int) -> bool:
     """Whether a suite file's content is test (read as raw JSON: no tasks are built)."""
-    raw = Path(path).read_bytes()
-    if raw[:2] == b"\x1f\x8b":
-        raw = gzip.decompress(raw)
-    body = json.loads(raw)
+    from .suite import suite_text
+
+    body = json.loads(suite_text(Path(path).read_bytes(), path))
     return _body_is_test(body.get("name"), body.get("info") or {},
                          (o.get("object_id") for a in body.get("arrangements", []) for o in a.get("objects", [])))
 
@@ -114,15 +111,12 @@ def test_suite_names() -> frozenset:
 
 @functools.lru_cache(maxsize=1)
 def test_suite_hashes() -> frozenset:
-    """sha256 of the shipped test-content suite files (what an eval folder's run.json records)."""
-    from .suite import SUITES_DIR
+    """The identities of the shipped test-content suite files (``suite.suite_file_sha256``:
+    what an eval folder's run.json records as ``source_sha256``)."""
+    from .suite import shipped_suite_file, suite_file_sha256
 
-    out = set()
-    for name in test_suite_names():
-        path = SUITES_DIR / f"{name}.json.gz"
-        if path.is_file():
-            out.add(hashlib.sha256(path.read_bytes()).hexdigest())
-    return frozenset(out)
+    files = [shipped_suite_file(name) for name in test_suite_names()]
+    return frozenset(suite_file_sha256(path) for path in files if path is not None)
 
 
 def task_id_is_test(task_id: str) -> bool:

@@ -4,8 +4,9 @@
     task = suite.get("test/0042")         # a TaskSpec
     env = gym.make("FetchBench-v0", task_suite="smoke"); env.reset(options={"task_id": "smoke/0003"})
 
-File (JSON, gzip-compressed when the name ends in ``.gz``), compact because the tasks of
-a suite share furniture and object arrangements: every scene is stored once, every
+File (JSON; gzip-compressed when the name ends in ``.gz``; packed, the form the shipped
+suites take, when it ends in ``.suite.xz``: ``tasks.suite_packed``), compact because the
+tasks of a suite share furniture and object arrangements: every scene is stored once, every
 arrangement (objects, robot, cameras of one scene) once, and a task is (id, arrangement,
 target index)::
 
@@ -17,7 +18,8 @@ target index)::
 
 A file whose hash does not match its content, or of another format version, is rejected.
 The order of ``tasks`` is the suite order (for the generated suites: any prefix is a
-stratified sample, see ``tasks.suite_build``).
+stratified sample, see ``tasks.suite_build``). Every form holds the same canonical JSON;
+a run records a suite by ``suite_file_sha256``, the same for each form of one suite.
 """
 from __future__ import annotations
 
@@ -27,18 +29,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..utils.io import atomic_write_bytes, canonical_json, sha256_bytes
+from . import suite_packed
 from .spec import TaskSpec
 
 SUITE_FORMAT = "fetchbench-task-suite"
 SUITE_VERSION = "2"
 SCENE_KEYS = ("scene_type", "scene_seed", "scene_params", "scene_hash")
-#: Where the shipped suites live: ``<name>.json.gz``.
+#: Where the shipped suites live: ``<name>.suite.xz`` (or ``<name>.json.gz``).
 SUITES_DIR = Path(__file__).resolve().parents[2] / "assets" / "suites"
+#: The forms of a shipped suite's file, in the order they are looked for.
+SHIPPED_SUFFIXES = (suite_packed.SUFFIX, ".json.gz")
+_GZIP_MAGIC, _XZ_MAGIC = b"\x1f\x8b", b"\xfd7zXZ\x00"
 
 
 def shipped_suites() -> tuple[str, ...]:
     """Names of the suites shipped with the package (test, val, smoke when built)."""
-    return tuple(sorted(p.name[: -len(".json.gz")] for p in SUITES_DIR.glob("*.json.gz")))
+    return tuple(sorted({p.name[: -len(suffix)] for suffix in SHIPPED_SUFFIXES for p in SUITES_DIR.glob(f"*{suffix}")}))
+
+
+def shipped_suite_file(name: str) -> Path | None:
+    """The file of the shipped suite ``name``, or None when none is shipped."""
+    return next((p for p in (SUITES_DIR / f"{name}{s}" for s in SHIPPED_SUFFIXES) if p.is_file()), None)
 
 
 @dataclass(frozen=True)
@@ -95,38 +106,65 @@ class TaskSuite:
         }
 
     def save(self, path) -> None:
-        """Write the suite (gzip when ``path`` ends in .gz; byte-identical for equal suites)."""
+        """Write the suite (packed when ``path`` ends in .suite.xz, gzip when in .gz, else plain
+        JSON; byte-identical for equal suites)."""
         body = self.to_body()
         body["sha256"] = sha256_bytes(canonical_json(body).encode())
         data = canonical_json(body).encode()
-        if str(path).endswith(".gz"):
-            data = gzip.compress(data, compresslevel=9, mtime=0)
+        if str(path).endswith(suite_packed.SUFFIX):
+            data = suite_packed.pack(data, sha256_bytes(_gzip_bytes(data)))
+        elif str(path).endswith(".gz"):
+            data = _gzip_bytes(data)
         atomic_write_bytes(path, data)
+
+
+def _gzip_bytes(text: bytes) -> bytes:
+    return gzip.compress(text, compresslevel=9, mtime=0)
 
 
 def suite_path(name_or_path) -> Path:
     """The file of a shipped suite name (``test``, ``val``, ``smoke``) or an existing path."""
     path = Path(name_or_path)
-    if path.suffix in (".json", ".gz") or path.exists():
+    if path.suffix in (".json", ".gz", ".xz") or path.exists():
         if not path.exists():
             raise FileNotFoundError(f"task suite file {path} does not exist")
         return path
-    shipped = SUITES_DIR / f"{name_or_path}.json.gz"
-    if not shipped.exists():
+    shipped = shipped_suite_file(str(name_or_path))
+    if shipped is None:
         raise ValueError(f"unknown task suite {str(name_or_path)!r}; valid: {', '.join(shipped_suites()) or '(none shipped)'}"
                          " or the path of a suite file")
     return shipped
 
 
+def suite_text(raw: bytes, path) -> bytes:
+    """A suite file's JSON text, whichever its form (packed, gzip, plain); ValueError if damaged."""
+    if raw[:6] == _XZ_MAGIC:
+        try:
+            return suite_packed.unpack(raw, "its packed form")[0]
+        except ValueError as error:
+            raise ValueError(f"task suite {path} is corrupt: {error}") from None
+    if raw[:2] == _GZIP_MAGIC:
+        try:
+            return gzip.decompress(raw)
+        except (OSError, EOFError) as error:
+            raise ValueError(f"task suite {path} is corrupt: {error}") from None
+    return raw
+
+
+def suite_file_sha256(path) -> str:
+    """The identity a run records of the suite file ``path`` (``source_sha256``): the sha256 of
+    its bytes, and for a packed suite the sha256 of its ``.json.gz`` form, which its header
+    carries, so that a suite is one suite in either form."""
+    raw = Path(path).read_bytes()
+    if raw[:6] == _XZ_MAGIC:
+        return suite_packed.header(raw, f"task suite {path}")["json_gz_sha256"]
+    return sha256_bytes(raw)
+
+
 def load_suite(name_or_path) -> TaskSuite:
     """Load a suite by shipped name or path; a corrupt, tampered or stale file raises ValueError."""
     path = suite_path(name_or_path)
-    raw = path.read_bytes()
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as error:
-            raise ValueError(f"task suite {path} is corrupt: {error}") from None
+    raw = suite_text(path.read_bytes(), path)
     try:
         body = json.loads(raw)
     except (json.JSONDecodeError, UnicodeDecodeError) as error:

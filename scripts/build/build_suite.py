@@ -1,8 +1,8 @@
-"""Generate a FetchBench task suite (resumable) and write assets/suites/<name>.json.gz.
+"""Generate a FetchBench task suite (resumable) and write assets/suites/<name>.suite.xz.
 
     nice python scripts/build/build_suite.py --suite test --workers 2          # make scenes, then assemble
     python scripts/build/build_suite.py --suite test --assemble-only           # ship what is finished
-    python scripts/build/build_suite.py --suite test --smoke 20                # also write smoke.json.gz
+    python scripts/build/build_suite.py --suite test --smoke 20                # also write smoke.suite.xz
     python scripts/build/build_suite.py --suite train --reverse                # a second machine, last scenes first
     python scripts/build/build_suite.py --suite train --merge-from DIR --assemble-only   # join its copy
 
@@ -29,7 +29,8 @@ def main(argv=None) -> int:
     p.add_argument("--work-dir", default=None)
     p.add_argument("--assemble-only", action="store_true", help="write the suite from the scenes already made")
     p.add_argument("--smoke", type=int, default=0, help="also write the smoke subset of this many tasks")
-    p.add_argument("--out", default=None, help="suite file (default assets/suites/<name>.json.gz)")
+    p.add_argument("--out", default=None, help="suite file (default assets/suites/<name>.suite.xz; .json.gz, .json: "
+                                                "those forms)")
     p.add_argument("--reverse", action="store_true", help="make the scenes last first (a second machine's share)")
     p.add_argument("--merge-from", default=None, metavar="DIR",
                    help="first take the scenes that another copy of the work dir has further along")
@@ -50,7 +51,7 @@ def main(argv=None) -> int:
         suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit, reverse=args.reverse)
         print(f"made scenes in {time.perf_counter() - start:.0f} s wall ({args.workers} workers)")
     suite = suite_build.assemble_suite(r, work_dir)
-    out = args.out or SUITES_DIR / f"{r.name}.json.gz"
+    out = args.out or SUITES_DIR / f"{r.name}.suite.xz"
     suite.save(out)
     info = suite.info
     print(f"wrote {out}: {len(suite)} tasks from {info['complete_scenes']} of {info['planned_scenes']} scenes "
@@ -63,8 +64,8 @@ def main(argv=None) -> int:
         print(f"wrote {archive}: the finished scenes, to continue the build")
     if args.smoke:
         smoke = suite_build.smoke_subset(suite, args.smoke)
-        smoke.save(SUITES_DIR / "smoke.json.gz")
-        print(f"wrote {SUITES_DIR / 'smoke.json.gz'}: {len(smoke)} tasks")
+        smoke.save(SUITES_DIR / "smoke.suite.xz")
+        print(f"wrote {SUITES_DIR / 'smoke.suite.xz'}: {len(smoke)} tasks")
     return 0
 
 

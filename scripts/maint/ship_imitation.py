@@ -1,6 +1,6 @@
 """Ship the imitation policies a GPU-machine hold trained (scripts/imitation_shard.sh) as the
-package's checkpoints: ``assets/checkpoints/imit_<kind>.pt`` (the trainer's fp16 export, copied
-byte for byte), ``.json`` beside it (the trainer's export JSON plus the one command that
+package's checkpoints: ``assets/checkpoints/imit_<kind>.pt.planes.xz`` (the trainer's fp16 export,
+packed losslessly: ``fetchbench_ms.utils.packed``), ``imit_<kind>.json`` beside it (the trainer's export JSON plus the one command that
 retrains it, the converted data's manifest and the success on ``val`` tasks) and ``.log``
 (the training log).
 
@@ -28,7 +28,8 @@ from pathlib import Path
 from fetchbench_ms.evaluation.metrics import summarize
 from fetchbench_ms.policies.deploy import POLICY_KINDS, POLICY_METHODS, default_checkpoint
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_results
-from fetchbench_ms.utils.io import atomic_write_text, sha256_file
+from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text, sha256_file
+from fetchbench_ms.utils.packed import PLANES_SUFFIX, content_sha256, pack_planes, packed_or_plain
 
 KINDS = POLICY_KINDS  # every network the package has
 
@@ -75,7 +76,8 @@ def val_figures(runs: list[Path], exported: dict[str, str]) -> dict[str, list[di
 
 def add_val_runs(runs: list[Path]) -> int:
     """Add val runs to the shipped checkpoints' JSON, checked against their bytes."""
-    shipped = {k: sha256_file(default_checkpoint(k)) for k in KINDS if default_checkpoint(k).is_file()}
+    shipped = {k: content_sha256(packed_or_plain(default_checkpoint(k))) for k in KINDS
+               if packed_or_plain(default_checkpoint(k)).is_file()}
     val = val_figures(runs, shipped)
     for kind in shipped:
         if not val[kind]:
@@ -123,7 +125,9 @@ def main(argv=None) -> int:
     for kind in kinds:
         meta = json.loads((hold / "export" / f"imit_{kind}.json").read_text())
         target = default_checkpoint(kind)
-        shutil.copyfile(hold / "export" / f"imit_{kind}.pt", target)
+        atomic_write_bytes(target.with_name(target.name + PLANES_SUFFIX),
+                           pack_planes((hold / "export" / f"imit_{kind}.pt").read_bytes()))
+        target.unlink(missing_ok=True)  # a plain copy would be read instead of the packed one
         meta.update({
             "checkpoint_sha256": exported[kind],
             "retrain_command": args.retrain,

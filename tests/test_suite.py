@@ -354,3 +354,21 @@ def test_merging_two_copies_of_a_work_dir_keeps_each_scene_furthest_along(tmp_pa
     assert json.loads((here / "scene_003.progress.json").read_text())["state"]["next"] == 7
     assert not (here / "scene_005.progress.json").exists()
     assert suite_build.merge_work_dirs(there, here) == []
+
+
+def test_shipped_suites_are_found_in_an_installed_wheel(tmp_path, monkeypatch):
+    """In a wheel the assets are fetchbench_ms/_assets; a top-level "assets" folder another
+    distribution put in site-packages is not mistaken for a checkout's."""
+    from fetchbench_ms.tasks.suite import shipped_suite_file, shipped_suites
+    from fetchbench_ms.utils import paths
+
+    checkout_assets = paths.assets_root()
+    assert shipped_suite_file("test").parent == checkout_assets / "suites"
+    site = tmp_path / "site-packages"
+    (site / "assets" / "suites").mkdir(parents=True)  # the other distribution's folder
+    (site / "fetchbench_ms").mkdir()
+    (site / "fetchbench_ms" / "_assets").symlink_to(checkout_assets, target_is_directory=True)
+    monkeypatch.setattr(paths, "_PACKAGE", site / "fetchbench_ms")
+    assert shipped_suite_file("test") is not None
+    assert shipped_suite_file("test").parent == site / "fetchbench_ms" / "_assets" / "suites"
+    assert {"test", "val"} <= set(shipped_suites())

@@ -211,7 +211,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
     env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets.
     A ``curriculum`` (``envs.curriculum``) narrows the pool to its target labels and its
     first ``max_tasks``."""
-    from ..tasks.suite import SUITES_DIR, load_suite, shipped_suite_file
+    from ..tasks.suite import load_suite, shipped_suite_file, suites_dir
 
     defaulted = task_source is None and task_suite is None  # nothing asked for: the default suite
     if task_source is None:
@@ -223,7 +223,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
             task_source = "sampled"
         elif shipped_suite_file(DEFAULT_TASK_SUITE) is None:
             warnings.warn(f"the default task suite {DEFAULT_TASK_SUITE!r} is not shipped with this install "
-                          f"({SUITES_DIR}); seed resets sample raw, unfiltered tasks (task_source='sampled'). "
+                          f"({suites_dir()}); seed resets sample raw, unfiltered tasks (task_source='sampled'). "
                           "Give task_suite=NAME_OR_PATH for filtered tasks.", stacklevel=3)
             task_source = "sampled"
         else:
@@ -243,7 +243,7 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
             from ..tasks.suite import shipped_suites
 
             raise ValueError(f"task_source='suite' draws from the default task suite {DEFAULT_TASK_SUITE!r}, which is "
-                             f"not shipped with this install ({SUITES_DIR}); valid: task_suite=one of "
+                             f"not shipped with this install ({suites_dir()}); valid: task_suite=one of "
                              f"{', '.join(shipped_suites()) or '(none shipped)'} or a suite file's path, "
                              "or task_source='sampled'")
     suite = load_suite(task_suite)

@@ -29,27 +29,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..utils.io import atomic_write_bytes, canonical_json, sha256_bytes
+from ..utils.paths import assets_root
 from . import suite_packed
 from .spec import TaskSpec
 
 SUITE_FORMAT = "fetchbench-task-suite"
 SUITE_VERSION = "2"
 SCENE_KEYS = ("scene_type", "scene_seed", "scene_params", "scene_hash")
-#: Where the shipped suites live: ``<name>.suite.xz`` (or ``<name>.json.gz``).
-SUITES_DIR = Path(__file__).resolve().parents[2] / "assets" / "suites"
 #: The forms of a shipped suite's file, in the order they are looked for.
 SHIPPED_SUFFIXES = (suite_packed.SUFFIX, ".json.gz")
 _GZIP_MAGIC, _XZ_MAGIC = b"\x1f\x8b", b"\xfd7zXZ\x00"
 
 
+def suites_dir() -> Path:
+    """Where the shipped suites live: ``<name>.suite.xz`` (or ``<name>.json.gz``), in the
+    checkout's ``assets/`` or an installed wheel's ``fetchbench_ms/_assets``."""
+    return assets_root() / "suites"
+
+
 def shipped_suites() -> tuple[str, ...]:
     """Names of the suites shipped with the package (test, val, smoke when built)."""
-    return tuple(sorted({p.name[: -len(suffix)] for suffix in SHIPPED_SUFFIXES for p in SUITES_DIR.glob(f"*{suffix}")}))
+    return tuple(sorted({p.name[: -len(suffix)] for suffix in SHIPPED_SUFFIXES for p in suites_dir().glob(f"*{suffix}")}))
 
 
 def shipped_suite_file(name: str) -> Path | None:
     """The file of the shipped suite ``name``, or None when none is shipped."""
-    return next((p for p in (SUITES_DIR / f"{name}{s}" for s in SHIPPED_SUFFIXES) if p.is_file()), None)
+    return next((p for p in (suites_dir() / f"{name}{s}" for s in SHIPPED_SUFFIXES) if p.is_file()), None)
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,10 @@ _PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def assets_root() -> Path:
+    # A checkout is recognised by its pyproject.toml beside the package: in an installed
+    # wheel the package's parent is site-packages, where another distribution may have put
+    # a top-level "assets" folder of its own.
     checkout = _PACKAGE.parent / "assets"
-    if checkout.is_dir():
+    if checkout.is_dir() and (_PACKAGE.parent / "pyproject.toml").is_file():
         return checkout
     return _PACKAGE / "_assets"

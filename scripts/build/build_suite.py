@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from fetchbench_ms.tasks import suite_build
-from fetchbench_ms.tasks.suite import SUITES_DIR
+from fetchbench_ms.tasks.suite import suites_dir
 
 
 def main(argv=None) -> int:
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     r = suite_build.recipe(args.suite)
     work_dir = args.work_dir or f"build/suites/{r.name}"
     # A partial build ships its per-scene results so the next run continues it.
-    archive = SUITES_DIR / "partial" / f"{r.name}-scenes.tar.gz"
+    archive = suites_dir() / "partial" / f"{r.name}-scenes.tar.gz"
     if not Path(work_dir).exists() and archive.exists():
         with tarfile.open(archive) as tar:
             tar.extractall(Path(work_dir).parent, filter="data")
@@ -51,7 +51,7 @@ def main(argv=None) -> int:
         suite_build.build_scenes(r, work_dir, workers=args.workers, limit=args.limit, reverse=args.reverse)
         print(f"made scenes in {time.perf_counter() - start:.0f} s wall ({args.workers} workers)")
     suite = suite_build.assemble_suite(r, work_dir)
-    out = args.out or SUITES_DIR / f"{r.name}.suite.xz"
+    out = args.out or suites_dir() / f"{r.name}.suite.xz"
     suite.save(out)
     info = suite.info
     print(f"wrote {out}: {len(suite)} tasks from {info['complete_scenes']} of {info['planned_scenes']} scenes "
@@ -64,8 +64,8 @@ def main(argv=None) -> int:
         print(f"wrote {archive}: the finished scenes, to continue the build")
     if args.smoke:
         smoke = suite_build.smoke_subset(suite, args.smoke)
-        smoke.save(SUITES_DIR / "smoke.suite.xz")
-        print(f"wrote {SUITES_DIR / 'smoke.suite.xz'}: {len(smoke)} tasks")
+        smoke.save(suites_dir() / "smoke.suite.xz")
+        print(f"wrote {suites_dir() / 'smoke.suite.xz'}: {len(smoke)} tasks")
     return 0
 
 

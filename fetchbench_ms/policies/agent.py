@@ -1,6 +1,6 @@
 """Trained imitation policies as ManiSkill agents, and the re-grasp state machine.
 
-    policy = ImitationPolicy.load("assets/checkpoints/imit_e2e_mlp.pt")
+    policy = ImitationPolicy.load("assets/checkpoints/imit_mlp.pt")
     env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud", control_mode="pd_joint_delta_pos")
     obs, _ = env.reset(seed=0)
     policy.reset(episode_seed=0)

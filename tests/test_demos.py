@@ -264,10 +264,10 @@ def test_shipped_sample_replays(tmp_path):
 
 
 def test_transport_copy_keeps_what_conversion_needs(tmp_path):
-    """scripts/demos_transport.py (moving demos between machines, docs/demos.md):
+    """scripts/maint/demos_transport.py (moving demos between machines, docs/demos.md):
     pack -> unpack keeps every array but the env states' middle rows, and the unpacked file
     converts to pd_joint_delta_pos and replays to success with ManiSkill's replay tool."""
-    script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "maint" / "demos_transport.py"
 
     def transport(*args):
         out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True)
@@ -300,7 +300,7 @@ def test_transport_copy_with_full_states_replays_from_env_states(tmp_path):
     """``pack --full-states N``: the first N trajectories keep every env-state row, so the
     replay tool's --use-env-states works on them (the dataset's conversion figures are
     measured on a second machine from such a copy); the others keep the first and last."""
-    script = Path(__file__).resolve().parents[1] / "scripts" / "demos_transport.py"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "maint" / "demos_transport.py"
     for args in (("pack", SAMPLE, tmp_path / "full.npz", "--full-states", "1"),
                  ("unpack", tmp_path / "full.npz", tmp_path / "u" / "full.h5")):
         out = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True)

@@ -89,7 +89,7 @@ def test_finger_opening_maps_to_gripper_joints_and_back():
 
 
 def test_start_configurations_put_the_tcp_where_the_pandas_is():
-    """``RobotSetup.q_home`` (scripts/robot_home.py): the Panda's start TCP pose, or with
+    """``RobotSetup.q_home`` (scripts/maint/robot_home.py): the Panda's start TCP pose, or with
     the Robotiq the highest pose straight below it the arm reaches; free of self-collision."""
     T_panda = panda().tcp_pose(np.asarray(SETUPS["panda"].q_home)).numpy()[0]
     for uid in OTHER_ROBOTS:

@@ -67,7 +67,7 @@ _GEN3_LINKS = ("shoulder_link", "half_arm_1_link", "half_arm_2_link", "forearm_l
 #: assumption (the order of what Kinova's ROS driver configures), below the Panda's
 #: 7.5-20: the executor's time parametrisation is the only reader.
 _GEN3_ACCELERATION = (5.2,) * 7
-#: The Gen3's start configurations, printed by ``scripts/robot_home.py``: the IK solution
+#: The Gen3's start configurations, printed by ``scripts/maint/robot_home.py``: the IK solution
 #: that puts the TCP where the Panda's start configuration puts the Panda's (with the
 #: longer Robotiq, 3 cm lower: the highest it reaches), farthest from the joint limits;
 #: ``tests/test_robots.py`` checks they still do.

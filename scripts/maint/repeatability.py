@@ -1,7 +1,7 @@
 """Per-task agreement of the same evaluation on other machines and loads.
 
-    python scripts/repeatability.py                       # the shipped records, results/repeatability
-    python scripts/repeatability.py --root DIR --reference NAME[,NAME...]
+    python scripts/maint/repeatability.py                       # the shipped records, results/repeatability
+    python scripts/maint/repeatability.py --root DIR --reference NAME[,NAME...]
 
 ``--root`` holds one folder per condition (e.g. ``dev-1worker``, ``dev-2workers-6busy``,
 ``node-8workers``), each with one packed run per method (``fetchbench results pack RUN

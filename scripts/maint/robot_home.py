@@ -6,7 +6,7 @@ longer Robotiq cannot hold its TCP 0.6 m up 0.1 m in front of its base), free of
 self-collision, the solution farthest from the joint limits (the largest smallest
 margin, as a fraction of each joint's range) among 256 seeded IK starts.
 
-    python scripts/robot_home.py            # prints each robot's q_home
+    python scripts/maint/robot_home.py            # prints each robot's q_home
 """
 from __future__ import annotations
 

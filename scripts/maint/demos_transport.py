@@ -1,7 +1,7 @@
 """A compact copy of a demo file for moving it between machines.
 
-    python scripts/demos_transport.py pack SRC.h5 DST.npz        # + DST.json
-    python scripts/demos_transport.py unpack DST.npz OUT.h5      # + OUT.json
+    python scripts/maint/demos_transport.py pack SRC.h5 DST.npz        # + DST.json
+    python scripts/maint/demos_transport.py unpack DST.npz OUT.h5      # + OUT.json
 
 A dataset of 5,000 demos is ~500 MB: env states, one row per step, and HDF5's per-dataset
 overhead (about 25 small datasets a trajectory). The transport keeps, per trajectory, everything but the

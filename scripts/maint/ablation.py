@@ -1,10 +1,10 @@
 """The valid-numbers ablation: every paper row's method in both pipelines, ours minus each
 improvement, and the environment's factors, as ``fetchbench eval`` runs side by side.
 
-    python scripts/ablation.py --suite test --tasks 0:600 --out runs/ablation --jobs 8 --workers 8
-    python scripts/ablation.py --list                     # the runs, in the order they start
-    python scripts/ablation.py --only core --out ...      # a group: core, minus, env, rows
-    python scripts/ablation.py --names ga-mesh-trajopt-paper,cgn-ptd-rrt-ours --out ...  # these runs, in this order
+    python scripts/maint/ablation.py --suite test --tasks 0:600 --out runs/ablation --jobs 8 --workers 8
+    python scripts/maint/ablation.py --list                     # the runs, in the order they start
+    python scripts/maint/ablation.py --only core --out ...      # a group: core, minus, env, rows
+    python scripts/maint/ablation.py --names ga-mesh-trajopt-paper,cgn-ptd-rrt-ours --out ...  # these runs, in this order
     fetchbench results table --runs-dir runs/ablation     # the tables (then `fetchbench results pack`)
 
 Groups, in the order they start (the first matter most):

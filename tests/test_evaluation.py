@@ -174,6 +174,42 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     assert odd["error"]["kind"] == "exception" and "no boolean 'success'" in odd["error"]["message"]
 
 
+def test_planner_options_are_recorded_and_reach_the_solver(tmp_path, monkeypatch):
+    """``--planner-option`` is checked, reaches the method's SolveConfig and is recorded in
+    run.json's method_options and every record (and in the default folder's name); a run
+    without one records no key. The solver and the worker pool are stand-ins here: the runner
+    runs in this process, and ``solve`` returns the goal region it was given."""
+    from fetchbench_ms.evaluation import local
+    from fetchbench_ms.solutions import sense_plan_act
+
+    def solve(env, seed, method, config, **kwargs):
+        return {"success": False, "failure": "motion_planning_failure", "computation_time": 0.0,
+                "cspace_length": 0.0, "phases": {}, "solver_goal_region": config.mppi_goal_region}
+
+    def run_local(spec, todo, on_record, **kwargs):
+        runner = spec.make()
+        try:
+            for item in todo:
+                on_record(runner(item))
+        finally:
+            runner.close()
+
+    monkeypatch.setattr(sense_plan_act, "solve", solve)
+    monkeypatch.setattr(local, "run_local", run_local)
+    monkeypatch.chdir(tmp_path)
+    argv = ["eval", "--method", "ga-mesh-mppi", "--suite", "smoke", "--tasks", "0:1"]
+    assert main(argv + ["--planner-option", "mppi_goal_region=0.0"]) == 0
+    store = ResultsStore(tmp_path / "out" / "eval" / "ga-mesh-mppi-paper-mppi_goal_region=0")
+    assert store.manifest()["method_options"]["planner_options"] == {"mppi_goal_region": 0}
+    [record] = store.records()
+    assert record["planner_options"] == {"mppi_goal_region": 0} and record["solver_goal_region"] == 0
+    assert main(argv) == 0
+    store = ResultsStore(tmp_path / "out" / "eval" / "ga-mesh-mppi-paper")
+    [record] = store.records()
+    assert "planner_options" not in store.manifest()["method_options"] and "planner_options" not in record
+    assert record["solver_goal_region"] is None  # MppiConfig's default
+
+
 @pytest.mark.parametrize("argv, message", [
     (["eval", "--method", "cgn-rrt", "--suite", "smoke"], "valid: ga-mesh-rrt, ga-ptd-rrt, ga-mesh-trajopt, ga-ptd-trajopt, cgn-ptd-rrt, cgn-mesh-rrt, cgn-ptd-trajopt, cgn-mesh-trajopt, cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, e2e-mlp, e2e-transformer, e2e-diffusion, e2e-act, twostage-mlp, twostage-transformer, twostage-diffusion, twostage-act, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, cgn-imit-act, idle"),
     (["eval", "--method", "idle", "--suite", "no-such-suite"], "unknown task suite 'no-such-suite'; valid:"),
@@ -182,6 +218,9 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     (["eval", "--method", "idle", "--suite", "SUITE", "--backend", "slurm"], "valid: local, ray"),
     (["eval", "--method", "idle", "--env", "FetchBench-Shelves-v0"], "unknown env id 'FetchBench-Shelves-v0'"),
     (["eval", "--method", "no_such_module:run"], "cannot import"),
+    (["eval", "--method", "ga-mesh-mppi", "--suite", "SUITE", "--planner-option", "mppi_cost=network"],
+     "ga-mesh-mppi plans in the meshes, and the network cost reads an observed point cloud: valid mppi_cost there: "
+     "distance"),
     (["report", "NO_DIR"], "does not exist"),
 ])
 def test_bad_input_is_a_clear_error(argv, message, tiny_suite, tmp_path, capsys):

@@ -53,6 +53,31 @@ def test_eval_cli_refuses_bad_pipeline_options(capsys, tmp_path):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+def test_planner_options_reach_the_mppi_config(monkeypatch):
+    """``--planner-option`` values become SolveConfig fields, and those the MppiConfig that
+    MPPI plans with (unset: MppiConfig's defaults and the method's own cost)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fetchbench_ms.planning import mppi
+    from fetchbench_ms.solutions.planner_options import parse_planner_options
+    from fetchbench_ms.solutions.sense_plan_act import EpisodeState, SolveConfig, _plan_and_move
+
+    configs = []
+
+    def plan_mppi(checker, q_start, q_goals, execute, config):
+        configs.append(config)
+        return SimpleNamespace(planning_time=0.0)
+
+    monkeypatch.setattr(mppi, "plan_mppi", plan_mppi)
+    for options in ([], ["mppi_goal_region=0", "mppi_cost=distance"], ["mppi_goal_region=0.25"]):
+        config = SolveConfig(**parse_planner_options(options, "cgn-ptd-mppi"))
+        _plan_and_move(EpisodeState(config), None, np.random.default_rng(0), None, None, None, "cgn-ptd-mppi")
+    assert [(c.goal_region, c.cost) for c in configs] == [(mppi.MppiConfig.goal_region, "network"),
+                                                          (0, "distance"), (0.25, "network")]
+
+
 def test_failure_taxonomy_tells_a_held_target_from_a_dropped_one():
     from fetchbench_ms.solutions.sense_plan_act import final_failure
 

@@ -142,3 +142,16 @@ def test_demo_evaluates_and_reports(tmp_path, capsys):
     assert "ga-mesh-rrt on the 'smoke' suite" in out and "all" in out
     assert len((tmp_path / "results" / "results.jsonl").read_text().splitlines()) == 2
     assert (tmp_path / "report" / "index.html").exists()
+
+
+def test_paper_row_goes_to_the_paper_variant_only():
+    """The paper's figure stands beside a run of its variant: not one with env or planner options."""
+    from fetchbench_ms.evaluation.report import Run, paper_reference
+
+    def run(**options) -> Run:
+        manifest = {"method": "cgn-ptd-mppi", "method_options": {"pipeline": "paper", **options}}
+        return Run("cgn-ptd-mppi", Path("."), manifest, [], {})
+
+    assert paper_reference(run())[0] == 0.121  # CGN-Cabinet
+    assert paper_reference(run(env_options={"sim_freq": 60})) is None
+    assert paper_reference(run(planner_options={"mppi_goal_region": 0})) is None

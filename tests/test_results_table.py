@@ -110,6 +110,28 @@ def test_current_runs_and_ablation(tmp_path):
     assert "| ours | ours | 1.000 | +25.0 | - |" in ablation
 
 
+def test_planner_option_runs_are_labelled_and_set_beside_the_paper_run(tmp_path):
+    """A run with planner options is named by them (after the env options, sorted) and set
+    beside the method's `paper`-variant run on the same tasks, with its share of the gap."""
+    runs = tmp_path / "runs"
+    ok = [record(f"test/{i:04d}", "on_table", 6, True) for i in range(4)]
+    bad = [record(f"test/{i:04d}", "on_table", 1, False, "motion_planning_failure") for i in range(4)]
+    variants = {"paper": (ok[:3] + bad[3:], {}),  # 0.75
+                "paper-no-goal-credit": (ok[:2] + bad[2:], {"planner_options": {"mppi_goal_region": 0}}),  # 0.50
+                "paper-60hz-distance": (ok[:1] + bad[1:], {"env_options": {"sim_freq": 60}, "planner_options": {
+                    "mppi_goal_region": 0, "mppi_cost": "distance"}})}  # 0.25
+    for name, (records, extra) in variants.items():
+        options = {"grasp_model": "pretrained", "retries": 1, "pipeline": "paper", "improvements": [], **extra}
+        pack(make_run(tmp_path / name, records, method="cgn-ptd-mppi", options=options), name, runs)
+    out = tables(load_runs(runs))
+    assert "| paper + mppi_goal_region=0 |" in out
+    ablation = out.split("### Ablations")[1]
+    # (0.75 - 0.50) / (0.75 - 0.121): the paper's CGN-Cabinet
+    assert "| paper-no-goal-credit | paper + mppi_goal_region=0 | 0.500 | -25.0 | +40 % |" in ablation
+    assert ("| paper-60hz-distance | paper + sim_freq=60 + mppi_cost=distance + mppi_goal_region=0 | 0.250 | "
+            "-50.0 | +79 % |") in ablation
+
+
 def test_pack_refuses_bad_input(tmp_path, capsys):
     runs = tmp_path / "runs"
     (tmp_path / "empty").mkdir()

@@ -436,6 +436,53 @@ def test_eval_pipeline_flag_spells_the_planners_pipelines():
     assert PIPELINE_NAMES == tuple(PIPELINES)
 
 
+PLANNER_OPTION_ERRORS = textwrap.dedent("""
+    import contextlib, io, json, sys
+    from fetchbench_ms.cli import main
+    answers = []
+    for method, option in (("cgn-ptd-mppi", "mppi_goal_radius=0"), ("cgn-ptd-mppi", "mppi_goal_region=-1"),
+                           ("ga-ptd-mppi", "mppi_cost=nets"), ("ga-mesh-rrt", "mppi_goal_region=0")):
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            code = main(["eval", "--method", method, "--suite", "val", "--tasks", "0:100",
+                         "--planner-option", option, "--out", sys.argv[1]])
+        answers.append([code, err.getvalue()])
+    heavy = sorted(m for m in ("torch", "mani_skill", "sapien", "trimesh") if m in sys.modules)
+    print(json.dumps([answers, heavy]))
+""")
+
+
+def test_bad_planner_options_are_one_line_before_torch_loads(tmp_path):
+    """An unknown key, a bad value, a key for a method it does not apply to: exit 2 and one
+    line that names the valid choices, before torch and the simulator load; nothing written."""
+    out = subprocess.run([sys.executable, "-c", PLANNER_OPTION_ERRORS, str(tmp_path / "eval")], capture_output=True,
+                         text=True, timeout=120, env=ENV)
+    assert out.returncode == 0, out.stderr[-3000:]
+    answers, heavy = json.loads(out.stdout)
+    assert heavy == []
+    assert [code for code, _ in answers] == [2, 2, 2, 2]
+    lines = [_one_error_line(err) for _, err in answers]
+    valid = "valid: mppi_goal_region=RAD (>= 0; 0 switches the goal credit off); mppi_cost=network|distance"
+    assert "unknown planner option 'mppi_goal_radius'" in lines[0] and lines[0].endswith(valid)
+    assert "mppi_goal_region=-1: bad value" in lines[1] and lines[1].endswith(valid)
+    assert "mppi_cost=nets: bad value" in lines[2] and lines[2].endswith(valid)
+    assert lines[3].endswith("'mppi_goal_region' applies to cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, not ga-mesh-rrt")
+    assert not (tmp_path / "eval").exists()
+
+
+def test_planner_options_spell_the_planners_methods_costs_and_fields():
+    """solutions.planner_options spells out what torch-loading modules define."""
+    import dataclasses
+
+    from fetchbench_ms.planning.mppi import COSTS
+    from fetchbench_ms.solutions.planner_options import MPPI_COSTS, MPPI_METHODS, PLANNER_OPTIONS
+    from fetchbench_ms.solutions.sense_plan_act import METHODS, SolveConfig
+
+    assert MPPI_METHODS == tuple(m for m, parts in METHODS.items() if parts["planner"] == "mppi")
+    assert MPPI_COSTS == tuple(COSTS)
+    assert set(PLANNER_OPTIONS) <= {f.name for f in dataclasses.fields(SolveConfig)}
+
+
 def test_ppo_bad_flags_are_one_line_before_torch_loads():
     probe = textwrap.dedent("""
         import runpy, sys

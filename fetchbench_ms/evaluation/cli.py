@@ -19,6 +19,9 @@ def cmd_eval(args) -> int:
         raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
     if args.tasks is not None and args.suite is None:
         raise ValueError("--tasks selects tasks of a --suite")
+    from ..solutions.planner_options import parse_planner_options
+
+    planner_options = parse_planner_options(args.planner_option or [], args.method)  # a bad one: before torch loads
     from ..envs import parse_env_options
     from ..solutions.sense_plan_act import pipeline_improvements, pipeline_label
     from .methods import has_pipeline
@@ -31,7 +34,7 @@ def cmd_eval(args) -> int:
     default_out = args.method.replace(":", "_") + (f"-{args.grasp_model}" if args.method.startswith("cgn-") else "")
     if has_pipeline(args.method):
         default_out += f"-{pipeline_label(improvements)}"
-    default_out += "".join(f"-{k}={v}" for k, v in sorted(env_options.items()))
+    default_out += "".join(f"-{k}={v}" for k, v in [*sorted(env_options.items()), *sorted(planner_options.items())])
     if args.robot != "panda":
         default_out += f"-robot={args.robot}"
     if args.grasp_labels is not None:
@@ -43,7 +46,7 @@ def cmd_eval(args) -> int:
                        retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
                        policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride,
                        improvements=improvements, env_options=env_options, robot=args.robot,
-                       grasp_labels=args.grasp_labels)
+                       grasp_labels=args.grasp_labels, planner_options=planner_options)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -92,6 +95,10 @@ def add_commands(subparsers) -> None:
     p.add_argument("--env-option", action="append", default=None, metavar="KEY=VALUE",
                    help="an env option of the ablation, e.g. sim_freq=60 or camera_placement=paper "
                         "(repeatable; recorded in run.json and every record)")
+    p.add_argument("--planner-option", action="append", default=None, metavar="KEY=VALUE",
+                   help="a planner parameter of the ablation, for the MPPI methods: mppi_goal_region=RAD (the goal "
+                        "credit's region, 0: off) or mppi_cost=network|distance (repeatable; recorded in run.json "
+                        "and every record)")
     from ..robots import DEFAULT_ROBOT, ROBOT_UIDS
 
     p.add_argument("--robot", default=DEFAULT_ROBOT, choices=ROBOT_UIDS,

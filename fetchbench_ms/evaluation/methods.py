@@ -106,18 +106,22 @@ def check_robot(name: str, robot: str) -> str:
 
 def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
                    policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
-                   grasp_labels: Optional[str] = None) -> Method:
+                   grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None) -> Method:
     """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
     ``policy_stride``: their control steps per observation (``ImitationPolicy``);
     ``improvements``: the sense-plan-act pipeline's (``sense_plan_act.IMPROVEMENTS``; none:
-    the paper's pipeline)."""
+    the paper's pipeline); ``planner_options``: planner parameters of the ablation
+    (``solutions.planner_options``)."""
     from ..policies import deploy
     from ..policies.agent import check_stride
+    from ..solutions.planner_options import check_planner_options
     from ..solutions.sense_plan_act import METHODS, SolveConfig, needs_pointcloud, solve
 
     improvements = tuple(improvements)
-    config = SolveConfig(improvements=improvements, grasp_labels=grasp_labels)  # unknown names: a clear error here
+    planner_options = check_planner_options(name, planner_options or {})
+    # unknown improvements, bad planner options: a clear error here, before any model loads
+    config = SolveConfig(improvements=improvements, grasp_labels=grasp_labels, **planner_options)
     if grasp_labels is not None:
         if name not in METHODS or METHODS[name]["grasps"] != "oracle":
             raise ValueError(f"--grasp-labels applies to the annotated-grasp methods "
@@ -134,7 +138,10 @@ def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
             from ..grasping import load_model
 
             load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
-        if METHODS[name].get("collision") == "network":
+        if METHODS[name]["planner"] == "mppi" and (config.mppi_cost or METHODS[name]["collision"]) == "network":
+            if METHODS[name]["world"] != "pointcloud":
+                raise ValueError(f"{name} plans in the meshes, and the network cost reads an observed point "
+                                 f"cloud: valid mppi_cost there: distance")
             from ..planning.collision_net import load_collision_net
 
             load_collision_net()  # no trained scene-collision network: a clear error before any task runs
@@ -207,11 +214,12 @@ class RunnerSpec:
     env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
     robot: str = "panda"  # the env's robot_uids (fetchbench_ms.robots)
     grasp_labels: Optional[str] = None  # the annotated grasps' store (None: the shipped labels)
+    planner_options: tuple = ()  # (name, value) pairs of SolveConfig (fetchbench_ms.solutions.planner_options)
 
     def make(self) -> "TaskRunner":
         return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
                           self.policy_stride, self.improvements, dict(self.env_options), self.robot,
-                          self.grasp_labels)
+                          self.grasp_labels, dict(self.planner_options))
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
@@ -224,13 +232,14 @@ class TaskRunner:
     def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
                  grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
                  improvements=(), env_options: Optional[dict] = None, robot: str = "panda",
-                 grasp_labels: Optional[str] = None):
+                 grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None):
         self.robot = check_robot(method_name, robot)
         self.grasp_labels = grasp_labels
         self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
-                                     improvements, grasp_labels)
+                                     improvements, grasp_labels, planner_options)
         self.video_dir = video_dir
         self.env_options = dict(env_options or {})
+        self.planner_options = dict(planner_options or {})
         # Every record of a pipeline method names its variant (error records too).
         self.pipeline_fields = pipeline_fields(method_name, improvements)
         self.envs: dict = {}
@@ -288,6 +297,8 @@ class TaskRunner:
             record.setdefault(key, value)
         if self.env_options:
             record["env_options"] = self.env_options
+        if self.planner_options:
+            record["planner_options"] = self.planner_options
         if self.robot != "panda":  # no key: the Panda (records from before robots were an option)
             record["robot"] = self.robot
         if self.grasp_labels is not None:

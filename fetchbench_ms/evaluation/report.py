@@ -153,12 +153,13 @@ def _table(header: list[str], rows: list[list[str]], css: str = "") -> str:
 def paper_reference(run: Run) -> tuple[float, tuple | None] | None:
     """The FetchBench paper's success rate (and its funnel: approach plan, approach execution,
     retrieval plan) for a run of the paper's variant of a method the paper reports: the
-    ``paper`` pipeline (or a method without one) and the env's defaults. None otherwise."""
+    ``paper`` pipeline (or a method without one), the env's defaults and the planners'. None
+    otherwise."""
     from . import results_table
 
     options = run.manifest.get("method_options") or {}
     if run.manifest.get("method") is None or options.get("pipeline") not in ("paper", "none") \
-            or options.get("env_options"):
+            or options.get("env_options") or options.get("planner_options"):
         return None
     return results_table.paper_reference(run.manifest)
 

@@ -249,7 +249,8 @@ def method_label(manifest: dict) -> str:
 
 
 def pipeline_label(manifest: dict) -> str:
-    """``legacy``, ``paper``, ``ours`` or ``ours minus X, Y``, then the env options."""
+    """``legacy``, ``paper``, ``ours`` or ``ours minus X, Y``, then the env options and the
+    planner options (``+ mppi_goal_region=0``)."""
     o = options(manifest)
     pipeline = "legacy" if is_legacy(manifest) else str(o["pipeline"])
     if pipeline.startswith("ours-minus-"):  # the runner's name: ours-minus-retreat+start_escape
@@ -259,8 +260,8 @@ def pipeline_label(manifest: dict) -> str:
 
         off = [i for i in IMPROVEMENTS if i not in o["improvements"]]
         pipeline = "ours minus " + ", ".join(off) if off else "ours"
-    env = o.get("env_options") or {}
-    return pipeline + "".join(f" + {k}={env[k]}" for k in sorted(env))
+    env, planner = o.get("env_options") or {}, o.get("planner_options") or {}
+    return pipeline + "".join(f" + {k}={v}" for k, v in [*sorted(env.items()), *sorted(planner.items())])
 
 
 def selection_label(manifest: dict) -> str:
@@ -315,7 +316,8 @@ def runs_table(runs: list[Run]) -> str:
 
 def _comparable(manifest: dict) -> str:
     """What two runs must share to be compared: method, options other than the pipeline's, tasks."""
-    o = {k: v for k, v in options(manifest).items() if k not in ("pipeline", "improvements", "env_options")}
+    o = {k: v for k, v in options(manifest).items()
+         if k not in ("pipeline", "improvements", "env_options", "planner_options")}
     return canonical_json([manifest["method"], o, manifest.get("selection"), manifest.get("source_sha256")])
 
 
@@ -344,7 +346,7 @@ def ablation_table(runs: list[Run]) -> str:
             label, o = pipeline_label(run.manifest), options(run.manifest)
             r = summarize(run.records)["all"]["success_rate"]
             share = "-"
-            if paper is not None and o["pipeline"] == "paper" and o.get("env_options"):
+            if paper is not None and o["pipeline"] == "paper" and (o.get("env_options") or o.get("planner_options")):
                 share = _share(rate - r, rate - paper)  # > 0: the factor moves us toward the paper
             elif paper is not None and label.startswith("ours minus ") and ours_rate is not None:
                 share = _share(ours_rate - r, ours_rate - paper)

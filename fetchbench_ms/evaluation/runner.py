@@ -60,21 +60,26 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
              progress: bool = True, grasp_model: str = "pretrained",
              policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
              env_options: Optional[dict] = None, robot: str = "panda",
-             grasp_labels: Optional[str] = None) -> list[dict]:
+             grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None) -> list[dict]:
     """Run ``method`` on the selected tasks not yet in ``out_dir``; returns every record of the
     selection (old and new), in task order. ``grasp_model``: the weight set of ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint; ``policy_stride``: their control
     steps per observation; ``improvements``: the pipeline's (none: the paper's pipeline);
     ``env_options``: env kwargs of the ablation (``fetchbench_ms.envs.parse_env_options``);
     ``robot``: the hardware setup (``fetchbench_ms.robots``; recorded unless the Panda);
-    ``grasp_labels``: the annotated grasps' store (None: the shipped Franka-hand labels)."""
+    ``grasp_labels``: the annotated grasps' store (None: the shipped Franka-hand labels);
+    ``planner_options``: planner parameters of the ablation
+    (``fetchbench_ms.solutions.planner_options.parse_planner_options``)."""
+    from ..solutions.planner_options import check_planner_options
     from .metrics import summarize
 
     improvements = tuple(improvements)
     env_options = dict(env_options or {})
     # unknown method or options: fail before anything is written
+    planner_options = check_planner_options(method, planner_options or {})
     grasp_labels = str(Path(grasp_labels).resolve()) if grasp_labels is not None else None
-    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels)
+    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels,
+                   planner_options)
     robot = check_robot(method, robot)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
@@ -99,6 +104,8 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     options.update(pipeline_fields(method, improvements))
     if env_options:
         options["env_options"] = env_options
+    if planner_options:
+        options["planner_options"] = planner_options
     if robot != "panda":  # (the Panda's stores keep their options as they were)
         options["robot"] = robot
     if grasp_labels is not None:
@@ -134,7 +141,8 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
 
     spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
                       str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
-                      improvements, tuple(sorted(env_options.items())), robot, grasp_labels)
+                      improvements, tuple(sorted(env_options.items())), robot, grasp_labels,
+                      tuple(sorted(planner_options.items())))
     if todo and robot != "panda":
         from ..planning.robot import robot_model
 

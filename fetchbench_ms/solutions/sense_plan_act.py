@@ -175,6 +175,9 @@ class SolveConfig:
     # MPPI methods: the scene-collision cost, "network" or "distance" (the ablation: the
     # world's distance fields); None: the method's own (METHODS[...]["collision"]).
     mppi_cost: str | None = None
+    # MPPI methods: the goal credit's region in rad (0: no credit); None: MppiConfig's default.
+    # (These two are what `fetchbench eval --planner-option` may set: solutions.planner_options.)
+    mppi_goal_region: float | None = None
 
     def __post_init__(self):
         unknown = [i for i in self.improvements if i not in IMPROVEMENTS]
@@ -540,7 +543,9 @@ def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q
         from ..planning.mppi import MppiConfig, plan_mppi
 
         cost = cfg.mppi_cost or METHODS[method]["collision"]
-        mppi_cfg = MppiConfig(cost=cost, speed_scale=cfg.speed_scale, seed=int(rng.integers(2**31)))
+        region = MppiConfig.goal_region if cfg.mppi_goal_region is None else cfg.mppi_goal_region
+        mppi_cfg = MppiConfig(cost=cost, goal_region=region, speed_scale=cfg.speed_scale,
+                              seed=int(rng.integers(2**31)))
 
         def execute(path):
             ex.follow(path, cfg.speed_scale, settle_steps=0)

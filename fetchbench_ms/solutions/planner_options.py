@@ -1,0 +1,85 @@
+"""Planner parameters an ablation may set, each a ``SolveConfig`` field of the sense-plan-act
+methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
+
+- ``mppi_goal_region``: rad >= 0, the region of MPPI's goal credit
+  (``planning.mppi.MppiConfig.goal_region``, 0.5 by default; 0 switches the credit off);
+- ``mppi_cost``: ``network`` or ``distance``, MPPI's scene-collision cost (by default the
+  method's own).
+
+Both apply to the MPPI methods only. This module loads no torch (as ``envs.options``), so the
+command line answers a bad option before torch and the planners load.
+"""
+from __future__ import annotations
+
+import math
+from typing import Iterable
+
+#: ``sense_plan_act.METHODS`` whose planner is MPPI and ``planning.mppi.COSTS``, spelled out
+#: because those modules load torch (tests/test_user_edges.py keeps them the same).
+MPPI_METHODS = ("cgn-ptd-mppi", "ga-ptd-mppi", "ga-mesh-mppi")
+MPPI_COSTS = ("network", "distance")
+
+
+def check_goal_region(value) -> float:
+    """``value`` (a number, or a string such as ``"0.25"``) as a goal region in rad: finite and
+    >= 0. A whole number comes back as an int, so that 0 reads ``0`` in records, labels and
+    folder names, however it was typed."""
+    if isinstance(value, bool):  # bool is an int: True would read as 1
+        raise ValueError(f"bad goal region {value!r}")
+    region = float(value.strip() if isinstance(value, str) else value)  # not a number: ValueError
+    if not math.isfinite(region) or region < 0:
+        raise ValueError(f"bad goal region {value!r}")
+    return int(region) if region.is_integer() else region
+
+
+def check_mppi_cost(value) -> str:
+    """``value`` as one of ``MPPI_COSTS``."""
+    if not isinstance(value, str) or value.strip() not in MPPI_COSTS:
+        raise ValueError(f"unknown MPPI cost {value!r}")
+    return value.strip()
+
+
+#: Option name (a ``SolveConfig`` field) -> (the function that checks and converts a value,
+#: its valid values in words, the methods it applies to).
+PLANNER_OPTIONS = {
+    "mppi_goal_region": (check_goal_region, "RAD (>= 0; 0 switches the goal credit off)", MPPI_METHODS),
+    "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS), MPPI_METHODS),
+}
+
+
+def _valid_options() -> str:
+    return "; ".join(f"{name}={values}" for name, (_, values, _) in PLANNER_OPTIONS.items())
+
+
+def check_planner_options(method: str, options: dict) -> dict:
+    """``options`` (name -> value) checked and converted for ``method``: ``SolveConfig``
+    kwargs. A ValueError of one line naming the valid options for an unknown name, a bad
+    value, or an option that does not apply to ``method`` (naming the methods it applies to)."""
+    checked = {}
+    for name, value in options.items():
+        if name not in PLANNER_OPTIONS:
+            raise ValueError(f"unknown planner option {name!r}; valid: {_valid_options()}")
+        check, _, methods = PLANNER_OPTIONS[name]
+        if method not in methods:
+            raise ValueError(f"planner option {name!r} applies to {', '.join(methods)}, not {method}")
+        try:
+            checked[name] = check(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"planner option {name}={value}: bad value; valid: {_valid_options()}") from None
+    return checked
+
+
+def parse_planner_options(options: Iterable[str], method: str) -> dict:
+    """``["mppi_goal_region=0"]`` -> ``{"mppi_goal_region": 0}`` for ``method``, as
+    ``check_planner_options``; also a ValueError of one line for a string without ``=`` and
+    an option given twice."""
+    values: dict = {}
+    for option in options:
+        name, sep, value = str(option).partition("=")
+        name = name.strip()
+        if not sep:
+            raise ValueError(f"planner option {option!r}: not KEY=VALUE; valid: {_valid_options()}")
+        if name in values:
+            raise ValueError(f"planner option {name!r} is given twice; give each once (valid: {_valid_options()})")
+        values[name] = value.strip()
+    return check_planner_options(method, values)

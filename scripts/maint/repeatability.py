@@ -8,8 +8,8 @@
 --name METHOD --runs-dir ROOT/CONDITION``). For every other condition and every method both
 have and that share tasks (a ``smoke`` reference is compared with the other ``smoke``
 conditions, a test-slice reference with the test-slice ones), the table gives the tasks they share and how many of them end the same: the same
-outcome, the same outcome and failure class (the goal: >= 99 %), and the same executed
-C-space length to 1e-4 rad (the same motion, not only the same verdict).
+outcome, the same outcome and failure class (the goal: >= 99 %), and the same outcome with
+the same executed C-space length to 1e-4 rad (the same motion, not only the same verdict).
 """
 from __future__ import annotations
 
@@ -31,7 +31,9 @@ def agreement(a: dict, b: dict) -> dict:
     common = sorted(set(a) & set(b))
     same = [t for t in common if a[t]["success"] == b[t]["success"]]
     same_kind = [t for t in same if a[t].get("failure") == b[t].get("failure")]
-    same_motion = [t for t in same_kind
+    # Among tasks of the same outcome, not only of the same failure class: a failure class
+    # renamed between two versions of the code is no other motion.
+    same_motion = [t for t in same
                    if abs((a[t].get("cspace_length") or 0) - (b[t].get("cspace_length") or 0)) < 1e-4]
     return {"tasks": len(common), "same_outcome": len(same), "same_kind": len(same_kind),
             "same_motion": len(same_motion), "differ": [t for t in common if t not in same_kind]}

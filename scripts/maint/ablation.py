@@ -3,7 +3,7 @@ improvement, and the environment's factors, as ``fetchbench eval`` runs side by 
 
     python scripts/maint/ablation.py --suite test --tasks 0:600 --out runs/ablation --jobs 8 --workers 8
     python scripts/maint/ablation.py --list                     # the runs, in the order they start
-    python scripts/maint/ablation.py --only core --out ...      # a group: core, minus, env, rows
+    python scripts/maint/ablation.py --only core --out ...      # a group: core, minus, env, rows, planner
     python scripts/maint/ablation.py --names ga-mesh-trajopt-paper,cgn-ptd-rrt-ours --out ...  # these runs, in this order
     fetchbench results table --runs-dir runs/ablation     # the tables (then `fetchbench results pack`)
 
@@ -15,7 +15,9 @@ Groups, in the order they start (the first matter most):
 - ``env``: the paper pipeline of ga-ptd-rrt and cgn-ptd-trajopt with each env option of
   the original (physics at 60 Hz, the paper's camera placement);
 - ``rows``: ``paper`` and ``ours`` for the paper's other planner rows (ga-mesh-trajopt,
-  cgn-mesh-rrt, cgn-mesh-trajopt, cgn-ptd-mppi).
+  cgn-mesh-rrt, cgn-mesh-trajopt, cgn-ptd-mppi);
+- ``planner``: the paper pipeline of cgn-ptd-mppi with each planner option of the ablation
+  (MPPI's goal credit off).
 
 Each run is ``fetchbench eval ... --out OUT/<name>`` (resumable: a second call finishes what is
 missing). ``--gpus N`` gives run k the GPU k mod N (``CUDA_VISIBLE_DEVICES``), so the
@@ -35,7 +37,9 @@ CORE = ("ga-mesh-rrt", "ga-ptd-rrt", "ga-ptd-trajopt", "cgn-ptd-rrt", "cgn-ptd-t
 OTHER_ROWS = ("ga-mesh-trajopt", "cgn-mesh-rrt", "cgn-mesh-trajopt", "cgn-ptd-mppi")
 ENV_METHODS = ("ga-ptd-rrt", "cgn-ptd-trajopt")
 ENV_FACTORS = ("sim_freq=60", "camera_placement=paper")
-GROUPS = ("core", "minus", "env", "rows")
+PLANNER_METHODS = ("cgn-ptd-mppi",)
+PLANNER_FACTORS = ("mppi_goal_region=0",)
+GROUPS = ("core", "minus", "env", "rows", "planner")
 
 
 def runs() -> list[tuple[str, str, list[str]]]:
@@ -60,6 +64,10 @@ def runs() -> list[tuple[str, str, list[str]]]:
     for method in OTHER_ROWS:
         out.append(("rows", f"{method}-paper", ["--method", method, "--pipeline", "paper"]))
         out.append(("rows", f"{method}-ours", ["--method", method, "--pipeline", "ours"]))
+    for factor in PLANNER_FACTORS:
+        for method in PLANNER_METHODS:
+            out.append(("planner", f"{method}-paper-{factor.split('=')[0]}",
+                        ["--method", method, "--pipeline", "paper", "--planner-option", factor]))
     return out
 
 

@@ -64,7 +64,7 @@ def table(root: Path, reference: str) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", type=Path, default=DEFAULT_ROOT)
-    ap.add_argument("--reference", default="dev-1worker,dev-1worker-test100",
+    ap.add_argument("--reference", default="dev-1worker,dev-1worker-test100,cpu2-1worker",
                     help="comma-separated reference conditions, one table each")
     args = ap.parse_args(argv)
     if not args.root.is_dir():

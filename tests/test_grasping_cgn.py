@@ -160,8 +160,11 @@ def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path, caps
     monkeypatch.setattr(predict, "ours_checkpoint", lambda: tmp_path / "cgn_ours.pt")
     with pytest.raises(FileNotFoundError, match="baselines/contact_graspnet/train.py"):
         predict.load_model.__wrapped__("ours")
-    # the eval command fails before running anything
+    # the eval command fails before running anything (load_model caches per process: weights
+    # another test of this worker loaded must not stand in for the missing file)
     from fetchbench_ms.cli import main
+
+    predict.load_model.cache_clear()
 
     assert main(["eval", "--method", "cgn-ptd-rrt", "--grasp-model", "ours", "--suite", "smoke",
                  "--out", str(tmp_path / "run")]) == 2

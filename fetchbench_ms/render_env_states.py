@@ -28,7 +28,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE, compact_pointcloud_obs, compact_seed
+from .envs.pointcloud import COMPACT_OBS_MODE, POINTS_OBS_MODES, compact_pointcloud_obs, compact_seed
 from .utils.workers import WORKER_THREAD_VARS, one_thread_per_spawned_worker
 
 
@@ -53,16 +53,17 @@ def render_env_kwargs(env_kwargs: dict, obs_mode: str = "pointcloud") -> dict:
 
 class StateRenderer:
     """One env of ``env_id`` that renders recorded env states into compact clouds, or, with
-    ``obs_mode="policy_pointcloud"``, into the policies' points by that obs mode itself."""
+    with ``obs_mode="policy_pointcloud"`` or ``"composed_pointcloud"`` (``POINTS_OBS_MODES``), into
+    the policies' points by that obs mode itself (the composed one renders once, at the reset)."""
 
     def __init__(self, env_id: str, env_kwargs: dict, obs_mode: str = COMPACT_OBS_MODE):
         import gymnasium as gym
 
         import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0, also in a spawned worker)
 
-        if obs_mode not in (COMPACT_OBS_MODE, POLICY_OBS_MODE):
-            raise ValueError(f"unknown obs mode {obs_mode!r} to render states in; valid: {COMPACT_OBS_MODE}, "
-                             f"{POLICY_OBS_MODE}")
+        if obs_mode not in (COMPACT_OBS_MODE, *POINTS_OBS_MODES):
+            raise ValueError(f"unknown obs mode {obs_mode!r} to render states in; valid: "
+                             f"{', '.join((COMPACT_OBS_MODE, *POINTS_OBS_MODES))}")
         self.obs_mode = obs_mode
         self.env = gym.make(env_id, **render_env_kwargs(env_kwargs, "pointcloud" if obs_mode == COMPACT_OBS_MODE
                                                         else obs_mode))
@@ -78,7 +79,7 @@ class StateRenderer:
 
     def render(self, job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
         """(xyz [F, M, 3] float16, seg [F, M] uint8): the compact cloud of each of the job's steps;
-        for ``policy_pointcloud``, the obs mode's points and labels ([F, N, 3], [F, N])."""
+        for the ``POINTS_OBS_MODES``, the obs mode's points and labels ([F, N, 3], [F, N])."""
         from mani_skill.trajectory.utils import index_dict
         from mani_skill.utils import common
 
@@ -86,7 +87,7 @@ class StateRenderer:
         xyz, seg = [], []
         for i, step in enumerate(job.steps):
             obs = self.observation(index_dict(job.states, slice(i, i + 1)), int(step))
-            if self.obs_mode == POLICY_OBS_MODE:
+            if self.obs_mode in POINTS_OBS_MODES:
                 cloud = {"xyz": obs["pointcloud"]["points"], "seg": obs["pointcloud"]["point_label"]}
             else:
                 cloud = compact_pointcloud_obs(obs, [compact_seed(job.episode_seed, int(step))])["pointcloud"]

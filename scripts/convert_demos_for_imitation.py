@@ -45,7 +45,7 @@ from pathlib import Path
 
 import h5py
 
-from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
+from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, COMPOSED_OBS_MODE, POINTS_OBS_MODES, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
 from fetchbench_ms.render_env_states import render_backends
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_env_kwargs, refuse_test_objects, refuse_test_task_ids
@@ -191,11 +191,13 @@ def main(argv=None) -> int:
     p.add_argument("--frame-stride", type=int, default=1,
                    help="K: keep every K-th converted step of each stage, its arm action the mean over its K steps "
                         "(a replay without rendering, then the kept frames rendered from its env states)")
-    p.add_argument("--obs-mode", default=COMPACT_OBS_MODE, choices=(COMPACT_OBS_MODE, POLICY_OBS_MODE),
+    p.add_argument("--obs-mode", default=COMPACT_OBS_MODE, choices=(COMPACT_OBS_MODE, *POINTS_OBS_MODES),
                    help=f"the env obs mode the frames are made with: {COMPACT_OBS_MODE} (320x240 cameras, the compact "
-                        f"cloud, then --sizes; the shipped checkpoints') or {POLICY_OBS_MODE} (160x120 cameras, the "
+                        f"cloud, then --sizes; the shipped checkpoints'), {POLICY_OBS_MODE} (160x120 cameras, the "
                         "policies' 1,792 points made by the env itself: what a policy trained on it reads at "
-                        "deployment; always rendered from the state-only replay's env states)")
+                        f"deployment) or {COMPOSED_OBS_MODE} (the same points composed from one render at the "
+                        "episode's start, the target and robot placed by their poses; ~40x cheaper a frame); the "
+                        "points modes are always made from the state-only replay's env states")
     p.add_argument("--render-gpus", type=int, default=1,
                    help="render workers spread over GPUs cuda:0 .. N-1 (a machine of several GPUs; the frames are "
                         "the same on GPUs of one model); 1: ManiSkill's default device")
@@ -209,9 +211,9 @@ def main(argv=None) -> int:
     if args.render_gpus < 1:
         raise SystemExit(f"--render-gpus must be >= 1, got {args.render_gpus}")
     backends = render_backends(args.render_gpus)
-    policy_obs = args.obs_mode == POLICY_OBS_MODE
+    policy_obs = args.obs_mode in POINTS_OBS_MODES
     if policy_obs and args.sizes != ",".join(str(v) for v in POLICY_SIZES.values()):
-        raise SystemExit(f"--sizes is the compact cloud's subsampling; {POLICY_OBS_MODE} makes its own "
+        raise SystemExit(f"--sizes is the compact cloud's subsampling; {args.obs_mode} makes its own "
                          f"{','.join(str(v) for v in POLICY_CLOUD_SIZES.values())} points: leave --sizes out")
     if args.overlap_replay and args.frame_stride == 1 and not policy_obs:
         raise SystemExit("--overlap-replay overlaps a state-only replay with the render pass of --frame-stride K > 1; "
@@ -243,7 +245,7 @@ def main(argv=None) -> int:
     if args.frame_stride != 1:
         settings["frame_stride"] = args.frame_stride
     if policy_obs:  # (absent: compact_pointcloud, as every conversion made before the policy obs mode)
-        settings["obs_mode"] = POLICY_OBS_MODE
+        settings["obs_mode"] = args.obs_mode
     manifest_path = out / "manifest.json"
     if manifest_path.is_file():
         absent = {"frame_stride": 1, "obs_mode": COMPACT_OBS_MODE}  # what a setting left out means

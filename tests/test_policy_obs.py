@@ -1,5 +1,6 @@
-"""``obs_mode="policy_pointcloud"``: the imitation policies' points made by the env itself, the
-same at conversion (rendered from recorded env states) and at deployment (the env stepped)."""
+"""``obs_mode="policy_pointcloud"`` and ``"composed_pointcloud"``: the imitation policies' points
+made by the env itself, the same at conversion (made from recorded env states) and at deployment
+(the env stepped)."""
 from __future__ import annotations
 
 import json
@@ -10,7 +11,8 @@ import pytest
 import torch
 
 from fetchbench_ms.envs.pointcloud import (LABEL_FURNITURE, LABEL_NONE, LABEL_OBJECT, LABEL_ROBOT, LABEL_TARGET,
-                                           POLICY_CLOUD_SIZES, POLICY_OBS_MODE, hash32, pixel_keys, policy_cloud)
+                                           POINTS_OBS_MODES, POLICY_CLOUD_SIZES, POLICY_OBS_MODE, hash32, pixel_keys,
+                                           policy_cloud)
 
 from script_modules import import_script
 
@@ -115,9 +117,11 @@ def state_replay(tmp_path_factory) -> Path:
     return work
 
 
-def test_conversion_is_the_obs_mode_on_the_recorded_states(state_replay):
-    """The training frames of --obs-mode policy_pointcloud are, to the bit, what a fresh env in
-    that obs mode observes at each recorded env state (its step counter at the frame's step)."""
+@pytest.mark.parametrize("obs_mode", POINTS_OBS_MODES)
+def test_conversion_is_the_obs_mode_on_the_recorded_states(state_replay, obs_mode):
+    """The training frames of --obs-mode policy_pointcloud / composed_pointcloud are, to the bit,
+    what a fresh env in that obs mode observes at each recorded env state after a reset to the
+    demo's task (its step counter at the frame's step)."""
     import gymnasium as gym
     import h5py
     from mani_skill.trajectory.utils import index_dict
@@ -127,12 +131,12 @@ def test_conversion_is_the_obs_mode_on_the_recorded_states(state_replay):
 
     converted = state_replay / "demos.state.pd_joint_delta_pos.physx_cpu.h5"
     data = convert_episodes(converted, state_replay / "demos.h5", POLICY_CLOUD_SIZES, log=lambda m: None,
-                            render_obs_mode=POLICY_OBS_MODE)
-    assert data["obs_mode"] == POLICY_OBS_MODE and data["points"].shape[1:] == (N, 3)
+                            render_obs_mode=obs_mode)
+    assert data["obs_mode"] == obs_mode and data["points"].shape[1:] == (N, 3)
     meta = json.loads(converted.with_suffix(".json").read_text())
     episode = meta["episodes"][0]
     kwargs = {k: v for k, v in meta["env_info"]["env_kwargs"].items() if k not in ("obs_mode", "render_backend")}
-    env = gym.make(meta["env_info"]["env_id"], **kwargs, obs_mode=POLICY_OBS_MODE)
+    env = gym.make(meta["env_info"]["env_id"], **kwargs, obs_mode=obs_mode)
     try:
         env.reset(**episode["reset_kwargs"])
         with h5py.File(converted, "r") as f:
@@ -147,11 +151,13 @@ def test_conversion_is_the_obs_mode_on_the_recorded_states(state_replay):
         env.close()
 
 
-def test_deployment_steps_observe_what_the_conversion_renders(state_replay):
+@pytest.mark.parametrize("obs_mode", POINTS_OBS_MODES)
+def test_deployment_steps_observe_what_the_conversion_renders(state_replay, obs_mode):
     """At deployment the env is stepped, not set: the obs mode's points at the replay's own steps
-    against those rendered from the recorded states of the same steps. The camera pixels differ
+    against those made from the recorded states of the same steps. The camera pixels differ
     only where the Panda's simulated link poses differ from its kinematics' (~1e-8 m, an edge
-    pixel); the per-pixel draw keeps such a pixel's change to its own candidacy."""
+    pixel); the per-pixel draw keeps such a pixel's change to its own candidacy. The composed
+    points move with those poses (~1e-8 m: a float16 rounding at most)."""
     import gymnasium as gym
     import h5py
 
@@ -164,8 +170,8 @@ def test_deployment_steps_observe_what_the_conversion_renders(state_replay):
     kwargs = {k: v for k, v in meta["env_info"]["env_kwargs"].items() if k not in ("obs_mode", "render_backend")}
     with h5py.File(converted, "r") as f:
         actions = f[f"traj_{episode['episode_id']}"]["actions"][:]
-    env = gym.make(meta["env_info"]["env_id"], **kwargs, obs_mode=POLICY_OBS_MODE)
-    renderer = StateRenderer(meta["env_info"]["env_id"], meta["env_info"]["env_kwargs"], POLICY_OBS_MODE)
+    env = gym.make(meta["env_info"]["env_id"], **kwargs, obs_mode=obs_mode)
+    renderer = StateRenderer(meta["env_info"]["env_id"], meta["env_info"]["env_kwargs"], obs_mode)
     try:
         obs, _ = env.reset(**episode["reset_kwargs"])
         renderer.env.reset(**episode["reset_kwargs"])

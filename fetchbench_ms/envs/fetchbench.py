@@ -33,7 +33,8 @@ from ..tasks.sampler import SamplerConfig, look_at_quat, sample_task
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
 from ..utils.io import canonical_json
-from . import pointcloud
+from . import composed, pointcloud
+from .composed import ComposedCloud
 from .bodies import default_sim_config
 from .curriculum import resolve_curriculum
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
@@ -86,7 +87,7 @@ NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
 #: ManiSkill's named obs modes; any "+"-joined combination of camera textures
 #: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
 NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE,
-                                         pointcloud.POLICY_OBS_MODE)
+                                         pointcloud.POLICY_OBS_MODE, pointcloud.COMPOSED_OBS_MODE)
 #: What ``policy_pointcloud`` asks ManiSkill for: the two textures its points are made of (no colour).
 _POLICY_TEXTURES = "position+segmentation"
 #: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
@@ -374,6 +375,13 @@ class FetchBenchEnv(BaseEnv):
         self._policy_pointcloud = kwargs.get("obs_mode") == pointcloud.POLICY_OBS_MODE
         if self._policy_pointcloud:
             kwargs["obs_mode"] = _POLICY_TEXTURES
+        # composed_pointcloud: ManiSkill renders nothing a step (state_dict); the cameras render
+        # once as an episode starts and get_obs composes the points (envs/composed.py).
+        self._composed_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPOSED_OBS_MODE
+        self._composed: Optional[ComposedCloud] = None
+        self._robot_points: Optional[composed.RobotPoints] = None
+        if self._composed_pointcloud:
+            kwargs["obs_mode"] = "state_dict"
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
@@ -627,7 +635,7 @@ class FetchBenchEnv(BaseEnv):
         self._scene_specs = [_scene_of(t) for t in self._tasks]
         # Render meshes only where something can show them: a camera obs mode or a render
         # mode (with state obs and no render_mode, skipping them saves ~0.1 s a new task).
-        with_visual = obs_mode_needs_renderer(self._obs_mode) or self.render_mode is not None
+        with_visual = obs_mode_needs_renderer(self.obs_mode) or self.render_mode is not None
         if self.camera_placement == "paper":
             width, height = self.camera_size
             self._camera_poses = [paper_camera_poses(t, spec, width / height)
@@ -660,6 +668,8 @@ class FetchBenchEnv(BaseEnv):
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
         self._init_contact_queries()
+        if self._composed_pointcloud:
+            self._composed = self._composed_cloud()
 
     def _init_contact_queries(self) -> None:
         """What the reward's contact terms look up: the robot links that count for
@@ -697,6 +707,8 @@ class FetchBenchEnv(BaseEnv):
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
+            if self._composed is not None:  # these episodes' first observation renders
+                self._composed.stale[env_idx.to(self._composed.device)] = True
 
     def start_arm_qpos(self, env_idx: int = 0) -> np.ndarray:
         """The arm's start configuration of sub-scene ``env_idx`` (7,): the task's on the
@@ -720,6 +732,14 @@ class FetchBenchEnv(BaseEnv):
         poses = [slot._objs[0].pose for slot in self.object_slots]
         raw = np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32)
         return torch.from_numpy(raw)[None]
+
+    def _links_raw_pose(self) -> torch.Tensor:
+        """[B, L, 7] poses of the robot's links (``self.agent.robot.links`` order)."""
+        if self.gpu_sim_enabled:
+            return torch.stack([link.pose.raw_pose for link in self.agent.robot.links], dim=1)
+        # CPU: the bodies' poses directly, as _objects_raw_pose (a Pose per link costs ~10x more).
+        poses = [link._objs[0].entity_pose for link in self.agent.robot.links]
+        return torch.from_numpy(np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32))[None]
 
     def _is_grasping(self, target_com_world: torch.Tensor, contacts: Optional[dict] = None) -> torch.Tensor:
         """The Panda's grasp test: both fingers push on the target (>= 0.5 N, within 85 deg
@@ -840,7 +860,8 @@ class FetchBenchEnv(BaseEnv):
                 objects_pose=raw.reshape(self.num_envs, -1),
                 objects_valid=self.built.valid.float(),
             )
-        if self.obs_mode not in ("state", "state_dict", "none"):
+        # (composed_pointcloud reads no camera a step: its points are in the base frame already)
+        if self.obs_mode not in ("state", "state_dict", "none", pointcloud.COMPOSED_OBS_MODE):
             obs["target_segmentation_id"] = self.target.per_scene_id.to(self.device)
             base_inv = self.agent.robot.pose.inv().to_transformation_matrix()  # [B, 4, 4]
             for side in ("left", "right"):
@@ -862,6 +883,8 @@ class FetchBenchEnv(BaseEnv):
             obs = pointcloud.compact_pointcloud_obs(obs, seeds)
         if self._policy_pointcloud:
             obs = self._policy_pointcloud_obs(obs, seeds)
+        if self._composed is not None:
+            obs["pointcloud"] = self._composed_pointcloud_obs()
         obs = _own_arrays(obs)
         return obs if unflattened else self._flatten_raw_obs(obs)
 
@@ -869,23 +892,69 @@ class FetchBenchEnv(BaseEnv):
         """``obs`` with the cameras' textures replaced by ``obs["pointcloud"]``: the policies'
         points (``points`` [B, N, 3] float16, base frame) and labels (``point_label`` [B, N]
         uint8), made on the render device and moved to the env's."""
-        p_world_base, R_world_base = self._world_base
-        T_base_world = torch.zeros((self.num_envs, 4, 4), device=p_world_base.device)
-        T_base_world[:, :3, :3] = R_world_base.transpose(1, 2)
-        T_base_world[:, :3, 3] = -(R_world_base.transpose(1, 2) @ p_world_base[..., None])[..., 0]
-        T_base_world[:, 3, 3] = 1
-        points_base, labels = pointcloud.camera_points_base(obs, self.segmentation_lut, T_base_world)
+        points_base, labels = pointcloud.camera_points_base(obs, self.segmentation_lut, self._T_base_world())
         points, point_label = pointcloud.policy_cloud(points_base, labels, torch.tensor(seeds, dtype=torch.int64))
         out = {k: v for k, v in obs.items() if k != "sensor_data"}
         out["pointcloud"] = {"points": points.to(self.device), "point_label": point_label.to(self.device)}
         return out
 
+    def _T_base_world(self) -> torch.Tensor:
+        """[B, 4, 4] world -> robot base (the base is fixed: from the task's base pose)."""
+        p_world_base, R_world_base = self._world_base
+        T = torch.zeros((self.num_envs, 4, 4), device=p_world_base.device)
+        T[:, :3, :3] = R_world_base.transpose(1, 2)
+        T[:, :3, 3] = -(R_world_base.transpose(1, 2) @ p_world_base[..., None])[..., 0]
+        T[:, 3, 3] = 1
+        return T
+
+    def _composed_cloud(self) -> ComposedCloud:
+        """The composed clouds' store, with points fixed on this robot's links (its visual
+        meshes in the link frames, from the first sub-scene: every sub-scene has the same
+        robot; drawn once per env, as the robot stays the same through reconfigurations)."""
+        if self._robot_points is None:
+            meshes = [(link.generate_mesh(lambda link, shape: True, "fetch_composed_points") or [None])[0]
+                      for link in self.agent.robot.links]
+            self._robot_points = composed.robot_link_points(meshes, pointcloud.POLICY_CLOUD_SIZES["robot"])
+        return ComposedCloud(self.num_envs, self._robot_points, self.device)
+
+    def _composed_pointcloud_obs(self) -> dict:
+        """``obs["pointcloud"]`` of ``composed_pointcloud``: the episode-start render of the
+        sub-scenes that start an episode (the cameras' position and segmentation textures),
+        then every sub-scene's points placed by the target's and the links' current poses."""
+        T_base_world = self._T_base_world()
+        T_base_target = T_base_world @ self.target.pose.to_transformation_matrix()
+        stale = torch.nonzero(self._composed.stale).reshape(-1)
+        if len(stale):
+            for obj in self._hidden_objects:
+                obj.hide_visual()
+            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
+            textures = {"sensor_data": {}, "sensor_param": {}}
+            for uid, sensor in self._sensors.items():
+                sensor.capture()
+                textures["sensor_data"][uid] = sensor.get_obs(rgb=False, depth=False, position=True, segmentation=True)
+                textures["sensor_param"][uid] = sensor.get_params()
+            points_base, labels = pointcloud.camera_points_base(textures, self.segmentation_lut, T_base_world)
+            seeds = torch.tensor([pointcloud.compact_seed(int(e), 0) for e in np.atleast_1d(self._episode_seed)],
+                                 dtype=torch.int64)
+            rows = stale.to(points_base.device)
+            self._composed.start(stale, points_base[rows], labels[rows], seeds[stale.cpu()], T_base_target[stale])
+        raw = self._links_raw_pose()
+        T_world_links = torch.zeros((*raw.shape[:2], 4, 4), device=raw.device)
+        T_world_links[..., :3, :3] = quaternion_to_matrix(raw[..., 3:])
+        T_world_links[..., :3, 3] = raw[..., :3]
+        T_world_links[..., 3, 3] = 1
+        points, point_label = self._composed.compose(T_base_target, T_base_world[:, None] @ T_world_links)
+        return {"points": points.to(self.device), "point_label": point_label.to(self.device)}
+
     @property
     def obs_mode(self) -> str:
         """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath,
-        ``policy_pointcloud`` its position and segmentation textures)."""
+        ``policy_pointcloud`` its position and segmentation textures, ``composed_pointcloud``
+        ManiSkill's ``state_dict`` with a render as an episode starts)."""
         if self._compact_pointcloud:
             return pointcloud.COMPACT_OBS_MODE
+        if self._composed_pointcloud:
+            return pointcloud.COMPOSED_OBS_MODE
         return pointcloud.POLICY_OBS_MODE if self._policy_pointcloud else self._obs_mode
 
     # ------------------------------------------------------------------ rewards

@@ -267,6 +267,12 @@ POLICY_OBS_MODE = "policy_pointcloud"
 POLICY_CAMERA_SIZE = (160, 120)
 #: Points per segment in the policy cloud (scene, target, robot; the imitation policies' sizes).
 POLICY_CLOUD_SIZES = {"scene": 1024, "target": 512, "robot": 256}
+#: ``obs_mode="composed_pointcloud"`` (``envs.composed``): the same points composed every step
+#: from one render at the episode's start, the target and robot placed by their poses.
+COMPOSED_OBS_MODE = "composed_pointcloud"
+#: Obs modes whose ``obs["pointcloud"]`` is the policies' points themselves (``points``,
+#: ``point_label``; ``POLICY_CLOUD_SIZES``), not a cloud a policy subsamples.
+POINTS_OBS_MODES = (POLICY_OBS_MODE, COMPOSED_OBS_MODE)
 #: Farthest-point sampling of a segment starts from this many candidates per point kept:
 #: the segment's pixels with the smallest keys (a seeded hash of the pixel's index).
 POLICY_CANDIDATES_PER_POINT = 4

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE
+from ..envs.pointcloud import COMPACT_OBS_MODE, POINTS_OBS_MODES
 from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, _numpy, observation_input
 from .networks import build_policy, config_from_dict, config_to_dict
 
@@ -154,11 +154,13 @@ class TemporalEnsemble:
 
 def check_obs_mode(obs: dict, trained_on: str) -> None:
     """ValueError unless ``obs`` is of the kind the policy was trained on: the points of
-    ``policy_pointcloud`` (``pointcloud/points``), or a compact / raw cloud for the
-    ``compact_pointcloud`` policies (the raw one is made compact as the env would)."""
+    ``policy_pointcloud`` or ``composed_pointcloud`` (``pointcloud/points``), or a compact / raw
+    cloud for the ``compact_pointcloud`` policies (the raw one is made compact as the env would).
+    (The two points modes have the same keys: the env of a method is made in its checkpoint's
+    mode, ``deploy.policy_obs_mode``.)"""
     policy_obs = "points" in obs.get("pointcloud", {})
-    if policy_obs != (trained_on == POLICY_OBS_MODE):
-        have = POLICY_OBS_MODE if policy_obs else "a compact or raw point cloud"
+    if policy_obs != (trained_on in POINTS_OBS_MODES):
+        have = " or ".join(POINTS_OBS_MODES) if policy_obs else "a compact or raw point cloud"
         raise ValueError(f"the policy was trained on {trained_on} observations, the env gives {have}: make the env "
                          f"with obs_mode={trained_on!r}")
 

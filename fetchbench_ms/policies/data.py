@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from ..envs.pointcloud import (COMPACT_OBS_MODE, COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT,
-                               LABEL_TARGET, POLICY_CLOUD_SIZES, POLICY_OBS_MODE, compact_pointcloud_obs, compact_seed)
+                               LABEL_TARGET, POINTS_OBS_MODES, POLICY_CLOUD_SIZES, compact_pointcloud_obs, compact_seed)
 from ..grasping.pointops import farthest_point_sample
 
 #: Points per segment the policies read (scene, target, robot), farthest-point sampled
@@ -128,10 +128,10 @@ def observation_input(obs: dict, sizes: dict = POLICY_SIZES, episode_seed: int |
     ``obs_mode="pointcloud"`` one (what the sense-plan-act methods read) is made compact first,
     seeded as the env would (``compact_seed(episode_seed, step)``)."""
     pcd = obs["pointcloud"]
-    if "points" in pcd:  # obs_mode="policy_pointcloud": the env made the policy's points itself
+    if "points" in pcd:  # policy_pointcloud / composed_pointcloud: the env made the policy's points itself
         points, point_label = _numpy(pcd["points"]), _numpy(pcd["point_label"])
         if points.shape[1] != sum(sizes.values()):
-            raise ValueError(f"a {POLICY_OBS_MODE} observation of {points.shape[1]} points; the policy reads "
+            raise ValueError(f"a {' / '.join(POINTS_OBS_MODES)} observation of {points.shape[1]} points; the policy reads "
                              f"{sum(sizes.values())} ({dict(sizes)})")
         qpos = _numpy(obs["agent"]["qpos"]).astype(np.float32).reshape(len(points), -1)
         return PolicyInput(points.astype(np.float16), point_label.astype(np.uint8), qpos, tcp_features(qpos))
@@ -300,9 +300,9 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     replay (``-o state``), are rendered from its recorded env states at the frames kept only
     (``fetchbench_ms.render_env_states``, ``render_workers`` processes). ``frame_stride`` K > 1
     keeps every K-th step of each stage (``select_frames``); 1 keeps every step.
-    ``render_obs_mode="policy_pointcloud"`` renders the states in that obs mode, whose points
-    are the frames' as they are (``sizes`` must be its ``POLICY_CLOUD_SIZES``); the result
-    then carries ``obs_mode``."""
+    ``render_obs_mode="policy_pointcloud"`` or ``"composed_pointcloud"`` (``POINTS_OBS_MODES``)
+    renders the states in that obs mode, whose points are the frames' as they are (``sizes``
+    must be ``POLICY_CLOUD_SIZES``); the result then carries ``obs_mode``."""
     import h5py
     from mani_skill.trajectory.utils import index_dict
 
@@ -317,9 +317,9 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
         raise ValueError(f"{converted_path}: converted with control_mode={control!r}, obs_mode={obs_mode!r}; the "
                          "policies need -c pd_joint_delta_pos -o compact_pointcloud (or -o state: the clouds are "
                          "then rendered from its env states)")
-    policy_obs = render_obs_mode == POLICY_OBS_MODE
+    policy_obs = render_obs_mode in POINTS_OBS_MODES
     if policy_obs and (obs_mode != "state" or dict(sizes) != POLICY_CLOUD_SIZES):
-        raise ValueError(f"{POLICY_OBS_MODE} frames are rendered from a state-only replay (-o state) at its own "
+        raise ValueError(f"{render_obs_mode} frames are rendered from a state-only replay (-o state) at its own "
                          f"sizes {POLICY_CLOUD_SIZES}; got obs_mode={obs_mode!r}, sizes {dict(sizes)}")
     parts: dict[str, list] = {k: [] for k in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage",
                                                 "stage_end")}
@@ -375,7 +375,7 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     dropped = len(converted_json["episodes"]) - len(pairs)
     if dropped:
         log(f"{converted_path.name}: {dropped} converted trajectories matched no source demo (left out)")
-    extra = {"obs_mode": POLICY_OBS_MODE} if policy_obs else {}
+    extra = {"obs_mode": render_obs_mode} if policy_obs else {}
     if not episodes:
         return {"episodes": [], "sizes": dict(sizes), "frame_stride": frame_stride, **extra}
     out = {k: np.concatenate(v) for k, v in parts.items()}

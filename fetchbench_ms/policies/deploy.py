@@ -58,7 +58,7 @@ def hybrid_approach_method() -> str:
 
 def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
     """The env obs mode of a policy method: the one its checkpoint was trained on for the
-    end-to-end methods (``compact_pointcloud`` or ``policy_pointcloud``); for the hybrids, the raw
+    end-to-end methods (``compact_pointcloud``, ``policy_pointcloud`` or ``composed_pointcloud``); for the hybrids, the raw
     cloud CGN needs (made compact per step: they run ``compact_pointcloud`` checkpoints only)."""
     from .agent import checkpoint_obs_mode
 
@@ -66,7 +66,7 @@ def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
     if method in HYBRID_METHODS:
         if trained_on != COMPACT_OBS_MODE:
             raise ValueError(f"{method} reads the 320x240 point cloud CGN grasps on and makes it compact for the "
-                             f"policy; its checkpoint was trained on {trained_on} (160x120 cameras): use an "
+                             f"policy; its checkpoint was trained on {trained_on} observations: use an "
                              f"end-to-end method, or a {COMPACT_OBS_MODE} checkpoint")
         return "pointcloud"
     return trained_on

@@ -1,20 +1,26 @@
 """Frames a second of the imitation policies' observation, and where a frame's time goes.
 
 Renders recorded env states of the demo sample (as the converter's render pass does: set the
-state, read the observation, make the policy's points) in two ways, frame by frame in turn so
-that both see the same machine load:
+state, read the observation, make the policy's points) in three ways, frame by frame in turn so
+that all see the same machine load:
 
 - ``compact`` (the ``compact_pointcloud`` path the shipped checkpoints were trained on): two
   320x240 cameras (colour, position, segmentation) -> ManiSkill's camera cloud (153,600 points)
   -> ``add_fetch_pointcloud`` -> the compact cloud (22,528) -> ``subsample_compact`` (1,792);
 - ``policy`` (``obs_mode="policy_pointcloud"``): two 160x120 cameras (position, segmentation)
-  -> ``camera_points_base`` -> ``policy_cloud`` (1,792).
+  -> ``camera_points_base`` -> ``policy_cloud`` (1,792);
+- ``composed`` (``obs_mode="composed_pointcloud"``): no render a frame; the scene and target
+  points of the render at the episode's start, the target and the robot's link points placed by
+  their poses (1,792). The start's render (two 320x240 cameras, ``camera_points_base``,
+  ``policy_cloud``) is timed apart, once per episode, and counted per frame over the episode's
+  frames at ``--frame-stride`` (the converter's).
 
 Also times the state-only replay step (the physics every converted step still costs, for the
 ``pd_joint_delta_pos`` actions) and the writing of a training file. Prints frames a second and
 the split in ms a frame.
 
-    PYTHONPATH=. python scripts/bench_policy_obs.py [--frames 40] [--threads 1]
+    PYTHONPATH=. python scripts/bench/bench_policy_obs.py [--frames 40] [--threads 1] [--frame-stride 3] \
+        [--json results/training/bench-policy-obs-cpu2.json]
 """
 from __future__ import annotations
 
@@ -31,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 SAMPLE = Path("assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5")
-MODES = {"compact": "compact_pointcloud", "policy": "policy_pointcloud"}
+MODES = {"compact": "compact_pointcloud", "policy": "policy_pointcloud", "composed": "composed_pointcloud"}
 
 
 class Timers:
@@ -73,9 +79,14 @@ def main() -> None:
     p.add_argument("--episode", type=int, default=0)
     p.add_argument("--frames", type=int, default=40, help="frames rendered per mode (every step from the first)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (a converter's worker runs 1)")
+    p.add_argument("--frame-stride", type=int, default=3,
+                   help="the conversion's frame stride: composed's start render is shared by the episode's frames "
+                        "at this stride")
+    p.add_argument("--starts", type=int, default=5, help="episode starts timed for composed's start render")
+    p.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = p.parse_args()
-    if args.frames < 1:
-        p.error("--frames must be >= 1")
+    if args.frames < 1 or args.frame_stride < 1 or args.starts < 1:
+        p.error("--frames, --frame-stride and --starts must be >= 1")
     import gymnasium as gym
     import h5py
     import torch
@@ -85,7 +96,7 @@ def main() -> None:
     from mani_skill.trajectory.utils import index_dict
 
     import fetchbench_ms  # noqa: F401
-    from fetchbench_ms.envs import pointcloud
+    from fetchbench_ms.envs import composed, pointcloud
     from fetchbench_ms.policies import data
 
     torch.set_num_threads(args.threads)
@@ -129,9 +140,12 @@ def main() -> None:
             tm.wrap(sapien_env, "sensor_data_to_pointcloud", "points: sensor_data_to_pointcloud")
             tm.wrap(pointcloud, "add_fetch_pointcloud", "points: add_fetch_pointcloud")
             tm.wrap(pointcloud, "compact_pointcloud_obs", "compaction (compact_pointcloud_obs)")
-        else:
+        elif name == "policy":
             tm.wrap(pointcloud, "camera_points_base", "points: camera_points_base")
             tm.wrap(pointcloud, "policy_cloud", "sampling (policy_cloud)")
+        else:
+            tm.wrap(composed.ComposedCloud, "compose", "points: compose (targets, links)")
+            tm.wrap(type(envs[name].unwrapped), "_links_raw_pose", "poses: the links'")
 
     for name in MODES:  # warm-up: first renders compile shaders and fill caches
         render(name, 0)
@@ -142,6 +156,24 @@ def main() -> None:
                 render(name, t)
             finally:
                 timers[name].restore()
+
+    # composed's render at an episode's start (the reset's get_obs), as a converter pays it per demo.
+    start_timer = Timers()
+    start_timer.wrap(composed.ComposedCloud, "start", "start: points kept (policy_cloud, target frame)")
+    start_timer.wrap(pointcloud, "camera_points_base", "start: camera_points_base")
+    start_timer.wrap(ManiSkillScene, "update_render", "start: update_render")
+    start_timer.wrap(Camera, "capture", "start: take_picture")
+    start_timer.wrap(Camera, "get_obs", "start: get_picture (read back)")
+    try:
+        env = envs["composed"].unwrapped
+        for _ in range(args.starts):
+            env._composed.stale[:] = True
+            with start_timer.part("start"):
+                env.get_obs()
+    finally:
+        start_timer.restore()
+    episode_frames = -(-len(actions) // args.frame_stride)  # the demo's kept frames (about: per stage in fact)
+    start_per_frame = start_timer.seconds["start"] / args.starts / episode_frames
 
     # The state-only replay's physics: one pd_joint_pos step per converted step (~1 per frame).
     replay = gym.make(env_id, obs_mode="state", render_backend="none", **common)
@@ -171,7 +203,7 @@ def main() -> None:
     per_frame = {}
     for name in MODES:
         s = timers[name].seconds
-        per_frame[name] = (s["state set"] + s["total"]) / frames
+        per_frame[name] = (s["state set"] + s["total"]) / frames + (start_per_frame if name == "composed" else 0.0)
         print(f"\n{name} ({MODES[name]}): {1 / per_frame[name]:.1f} frames/s, {per_frame[name] * 1e3:.1f} ms a frame")
         accounted = 0.0
         for part, sec in sorted(s.items()):
@@ -181,11 +213,34 @@ def main() -> None:
                 accounted += sec
             print(f"  {part:40s} {sec / frames * 1e3:8.2f} ms")
         print(f"  {'the rest of get_obs (extras, params)':40s} {(s['total'] - accounted) / frames * 1e3:8.2f} ms")
+        if name == "composed":
+            print(f"  {'the start render, per frame':40s} {start_per_frame * 1e3:8.2f} ms "
+                  f"({start_timer.seconds['start'] / args.starts * 1e3:.0f} ms an episode over its {episode_frames} "
+                  f"frames at stride {args.frame_stride}):")
+            for part, sec in sorted(start_timer.seconds.items()):
+                if part != "start":
+                    print(f"    {part:38s} {sec / args.starts * 1e3:8.2f} ms an episode")
     print(f"\nstate-only replay step (physics, pd_joint_pos): {physics * 1e3:.2f} ms a converted step")
     print(f"writing a training file: {writing * 1e3:.3f} ms a frame")
-    speed = per_frame["compact"] / per_frame["policy"]
-    print(f"\npolicy vs compact: {speed:.1f}x the frames a second "
-          f"({(per_frame['compact'] + physics) / (per_frame['policy'] + physics):.1f}x with a replay step a frame)")
+    print()
+    for name in ("policy", "composed"):
+        speed = per_frame["compact"] / per_frame[name]
+        replay_s = args.frame_stride * physics  # the converted steps a kept frame stands for
+        with_replay = (per_frame["compact"] + replay_s) / (per_frame[name] + replay_s)
+        print(f"{name} vs compact: {speed:.1f}x the frames a second ({with_replay:.1f}x with the "
+              f"{args.frame_stride} state-only replay steps of a frame)")
+    if args.json:
+        from fetchbench_ms.utils.io import atomic_write_text
+
+        record = {"machine": platform.node(), "cpu_cores": os.cpu_count(), "threads": args.threads,
+                  "render_device": str(envs["policy"].unwrapped.backend.render_device), "frames": frames,
+                  "frame_stride": args.frame_stride, "source": str(args.traj_path), "episode": episode["episode_id"],
+                  "ms_a_frame": {MODES[n]: per_frame[n] * 1e3 for n in MODES},
+                  "frames_a_second": {MODES[n]: 1 / per_frame[n] for n in MODES},
+                  "composed_start_ms_an_episode": start_timer.seconds["start"] / args.starts * 1e3,
+                  "replay_step_ms": physics * 1e3, "write_ms_a_frame": writing * 1e3}
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(args.json, json.dumps(record, indent=1) + "\n")
     for env in [*envs.values(), replay]:
         env.close()
 

@@ -140,3 +140,42 @@ def test_the_env_renders_once_an_episode_and_composes_each_step():
         env.close()
     with pytest.raises(ValueError, match="renderer"):
         gym.make("FetchBench-v0", obs_mode=COMPOSED_OBS_MODE, render_backend="none")
+
+
+def test_a_hybrid_env_composes_what_the_composed_env_observes():
+    """A hybrid's env renders full clouds for its grasp network; ``composed_pointcloud_obs()``
+    taken at the episode's start gives the composed env's points to the bit, and composing later
+    steps renders nothing."""
+    import gymnasium as gym
+    from mani_skill.sensors.camera import Camera
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.policies.deploy import composed_observation
+
+    kwargs = dict(control_mode="pd_joint_delta_pos", task_suite="train")
+    composed_env = gym.make("FetchBench-v0", obs_mode=COMPOSED_OBS_MODE, **kwargs)
+    cloud_env = gym.make("FetchBench-v0", obs_mode="pointcloud", **kwargs)
+    captures = []
+    capture = Camera.capture
+    try:
+        expected, _ = composed_env.reset(seed=6)
+        cloud_env.reset(seed=6)
+        Camera.capture = lambda self: (captures.append(1), capture(self))[1]
+        got = composed_observation(cloud_env)
+        assert len(captures) == 2  # the start's render
+        assert torch.equal(got["pointcloud"]["points"], expected["pointcloud"]["points"])
+        assert torch.equal(got["pointcloud"]["point_label"], expected["pointcloud"]["point_label"])
+        action = torch.zeros((1, 8))
+        action[0, 3] = 1.0
+        for env in (composed_env, cloud_env):
+            env.unwrapped._step_action(action)  # no observation: as the hybrid's executor steps
+        expected = composed_env.unwrapped.get_obs()
+        captures.clear()
+        got = composed_observation(cloud_env)
+        assert not captures
+        assert torch.equal(got["pointcloud"]["points"], expected["pointcloud"]["points"])
+        assert torch.equal(got["agent"]["qpos"], expected["agent"]["qpos"])
+    finally:
+        Camera.capture = capture
+        composed_env.close()
+        cloud_env.close()

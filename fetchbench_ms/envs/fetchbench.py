@@ -668,8 +668,9 @@ class FetchBenchEnv(BaseEnv):
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
         self._init_contact_queries()
-        if self._composed_pointcloud:
-            self._composed = self._composed_cloud()
+        # composed_pointcloud keeps its store from here; another camera mode makes one at its
+        # first composed_pointcloud_obs() call (a new task's: made again).
+        self._composed = self._composed_cloud() if self._composed_pointcloud else None
 
     def _init_contact_queries(self) -> None:
         """What the reward's contact terms look up: the robot links that count for
@@ -883,8 +884,8 @@ class FetchBenchEnv(BaseEnv):
             obs = pointcloud.compact_pointcloud_obs(obs, seeds)
         if self._policy_pointcloud:
             obs = self._policy_pointcloud_obs(obs, seeds)
-        if self._composed is not None:
-            obs["pointcloud"] = self._composed_pointcloud_obs()
+        if self._composed_pointcloud:
+            obs["pointcloud"] = self.composed_pointcloud_obs()
         obs = _own_arrays(obs)
         return obs if unflattened else self._flatten_raw_obs(obs)
 
@@ -917,10 +918,18 @@ class FetchBenchEnv(BaseEnv):
             self._robot_points = composed.robot_link_points(meshes, pointcloud.POLICY_CLOUD_SIZES["robot"])
         return ComposedCloud(self.num_envs, self._robot_points, self.device)
 
-    def _composed_pointcloud_obs(self) -> dict:
+    def composed_pointcloud_obs(self) -> dict:
         """``obs["pointcloud"]`` of ``composed_pointcloud``: the episode-start render of the
         sub-scenes that start an episode (the cameras' position and segmentation textures),
-        then every sub-scene's points placed by the target's and the links' current poses."""
+        then every sub-scene's points placed by the target's and the links' current poses.
+
+        Also callable in the other camera modes (a hybrid method whose policy reads these
+        points while the env renders full clouds for its grasp network): the first call after
+        a reset takes the episode's start, so call it before anything moves."""
+        if self._composed is None:
+            if not self.scene.can_render():
+                raise RuntimeError("composed points render the cameras as an episode starts: this env has no renderer")
+            self._composed = self._composed_cloud()
         T_base_world = self._T_base_world()
         T_base_target = T_base_world @ self.target.pose.to_transformation_matrix()
         stale = torch.nonzero(self._composed.stale).reshape(-1)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..envs.pointcloud import COMPACT_OBS_MODE
+from ..envs.pointcloud import COMPACT_OBS_MODE, COMPOSED_OBS_MODE
 from ..utils.paths import assets_root
 from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
@@ -59,15 +59,16 @@ def hybrid_approach_method() -> str:
 def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
     """The env obs mode of a policy method: the one its checkpoint was trained on for the
     end-to-end methods (``compact_pointcloud``, ``policy_pointcloud`` or ``composed_pointcloud``); for the hybrids, the raw
-    cloud CGN needs (made compact per step: they run ``compact_pointcloud`` checkpoints only)."""
+    cloud CGN needs (made compact per step for a ``compact_pointcloud`` policy; a
+    ``composed_pointcloud`` one reads the env's composed points, ``run_hybrid``)."""
     from .agent import checkpoint_obs_mode
 
     trained_on = checkpoint_obs_mode(resolve_checkpoint(method, checkpoint))
     if method in HYBRID_METHODS:
-        if trained_on != COMPACT_OBS_MODE:
+        if trained_on not in (COMPACT_OBS_MODE, COMPOSED_OBS_MODE):
             raise ValueError(f"{method} reads the 320x240 point cloud CGN grasps on and makes it compact for the "
                              f"policy; its checkpoint was trained on {trained_on} observations: use an "
-                             f"end-to-end method, or a {COMPACT_OBS_MODE} checkpoint")
+                             f"end-to-end method, or a {COMPACT_OBS_MODE} or {COMPOSED_OBS_MODE} checkpoint")
         return "pointcloud"
     return trained_on
 
@@ -153,17 +154,27 @@ def step_unobserved(env, action: np.ndarray) -> None:
     u._elapsed_steps += 1
 
 
-def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None) -> dict:
+def composed_observation(env) -> dict:
+    """What a ``composed_pointcloud`` policy reads, from an env of another camera mode (a
+    hybrid's): the joints and ``env.composed_pointcloud_obs()`` (no render; the episode's
+    start was taken by its first call)."""
+    u = env.unwrapped
+    return {"agent": {"qpos": u.agent.robot.get_qpos()}, "pointcloud": u.composed_pointcloud_obs()}
+
+
+def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None, observe=None) -> dict:
     """Step ``env`` with ``policy`` until it is done or ``max_steps``; returns what it did.
     The observation is rendered only at the steps the policy reads it (``begin_step``);
-    ``on_step(action [8])`` steps the env instead of ``step_unobserved`` (the hybrids' executor)."""
+    ``on_step(action [8])`` steps the env instead of ``step_unobserved`` (the hybrids' executor);
+    ``observe(env)`` gives the observation instead of the env's ``get_obs``."""
     u = env.unwrapped
+    observe = observe or (lambda env: env.unwrapped.get_obs(unflattened=True))
     qpos_last = u.agent.robot.get_qpos()[0].cpu().numpy().astype(float)
     cspace, steps, grasped, observations = 0.0, 0, False, 0
     for steps in range(1, max_steps + 1):
         obs = None
         if policy.begin_step(qpos_last):
-            obs = u.get_obs(unflattened=True)
+            obs = observe(env)
             observations += 1
         action = env_action(env, policy.act(obs))
         if on_step is not None:
@@ -222,11 +233,11 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
 
 
 def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX_RETRIEVE_STEPS,
-                        tally: dict | None = None):
+                        tally: dict | None = None, observe=None):
     """A ``SolveConfig.retrieval`` callback: after the gripper closed, the policy retrieves
     (steps through the solver's executor, so C-space length and step counts stay its;
-    ``run_policy`` renders the observations the policy reads). ``tally``: the policy's
-    ``steps`` and ``observations`` are added to it, over every try."""
+    ``run_policy`` renders the observations the policy reads, or calls ``observe``). ``tally``:
+    the policy's ``steps`` and ``observations`` are added to it, over every try."""
 
     def retrieve(env, state, executor) -> str | None:
         u = env.unwrapped
@@ -236,7 +247,7 @@ def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX
             executor.step(action[:ARM_DOF], float(action[ARM_DOF]))
 
         t = time.perf_counter()
-        did = run_policy(env, policy, max_steps, on_step=step)
+        did = run_policy(env, policy, max_steps, on_step=step, observe=observe)
         if tally is not None:
             for key in ("steps", "observations"):
                 tally[key] = tally.get(key, 0) + did[key]
@@ -262,9 +273,15 @@ def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retri
     policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=False))
     approach = hybrid_approach_method()
     tally = {"steps": 0, "observations": 0}
+    observe = None
+    if policy.model.cfg.encoder.obs_mode == COMPOSED_OBS_MODE:
+        # The composed points' start is the episode's start, as in training: taken now, before
+        # the approach moves anything; the retrieval then composes without rendering.
+        env.unwrapped.composed_pointcloud_obs()
+        observe = composed_observation
     record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
                    config=SolveConfig(improvements=tuple(improvements),
-                                      retrieval=retrieval_by_policy(policy, seed, tally=tally)))
+                                      retrieval=retrieval_by_policy(policy, seed, tally=tally, observe=observe)))
     record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint),
                   policy_stride=policy.stride, policy_steps=tally["steps"], observations=tally["observations"])
     return record

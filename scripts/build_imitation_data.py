@@ -14,7 +14,7 @@
    the merged file's first N demos only (its first chunks: the same bytes as those of the whole);
 3. prints the throughput: trajectories a core-hour of the expert (from each task's time in its
    worker), converted frames a second, and the projected hours of the paper's 27.5k
-   trajectories on --procs cores at these rates.
+   trajectories on --procs cores at these rates; writes the same figures to ``ROOT/build.json``.
 
 Every stage resumes (finished parts and chunks are kept), so the same command goes on after an
 interruption; a root that is complete is reported so and left as it is. The same tasks and
@@ -74,7 +74,7 @@ def converter_args(args, merged: Path, data: Path) -> list[str]:
 
 
 def main(argv=None) -> int:
-    from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POLICY_OBS_MODE
+    from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, POINTS_OBS_MODES, POLICY_OBS_MODE
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     p.add_argument("--tasks", required=True, help="START:END, train task indices (END exclusive)")
     p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert processes, replay processes, render workers")
     p.add_argument("--per-task", type=int, default=5, help="successful trajectories per task at most")
-    p.add_argument("--obs-mode", default=POLICY_OBS_MODE, choices=(POLICY_OBS_MODE, COMPACT_OBS_MODE))
+    p.add_argument("--obs-mode", default=POLICY_OBS_MODE, choices=(*POINTS_OBS_MODES, COMPACT_OBS_MODE))
     p.add_argument("--frame-stride", type=int, default=1, help="keep every K-th step of each stage (the converter's)")
     p.add_argument("--chunk", type=int, default=128, help="demos per training file")
     p.add_argument("--device", default="cpu", help="the converter's --device (cuda on a GPU machine)")
@@ -141,6 +141,18 @@ def main(argv=None) -> int:
 
     # 3. throughput
     print(f"training files: {after['demos']} demos, {after['frames']} frames in {root / 'data'}")
+    tasks_with_one = sum(1 for t in timed.values() if t["successes"] > 0)
+    summary = {"tasks": [start, end], "per_task": args.per_task, "procs": args.procs, "trajectories": trajectories,
+               "tasks_timed": len(timed), "tasks_with_a_trajectory": tasks_with_one,
+               "yield": round(tasks_with_one / len(timed), 4) if timed else None,
+               "expert_core_hours": round(core_hours, 4),
+               "trajectories_per_core_hour": round(timed_trajectories / core_hours, 1) if core_hours > 0 else None,
+               "demos": after["demos"], "frames": after["frames"], "obs_mode": args.obs_mode,
+               "frame_stride": args.frame_stride,
+               "conversion_frames_per_second": round(new_frames / t_convert, 1) if new_frames else None}
+    from fetchbench_ms.utils.io import atomic_write_text
+
+    atomic_write_text(root / "build.json", json.dumps(summary, indent=1) + "\n")
     if before["complete"] and tasks_before == end - start:
         print("nothing left to do: the demos and training files were already complete")
     if timed_trajectories and core_hours > 0:

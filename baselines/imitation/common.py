@@ -418,7 +418,7 @@ def export(model, kind: str, args: TrainArgs, command: str, dhash: str, frame_st
     path = Path(path or args.export_path or default_checkpoint(kind))
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
-            "frame_stride": frame_stride,
+            "frame_stride": frame_stride, "obs_mode": model.cfg.encoder.obs_mode,
             "data_history": history.get("data", []), "init_from": history.get("init_from"), "command": command,
             "validation": {"loss": history["val_loss"][-1] if history["val_loss"] else None,
                            "success": history["val_success"]}}

@@ -1,0 +1,347 @@
+"""One round of the imitation dataset that grows round by round, as one command.
+
+    # a 2-GPU node (32 cores): ~20 minutes
+    python scripts/imitation_round.py --work out/rounds --tasks 600 --per-task 3 --procs 32 --gpus 0,1 --ship
+    # where the rounds stand: every round's data, steps and val figures, and the plateau check
+    python scripts/imitation_round.py --status
+    # the validation curve (val success against demos seen, per method) from the record
+    python scripts/imitation_round.py --plot docs/img/imitation-rounds.png
+
+A round takes the next ``--tasks`` tasks of the ``train`` suite after the last round's and:
+
+1. **data**: the expert on them (up to ``--per-task`` trajectories a task) and their frames in
+   ``composed_pointcloud`` at frame stride 3 (``scripts/build_imitation_data.py``);
+2. **training**: each policy kind (``--kinds``) for its ``--steps`` on this round's frames,
+   from the shipped checkpoint of its kind when that one reads ``composed_pointcloud``
+   (``--init-from``, ``--new-data``: the weights go on, the data is new), else from scratch;
+   the kinds share the GPUs in turn (``scripts/train_imitation_gpus.py``);
+3. **val**: each candidate end to end (``e2e-<kind>``) and as the hybrid
+   (``cgn-imit-<kind>``, the paper's pipeline) on ``--val-tasks`` (val 0:100) at policy stride 3;
+4. **choice**: a candidate replaces the shipped checkpoint of its kind when its val successes,
+   summed over the methods the shipped one has val figures of on the same tasks, exceed the
+   shipped one's (a tie keeps the shipped one); with ``--ship`` the winners are written to
+   ``assets/checkpoints/`` with their JSON (the command, the data manifest, the val figures)
+   by ``scripts/maint/ship_imitation.py``;
+5. **record**: the round is appended to ``--record``/rounds.json: its tasks, demos, frames,
+   the data's hash, the expert's rate, every kind's steps, init, val figures and whether it
+   shipped. Each round trains on its own new data from the previous weights (the data itself
+   is not kept: a round's frames are ~1.5 GB); ``demos_seen`` of a kind counts the demos of
+   every round its shipped lineage trained on.
+
+Every step resumes in ``--work``/round_NN (finished demos, chunks, trainer checkpoints and
+eval records are kept), so the same command continues a round that stopped; a round already
+in the record is not redone. Budgets are counts (tasks, steps, val tasks); ``--time-limit``
+stops a trainer early only as a safety net (its steps are recorded). The test split never
+trains or chooses: the data is from ``train``, the choice from ``val``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RECORD = ROOT / "results/training/imitation-rounds"
+KINDS = ("act", "transformer", "mlp", "diffusion")  # (the order the GPUs are handed out in)
+#: Steps a round trains each kind for (a 2-GPU node, two trainers a GPU, ~5 minutes).
+DEFAULT_STEPS = {"act": 6000, "transformer": 2500, "mlp": 5000, "diffusion": 2500}
+OBS_MODE = "composed_pointcloud"
+FRAME_STRIDE = 3
+VAL_TASKS = "0:100"
+MIN_VAL_TASKS = 100
+
+
+def methods(kind: str) -> tuple[str, str]:
+    """The val methods of a kind: end to end, and the hybrid."""
+    return f"e2e-{kind}", f"cgn-imit-{kind}"
+
+
+def load_record(record: Path) -> dict:
+    path = record / "rounds.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    return {"obs_mode": OBS_MODE, "frame_stride": FRAME_STRIDE, "suite": "train", "val": {"suite": "val"},
+            "rounds": []}
+
+
+def next_tasks(record: dict, count: int) -> tuple[int, int]:
+    start = record["rounds"][-1]["tasks"][1] if record["rounds"] else 0
+    return start, start + count
+
+
+def parse_slice(text: str) -> tuple[int, int]:
+    try:
+        start, end = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise SystemExit(f"--val-tasks takes START:END (e.g. {VAL_TASKS}), got {text!r}")
+    if not 0 <= start < end:
+        raise SystemExit(f"--val-tasks {text}: START must be >= 0 and below END")
+    return start, end
+
+
+def parse_steps(text: str | None) -> dict:
+    steps = dict(DEFAULT_STEPS)
+    for item in filter(None, (text or "").split(",")):
+        kind, _, value = item.partition("=")
+        if kind not in KINDS or not value.isdigit() or int(value) < 1:
+            raise SystemExit(f"--steps {text!r}: KIND=N pairs, N >= 1, KIND of {', '.join(KINDS)}")
+        steps[kind] = int(value)
+    return steps
+
+
+def run(command: list[str], log) -> None:
+    log(f"$ {shlex.join(command)}")
+    code = subprocess.call(command, cwd=ROOT)
+    if code != 0:
+        raise SystemExit(f"stopped: exit {code} from {shlex.join(command[:3])} ...; run the same command to resume")
+
+
+def shipped(kind: str) -> tuple[Path | None, dict]:
+    """The shipped checkpoint of a kind (or None) and its JSON."""
+    from fetchbench_ms.policies.deploy import default_checkpoint
+    from fetchbench_ms.utils.packed import packed_or_plain
+
+    path = packed_or_plain(default_checkpoint(kind))
+    side = default_checkpoint(kind).with_suffix(".json")
+    return (path if path.is_file() else None), (json.loads(side.read_text()) if side.is_file() else {})
+
+
+def val_successes(meta: dict, method: str, tasks: tuple[int, int]) -> int | None:
+    """A shipped checkpoint's val successes of ``method`` on exactly ``tasks`` (None: no such run)."""
+    for v in meta.get("validation_success", []):
+        first, last = v.get("first_task", ""), v.get("last_task", "")
+        if v["method"] == method and first == f"val/{tasks[0]:04d}" and last == f"val/{tasks[1] - 1:04d}":
+            return int(v["successes"])
+    return None
+
+
+def eval_successes(folder: Path) -> tuple[int, int]:
+    records = [json.loads(line) for line in (folder / "results.jsonl").read_text().splitlines() if line.strip()]
+    return sum(bool(r.get("success")) for r in records), len(records)
+
+
+def choose(candidate: dict, shipped_meta: dict, tasks: tuple[int, int]) -> dict:
+    """The choice rule (module docstring): summed over the methods the shipped one has val runs of."""
+    compared = {m: val_successes(shipped_meta, m, tasks) for m in candidate}
+    compared = {m: n for m, n in compared.items() if n is not None}
+    if not compared:
+        return {"ships": True, "why": "no shipped checkpoint with val figures on these tasks", "compared": {}}
+    new, old = sum(candidate[m] for m in compared), sum(compared.values())
+    return {"ships": new > old, "compared": {m: [candidate[m], n] for m, n in compared.items()},
+            "why": f"{new} val successes against the shipped one's {old} ({', '.join(compared)})"}
+
+
+def plateau(record: dict) -> bool:
+    """No round's best val success (of any method) above the best before it, two rounds running."""
+    best, since = -1.0, 0
+    for r in record["rounds"]:
+        top = max((v["success_rate"] for k in r["kinds"].values() for v in k["val"].values()), default=0.0)
+        if top > best:
+            best, since = top, 0
+        else:
+            since += 1
+    return since >= 2
+
+
+def status(record: dict) -> str:
+    lines = [f"{len(record['rounds'])} rounds, obs mode {record['obs_mode']}, frame stride {record['frame_stride']}"]
+    for r in record["rounds"]:
+        lines.append(f"round {r['round']}: train tasks {r['tasks'][0]}:{r['tasks'][1]}, {r['demos']} demos, "
+                     f"{r['frames']} frames")
+        for kind, k in r["kinds"].items():
+            val = ", ".join(f"{m} {v['successes']}/{v['tasks']}" for m, v in k["val"].items())
+            lines.append(f"  {kind}: steps {k['steps'][0]}->{k['steps'][1]}, {k['demos_seen']} demos seen; {val}; "
+                         f"{'shipped' if k['shipped'] else 'not shipped'} ({k['choice']['why']})")
+    lines.append("plateau: val success has not improved for two rounds" if plateau(record)
+                 else "no plateau yet: another round can improve val")
+    return "\n".join(lines)
+
+
+def plot(record: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for kind in KINDS:
+        for method, style in zip(methods(kind), ("-o", "--s")):
+            xs = [r["kinds"][kind]["demos_seen"] for r in record["rounds"] if kind in r["kinds"]]
+            ys = [r["kinds"][kind]["val"][method]["success_rate"] for r in record["rounds"] if kind in r["kinds"]]
+            if xs:
+                ax.plot(xs, ys, style, label=method)
+    ax.set_xlabel("demonstrations seen by the checkpoint's lineage")
+    ax.set_ylabel(f"val success ({record['val'].get('tasks', VAL_TASKS)})")
+    ax.set_title(f"Imitation rounds ({record['obs_mode']}, frame stride {record['frame_stride']})")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # (matplotlib writes no date into a PNG without metadata: same record, same bytes)
+    fig.savefig(out, dpi=110, metadata={"Software": None})
+    print(f"wrote {out}")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--record", type=Path, default=RECORD, help="the rounds' record folder (rounds.json)")
+    p.add_argument("--status", action="store_true", help="print where the rounds stand and exit")
+    p.add_argument("--plot", type=Path, default=None, help="write the validation curve PNG here and exit")
+    p.add_argument("--work", type=Path, default=None, help="work folder (round_NN/ inside; re-running resumes)")
+    p.add_argument("--tasks", type=int, default=600, help="train tasks this round takes, after the last round's")
+    p.add_argument("--per-task", type=int, default=3, help="expert trajectories a task at most")
+    p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert, replay and eval processes")
+    p.add_argument("--gpus", default="0,1", help="GPU indices the trainers take in turn, or 'cpu'")
+    p.add_argument("--kinds", default=",".join(KINDS), help=f"policy kinds, comma-separated, of {', '.join(KINDS)}")
+    p.add_argument("--steps", default=None, help="KIND=N,...: training steps this round (default "
+                                                 + ",".join(f"{k}={v}" for k, v in DEFAULT_STEPS.items()) + ")")
+    p.add_argument("--time-limit", type=float, default=420.0, help="s: a trainer's safety net (its steps are recorded)")
+    p.add_argument("--trainer-args", default="", help="more flags for every trainer (tests: tiny networks)")
+    p.add_argument("--val-tasks", default=VAL_TASKS, help=f"val START:END (at least {MIN_VAL_TASKS} tasks)")
+    p.add_argument("--allow-small-val", action="store_true", help="fewer val tasks (tests; recorded as such)")
+    p.add_argument("--ship", action="store_true", help="write the winners to assets/checkpoints/ (else only report)")
+    args = p.parse_args(argv)
+    record = load_record(args.record)
+    if args.status:
+        print(status(record))
+        return 0
+    if args.plot:
+        if not record["rounds"]:
+            raise SystemExit(f"{args.record / 'rounds.json'}: no round recorded, nothing to plot")
+        plot(record, args.plot)
+        return 0
+    if args.work is None:
+        p.error("--work is needed to run a round (or --status / --plot)")
+    kinds = [k for k in args.kinds.split(",") if k]
+    if not kinds or set(kinds) - set(KINDS) or len(set(kinds)) != len(kinds):
+        p.error(f"--kinds {args.kinds!r}: distinct kinds of {', '.join(KINDS)}")
+    if args.tasks < 1 or args.per_task < 1 or args.procs < 1:
+        p.error("--tasks, --per-task and --procs must be >= 1")
+    gpus = None if args.gpus == "cpu" else [g for g in args.gpus.split(",") if g.isdigit()]
+    if gpus is not None and not gpus:
+        p.error(f"--gpus {args.gpus!r}: GPU indices (0,1) or 'cpu'")
+    steps = parse_steps(args.steps)
+    val = parse_slice(args.val_tasks)
+    if val[1] - val[0] < MIN_VAL_TASKS and not args.allow_small_val:
+        p.error(f"--val-tasks {args.val_tasks}: at least {MIN_VAL_TASKS} val tasks choose a checkpoint "
+                "(--allow-small-val for a test)")
+    if record["rounds"] and (record["obs_mode"], record["frame_stride"]) != (OBS_MODE, FRAME_STRIDE):
+        raise SystemExit(f"{args.record}: rounds of {record['obs_mode']} at stride {record['frame_stride']}; this "
+                         f"code makes {OBS_MODE} at stride {FRAME_STRIDE}")
+    number = len(record["rounds"]) + 1
+    start, end = next_tasks(record, args.tasks)
+    work = args.work / f"round_{number:02d}"
+    work.mkdir(parents=True, exist_ok=True)
+    log_file = open(work / "round.log", "a")
+
+    def log(message: str) -> None:
+        line = f"[{time.strftime('%H:%M:%S')}] {message}"
+        print(line, flush=True)
+        log_file.write(line + "\n")
+        log_file.flush()
+
+    command = shlex.join(["python", "scripts/imitation_round.py", *(argv if argv is not None else sys.argv[1:])])
+    log(f"round {number}: train tasks {start}:{end}; {command}")
+    py = sys.executable
+    t0 = time.perf_counter()
+    # 1. data
+    run([py, "scripts/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
+         "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
+         "--frame-stride", str(FRAME_STRIDE), "--chunk", "128", "--device", "cpu" if gpus is None else "cuda"], log)
+    t_data = time.perf_counter() - t0
+    manifest = json.loads((work / "data/manifest.json").read_text())
+    build = json.loads((work / "build.json").read_text())
+
+    # 2. training, from the shipped checkpoint of the kind where it reads this obs mode
+    from fetchbench_ms.policies.agent import checkpoint_obs_mode, load_model
+
+    inits, kind_args = {}, []
+    for kind in kinds:
+        path, meta = shipped(kind)
+        init = path if path is not None and checkpoint_obs_mode(path) == OBS_MODE else None
+        first = int(meta.get("step", 0)) if init else 0
+        inits[kind] = {"path": str(init.relative_to(ROOT)) if init else None, "step": first,
+                       "sha256": meta.get("checkpoint_sha256") if init else None,
+                       "demos_seen": int(meta.get("demos_seen", 0)) if init else 0}
+        flags = f"--steps {first + steps[kind]} --export --export-path {work / 'export' / f'imit_{kind}.pt'}"
+        if init:
+            flags += f" --init-from {init} --new-data"
+        kind_args += ["--kind-args", f"{kind}={flags}"]
+    gpu_list = "cpu" if gpus is None else ",".join(gpus[i % len(gpus)] for i in range(len(kinds)))
+    t1 = time.perf_counter()
+    run([py, "scripts/train_imitation_gpus.py", "--data", str(work / "data"), "--runs", str(work / "runs"),
+         "--kinds", ",".join(kinds), "--gpus", gpu_list, "--time-limit", str(args.time_limit),
+         "--trainer-args", f"--eval-every 0 {args.trainer_args}".strip(), *kind_args], log)
+    t_train = time.perf_counter() - t1
+    (work / "logs").mkdir(exist_ok=True)
+    for kind in kinds:  # ship_imitation.py's layout: logs/train_<kind>.log
+        (work / "logs" / f"train_{kind}.log").write_text((work / "runs" / kind / "log.txt").read_text())
+
+    # 3. val: every candidate end to end and as the hybrid (resumable eval folders)
+    t2 = time.perf_counter()
+    figures = {}
+    for kind in kinds:
+        export = work / "export" / f"imit_{kind}.pt"
+        figures[kind] = {}
+        for method in methods(kind):
+            out = work / "val" / method
+            run([py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
+                 "--policy-checkpoint", str(export), "--policy-stride", str(FRAME_STRIDE), "--workers",
+                 str(args.procs), "--out", str(out)], log)
+            successes, n = eval_successes(out)
+            figures[kind][method] = {"successes": successes, "tasks": n, "success_rate": round(successes / n, 4),
+                                     "run": str(out.relative_to(args.work))}
+    t_val = time.perf_counter() - t2
+
+    # 4. choice (and shipping), 5. record
+    entry = {"round": number, "tasks": [start, end], "per_task": args.per_task, "demos": manifest["totals"]["demos"],
+             "frames": manifest["totals"]["frames"], "chunks": len(manifest["chunks"]),
+             "source_sha256": manifest["settings"]["source_sha256"],
+             "data_sha256": json.loads((work / "export" / f"imit_{kinds[0]}.json").read_text())["data_sha256"],
+             "expert": {k: build[k] for k in ("trajectories", "tasks_timed", "tasks_with_a_trajectory", "yield",
+                                              "trajectories_per_core_hour", "conversion_frames_per_second")},
+             "command": command, "val_tasks": args.val_tasks,
+             "small_val": bool(args.allow_small_val and val[1] - val[0] < MIN_VAL_TASKS),
+             "seconds": {"data": round(t_data), "training": round(t_train), "val": round(t_val)}, "kinds": {}}
+    winners = []
+    for kind in kinds:
+        _, meta = shipped(kind)
+        export_meta = json.loads((work / "export" / f"imit_{kind}.json").read_text())
+        choice = choose({m: v["successes"] for m, v in figures[kind].items()}, meta, val)
+        demos_seen = inits[kind]["demos_seen"] + entry["demos"]
+        entry["kinds"][kind] = {"init_from": inits[kind], "steps": [inits[kind]["step"], int(export_meta["step"])],
+                                "demos_seen": demos_seen, "val": figures[kind], "choice": choice,
+                                "shipped": bool(choice["ships"] and args.ship)}
+        if choice["ships"]:
+            winners.append(kind)
+            export_meta["demos_seen"] = demos_seen  # the lineage's data, rounds included
+            export_meta["rounds"] = [r["round"] for r in record["rounds"] if r["kinds"].get(kind, {}).get("shipped")
+                                     and inits[kind]["path"]] + [number]
+            (work / "export" / f"imit_{kind}.json").write_text(json.dumps(export_meta, indent=1))
+        val_text = ", ".join(f"{m} {v['successes']}/{v['tasks']}" for m, v in figures[kind].items())
+        log(f"{kind}: {val_text}; {'ships' if choice['ships'] else 'stays'}: {choice['why']}")
+    if args.ship and winners:
+        val_runs = [str(work / "val" / m) for k in winners for m in methods(k)]
+        run([py, "scripts/maint/ship_imitation.py", "--hold", str(work), "--kinds", ",".join(winners),
+             "--retrain", command, "--note", f"imitation round {number} (scripts/imitation_round.py --status)",
+             "--val-runs", *val_runs], log)
+    record.setdefault("val", {})["tasks"] = args.val_tasks
+    record["rounds"].append(entry)
+    args.record.mkdir(parents=True, exist_ok=True)
+    from fetchbench_ms.utils.io import atomic_write_text
+
+    atomic_write_text(args.record / "rounds.json", json.dumps(record, indent=1) + "\n")
+    log(f"round {number} recorded in {args.record / 'rounds.json'} ({time.perf_counter() - t0:.0f} s: data "
+        f"{t_data:.0f}, training {t_train:.0f}, val {t_val:.0f})")
+    print(status(record))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -4,11 +4,14 @@
         -o pointcloud -c pd_joint_delta_pos --save-traj
 
 Takes every flag of ``python -m mani_skill.trajectory.replay_trajectory`` (run with
-``--help``). ManiSkill's own entry point imports only ManiSkill's envs, so on a
-FetchBench trajectory it fails with ``NameNotFound``; this module imports the plugin
-first (registering FetchBench-*-v0) and then runs the same tool. Worker processes
-(``--num-envs N`` on CPU) are spawned and re-import this module, so they register the
-envs too.
+``--help``) and runs that tool. ManiSkill's tool also runs as is on FetchBench demos: their
+JSON names the env ``fetchbench_ms:FetchBench-v0``, which Gymnasium resolves by importing the
+plugin (``demos.env_info``). This module imports the plugin itself, so files naming the plain
+id ``FetchBench-v0`` replay too; worker processes (``--num-envs N`` on CPU) are spawned and
+re-import it. What it adds to ManiSkill's tool (docs/demos.md, "Conversion"): bad input as one
+line and exit 2, a recorder that drops failed replays' steps, unstepped source envs for
+joint-space conversions, a renderer for demos recorded without one, and converted files that
+name the plugin's id.
 
 Converting ``pd_joint_pos`` demos to a joint-space controller (``-c pd_joint_delta_pos``,
 ``pd_joint_target_delta_pos``, ``pd_joint_vel``), ManiSkill's tool steps a second env with the
@@ -31,6 +34,7 @@ import os
 import sys
 
 import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
+from fetchbench_ms.demos.env_info import replayable_env_info
 from fetchbench_ms.demos.stats import check_trajectory_file
 from fetchbench_ms.envs.fetchbench import check_obs_mode, obs_mode_needs_renderer
 from mani_skill.trajectory import replay_trajectory as _maniskill_replay
@@ -82,7 +86,16 @@ class RecordEpisodeWithoutFailedReplays(RecordEpisode):
     the front of the next successful trajectory: measured on the dataset's first 128 demos,
     3 failed replays turned 2 saved trajectories into 558 and 629 steps for sources of 210
     and 204. Dropping the unflushed steps at every reset keeps each saved trajectory its own
-    episode; a successful replay is flushed before the next reset, so it is untouched."""
+    episode; a successful replay is flushed before the next reset, so it is untouched.
+
+    The converted file's ``env_info`` is written as ``fetchbench demos run`` writes it
+    (``demos.env_info.replayable_env_info``: the id ``fetchbench_ms:FetchBench-v0``), so
+    ManiSkill's own tool replays it too."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        if self.save_trajectory:
+            self._json_data["env_info"] = replayable_env_info(self._json_data["env_info"])
 
     def reset(self, *args, **kwargs):
         if not self.save_on_reset and self.save_trajectory and self._trajectory_buffer is not None:
@@ -186,5 +199,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    mp.set_start_method("spawn")  # as ManiSkill's tool does (warp does not survive fork)
+    # as ManiSkill's tool does (warp does not survive fork); force: a host that ran that tool
+    # in this process (runpy) has set it already
+    mp.set_start_method("spawn", force=True)
     sys.exit(main())

@@ -46,7 +46,9 @@ def _replay(path, *args):
 def test_files_are_maniskill_trajectories_with_stage_labels(demos):
     data = json.loads(demos.with_suffix(".json").read_text())
     env_info = data["env_info"]
-    assert env_info["env_id"] == ENV_ID and env_info["max_episode_steps"] == 400
+    # ManiSkill's replay tool makes the env from these alone (gym.make imports the plugin)
+    assert env_info["env_id"] == f"fetchbench_ms:{ENV_ID}" and env_info["max_episode_steps"] == 400
+    assert "render_backend" not in env_info["env_kwargs"]
     assert env_info["env_kwargs"]["control_mode"] == "pd_joint_pos"
     assert env_info["env_kwargs"]["task_suite"] == SUITE
     eps = data["episodes"]
@@ -81,7 +83,7 @@ def test_replay_tool_converts_and_replays_to_success(demos):
     converted = demos.with_name(f"{demos.stem}.state.pd_joint_delta_pos.physx_cpu.h5")
     data = json.loads(converted.with_suffix(".json").read_text())
     # what ManiSkill's own imitation baselines read from the json
-    assert data["env_info"]["env_id"] == ENV_ID and data["env_info"]["max_episode_steps"] == 400
+    assert data["env_info"]["env_id"] == f"fetchbench_ms:{ENV_ID}" and data["env_info"]["max_episode_steps"] == 400
     assert data["env_info"]["env_kwargs"]["control_mode"] == "pd_joint_delta_pos"
     with h5py.File(converted, "r") as f:
         actions = f["traj_0"]["actions"][()]

@@ -61,7 +61,7 @@ def test_replay_to_pointcloud_obs_matches_states(demo):
         assert pcd["xyz_base"].shape[1:] == (2 * 320 * 240, 3)
         assert pcd["fetch_label"].shape[0] == STEPS + 1
     meta = json.loads((demo.parent / "demo.pointcloud.pd_joint_pos.physx_cpu.json").read_text())
-    assert meta["env_info"]["env_id"] == "FetchBench-v0"
+    assert meta["env_info"]["env_id"] == "fetchbench_ms:FetchBench-v0"
 
 
 def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
@@ -79,6 +79,10 @@ def test_replay_to_joint_delta_control_matches_objects_and_success(demo):
     with h5py.File(out, "r") as f:
         actions = f["traj_0/actions"][:]
     assert actions.shape[1] == 8 and np.abs(actions).max() <= 1.0 + 1e-6  # normalised delta actions
+    # the demo names the plain id; the converted file the one ManiSkill's own tool can make
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert json.loads(demo.with_suffix(".json").read_text())["env_info"]["env_id"] == "FetchBench-v0"
+    assert meta["env_info"]["env_id"] == "fetchbench_ms:FetchBench-v0"
 
 
 def test_joint_delta_conversion_without_stepping_the_source_env_writes_the_same_file(demo, tmp_path, monkeypatch):

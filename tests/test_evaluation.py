@@ -232,6 +232,33 @@ def test_bad_input_is_a_clear_error(argv, message, tiny_suite, tmp_path, capsys)
     assert not (tmp_path / "out" / "results.jsonl").exists()
 
 
+@pytest.mark.parametrize("flag, value, valid", [
+    ("--workers", "0", "workers (--workers) must be a whole number >= 1 (worker processes), got 0"),
+    ("--retries", "0", "retries (--retries) must be a whole number >= 1 (tries per task), got 0"),
+    ("--task-timeout", "0", "task_timeout (--task-timeout) must be a number of seconds > 0, got 0.0"),
+    ("--task-timeout", "nan", "task_timeout (--task-timeout) must be a number of seconds > 0, got nan"),
+    ("--policy-stride", "0", "policy_stride (--policy-stride) must be a whole number >= 1"),
+])
+def test_numbers_out_of_range_stop_before_anything_is_written(flag, value, valid, tiny_suite, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["eval", "--method", "idle", "--suite", str(tiny_suite), "--out", str(out), flag, value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and valid in err[0], err
+    assert not out.exists()
+
+
+def test_a_folder_with_a_manifest_and_no_records_takes_another_run(tmp_path):
+    """A run that stopped before its first record left only run.json: that is no run, and
+    another method may use the folder; once it holds records, another run is refused."""
+    store = ResultsStore(tmp_path / "out")
+    store.open_run({"method": "ga-mesh-rrt", "source": "suite-a", "method_options": {}})
+    store.open_run({"method": "idle", "source": "suite-a", "method_options": {}})
+    assert store.manifest()["method"] == "idle"
+    store.append({"task_id": "tiny/0000", "success": False})
+    with pytest.raises(ValueError, match="holds results of another run"):
+        store.open_run({"method": "ga-mesh-rrt", "source": "suite-a", "method_options": {}})
+
+
 def test_report_of_a_folder_that_is_not_a_results_dir(tmp_path, capsys):
     assert main(["report", str(tmp_path)]) == 2
     assert "not a results directory" in capsys.readouterr().err

@@ -182,6 +182,64 @@ def test_trainer_resumes_after_time_limit(sample_data, tmp_path):
     assert "resumed at step 1" in log and "done: 6 steps" in log
 
 
+def test_training_reports_its_rate_and_eta_from_the_first_steps(sample_data, tmp_path):
+    """A slow machine sees the rate and the time left at steps 1, 2, 5, 10, long before the
+    first --log-every; the val-success evaluation uses no more workers than cores."""
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    args = module.Args(data=str(sample_data), run=str(tmp_path / "run"), steps=12,
+                       **{**TINY, "log_every": 1000}, **TRAINER_KW["mlp"])
+    module.main(args)
+    lines = [ln for ln in (tmp_path / "run" / "log.txt").read_text().splitlines() if "] step " in ln]
+    assert [ln.split("] step ")[1].split()[0] for ln in lines] == ["1/12", "2/12", "5/12", "10/12"]
+    assert all(" steps/s, ETA " in ln for ln in lines)
+    rate, eta = lines[-1].rstrip(")").split("(")[-1].split(" steps/s, ETA ")
+    minutes, seconds = eta.rstrip("s").split("m")
+    assert abs(int(minutes) * 60 + int(seconds) - 2 / float(rate)) <= 1  # 2 steps left at 10/12
+    assert args.eval_workers == min(16, os.cpu_count())
+    assert module.Args().eval_workers == min(16, os.cpu_count())
+    common = sys.modules["common"]
+    assert common.progress(10, 5.0, 3600, limit_left=60.0) == \
+        "2.00 steps/s, ETA 30m00s; --time-limit stops this call in 1m00s"
+
+
+def test_export_goes_under_the_run_and_ships_only_by_the_separate_step(sample_data, tmp_path, monkeypatch, capsys):
+    """``--export`` without ``--export-path`` writes ``<run>/export/imit_<kind>.pt`` + .json and
+    leaves the package's checkpoints as they are; an ``--export-path`` in their folder is one
+    line and exit 2 before anything is written. ``ship_imitation.py --hold RUN`` is the step
+    that makes a run's export the shipped checkpoint."""
+    from fetchbench_ms.policies.deploy import default_checkpoint
+
+    module = _import(ROOT / "baselines/imitation/train_mlp.py", "train_mlp")
+    shipped = default_checkpoint("mlp").parent
+    before = {p.name: p.stat().st_mtime_ns for p in shipped.iterdir()}
+    run = tmp_path / "run"
+    args = module.Args(data=str(sample_data), run=str(run), steps=3, export=True, **TINY, **TRAINER_KW["mlp"])
+    module.main(args)
+    assert {p.name: p.stat().st_mtime_ns for p in shipped.iterdir()} == before
+    _, meta = load_model(run / "export" / "imit_mlp.pt")
+    assert meta["step"] == 3 and (run / "export" / "imit_mlp.json").is_file()
+
+    refused = module.Args(data=str(sample_data), run=str(tmp_path / "run2"), steps=3, export=True,
+                          export_path=str(default_checkpoint("mlp")), **TINY, **TRAINER_KW["mlp"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(refused)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1 and "ship_imitation.py" in err[0] and "--export-path" in err[0]
+    assert not (tmp_path / "run2").exists()
+    assert {p.name: p.stat().st_mtime_ns for p in shipped.iterdir()} == before
+
+    ship = _import(ROOT / "scripts/maint/ship_imitation.py", "ship_imitation")
+    target = tmp_path / "assets" / "imit_mlp.pt"
+    target.parent.mkdir()
+    monkeypatch.setattr(ship, "default_checkpoint", lambda kind: target.with_name(f"imit_{kind}.pt"))
+    assert ship.main(["--hold", str(run), "--kinds", "mlp", "--retrain", "python baselines/imitation/train_mlp.py"]) == 0
+    shipped_meta = json.loads(target.with_suffix(".json").read_text())
+    assert shipped_meta["checkpoint_sha256"] == ship.sha256_file(run / "export" / "imit_mlp.pt")
+    assert shipped_meta["data_manifest"]["totals"] == json.loads((sample_data / "manifest.json").read_text())["totals"]
+    assert target.with_suffix(".log").read_text() == (run / "log.txt").read_text()
+
+
 def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     """A dataset too large for one run is trained shard by shard: the converter's --start
     numbers a shard's chunks as in the whole, --until-step stops a call, and --new-data

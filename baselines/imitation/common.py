@@ -1,6 +1,7 @@
 """What the imitation trainers share: the frames on the device, batches, the run folder
 (log, checkpoint, resume, time limit), validation (held-out demos' loss; success on `val`
-suite tasks through `fetchbench eval`), the export of the shipped checkpoint and of the
+suite tasks through `fetchbench eval`), the export (under the run folder: making it the
+package's checkpoint is scripts/maint/ship_imitation.py's step) and of the
 ``--save-every`` candidates that ``scripts/select_checkpoint.py`` chooses from on val tasks.
 Training files of test tasks are refused before anything is written (``tasks.splits``).
 
@@ -13,6 +14,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 import shlex
 import sys
 import time
@@ -34,6 +36,7 @@ from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
 
 EVAL_METHOD = {kind: method for method, kind in E2E_METHODS.items()}  # the val-success method of each kind
 EVAL_SUITE = "val"  # success is measured on val tasks, never test
+EARLY_LOG_STEPS = (1, 2, 5, 10, 20, 50)  # logged before the first --log-every: the rate and ETA show at once
 
 
 @dataclass
@@ -60,7 +63,7 @@ class TrainArgs:
     val_every: int = 1000  # steps between validation losses
     eval_every: int = 10000  # steps between success evaluations on val tasks (and at the end); 0: never
     eval_tasks: int = 32  # the first N tasks of the val suite
-    eval_workers: int = 16
+    eval_workers: int = min(16, os.cpu_count() or 1)  # processes of the val-success evaluation
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
     until_step: int = 0  # > 0: checkpoint and stop at this step (re-run to resume; the LR schedule spans --steps)
     # Resume the run's checkpoint on other data: the next shard of a dataset converted and
@@ -79,8 +82,10 @@ class TrainArgs:
     # (<run>/candidates/step_NNNNNNN.pt + .json, as --export writes): what
     # scripts/select_checkpoint.py chooses from on val tasks
     save_every: int = 0
-    export: bool = False  # write the shipped checkpoint (--export-path) and its JSON when done
-    export_path: str = ""  # default assets/checkpoints/imit_<kind>.pt
+    # When done, export the fp16 checkpoint and its JSON (evaluate it with `fetchbench eval
+    # --policy-checkpoint`; scripts/maint/ship_imitation.py makes it the package's own)
+    export: bool = False
+    export_path: str = ""  # default <run>/export/imit_<kind>.pt; never the package's checkpoints
     point_dims: tuple[int, ...] = (64, 128, 256)  # the shared PointNet's layer widths
 
     def sizes(self) -> dict:
@@ -112,6 +117,45 @@ def training_task_ids(data: str) -> list:
         with h5py.File(f, "r") as h:
             ids += [e.get("task_id") for e in json.loads(h.attrs.get("episodes", "[]"))]
     return ids
+
+
+def run_dir(args: TrainArgs, kind: str) -> Path:
+    return Path(args.run or f"runs/imit/{kind}")
+
+
+def export_path(args: TrainArgs, kind: str) -> Path:
+    """Where ``--export`` writes: ``--export-path``, by default ``<run>/export/imit_<kind>.pt``."""
+    return Path(args.export_path) if args.export_path else run_dir(args, kind) / "export" / f"imit_{kind}.pt"
+
+
+def check_export_path(args: TrainArgs, kind: str) -> None:
+    """A training run never writes the package's checkpoints (``fetchbench eval`` would load
+    it in place of the shipped one): an ``--export-path`` in that folder is one line and exit 2."""
+    from fetchbench_ms.policies.deploy import default_checkpoint
+
+    shipped = default_checkpoint(kind).parent
+    if args.export and export_path(args, kind).resolve().parent == shipped.resolve():
+        print(f"error: --export-path {args.export_path} is in the package's checkpoint folder {shipped}; export under "
+              f"the run (the default, {export_path(dataclasses.replace(args, export_path=''), kind)}) and evaluate it "
+              "with `fetchbench eval --policy-checkpoint PATH`; scripts/maint/ship_imitation.py --hold RUN makes "
+              "it the shipped one", file=sys.stderr, flush=True)
+        raise SystemExit(2)
+
+
+def progress(done: int, seconds: float, left: int, limit_left: Optional[float] = None) -> str:
+    """``N steps/s, ETA ...``: the rate of this call's ``done`` steps in ``seconds``, and when
+    the ``left`` steps would be done; a ``--time-limit`` (``limit_left`` s) that comes first is named."""
+    rate = done / max(seconds, 1e-9)
+    eta = left / max(rate, 1e-9)
+    text = f"{rate:.2f} steps/s, ETA {_duration(eta)}"
+    if limit_left is not None and eta > limit_left:
+        text += f"; --time-limit stops this call in {_duration(max(limit_left, 0.0))}"
+    return text
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
 
 
 def candidate_path(run: Path, step: int) -> Path:
@@ -247,7 +291,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
     # Demos of test tasks are never learnt from (refused before anything is written; the
     # success figures below are measured on EVAL_SUITE, val).
     cli_guard(refuse_test_task_ids, training_task_ids(args.data), f"{kind} imitation training")
-    run = Path(args.run or f"runs/imit/{kind}")
+    check_export_path(args, kind)
+    run = run_dir(args, kind)
     run.mkdir(parents=True, exist_ok=True)
     log_file = open(run / "log.txt", "a")
     command = " ".join(shlex.quote(a) for a in [sys.executable.rsplit("/", 1)[-1], *sys.argv])
@@ -348,6 +393,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
     def evaluate_now() -> None:
         save()  # an evaluation takes minutes: do not lose the steps before it (its results resume too)
+        log(f"val success step {step}: running {EVAL_METHOD[kind]} on {args.eval_tasks} val tasks, "
+            f"{args.eval_workers} workers (--eval-tasks, --eval-workers; --eval-every 0: none)")
         result = val_success()
         history["val_success"].append(result)
         save()
@@ -356,7 +403,8 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
     model.train()
     last: dict = {}
-    t_log, stopped = time.perf_counter(), False
+    stopped, step_at_start, t_loop = False, step, time.perf_counter()
+    target = min(args.steps, args.until_step) if args.until_step else args.steps
     while step < args.steps:
         if args.until_step and step >= args.until_step:
             save()
@@ -372,12 +420,12 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         torch.nn.utils.clip_grad_norm_(model.parameters(), args.grad_clip)
         optimizer.step()
         step += 1
-        if step % args.log_every == 0 or step == 1:
+        if step % args.log_every == 0 or step - step_at_start in EARLY_LOG_STEPS:
+            limit_left = args.time_limit - (time.perf_counter() - t_start) if args.time_limit else None
             last = {k: round(float(v.detach()), 5) for k, v in out.items()}
-            rate = args.log_every / max(time.perf_counter() - t_log, 1e-9) if step > 1 else 0.0
-            log(f"step {step} lr {lr_at(step, args, restart):.2e} " + " ".join(f"{k} {v:.4f}" for k, v in last.items())
-                + f" ({rate:.1f} steps/s)")
-            t_log = time.perf_counter()
+            log(f"step {step}/{args.steps} lr {lr_at(step, args, restart):.2e} "
+                + " ".join(f"{k} {v:.4f}" for k, v in last.items())
+                + f" ({progress(step - step_at_start, time.perf_counter() - t_loop, target - step, limit_left)})")
         if step % args.val_every == 0 or step == args.steps:
             figures = val_loss()
             if figures:
@@ -410,12 +458,10 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
 
 def export(model, kind: str, args: TrainArgs, command: str, dhash: str, frame_stride: int, step: int, history: dict,
            last: dict, log, path: Optional[Path] = None) -> Path:
-    """``assets/checkpoints/imit_<kind>.pt`` (fp16; or ``--export-path``, or ``path``: a
+    """``<run>/export/imit_<kind>.pt`` (fp16; or ``--export-path``, or ``path``: a
     ``--save-every`` candidate) and ``.json`` beside it: the command, the data hash and frame
     stride, the steps and the validation figures."""
-    from fetchbench_ms.policies.deploy import default_checkpoint
-
-    path = Path(path or args.export_path or default_checkpoint(kind))
+    path = Path(path or export_path(args, kind))
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = {"kind": kind, "step": step, "schedule_complete": step >= args.steps, "data_sha256": dhash,
             "frame_stride": frame_stride, "obs_mode": model.cfg.encoder.obs_mode,

@@ -41,6 +41,7 @@ import numpy as np
 
 from ..tasks.splits import refuse_test_env_kwargs, refuse_test_task_ids
 from ..utils.io import append_jsonl_atomic, atomic_write_text
+from .env_info import replayable_env_info
 
 PART_PREFIX = "task_"
 TIMING_FILE = "timing.jsonl"  # seconds each task took in its worker (benchmarks read it)
@@ -334,6 +335,7 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
                 del f[f"traj_{ep['episode_id']}"]
         data["episodes"] = data["episodes"][:keep]
     data.pop("fetchbench", None)
+    data["env_info"] = replayable_env_info(data["env_info"])  # ManiSkill's replay tool makes the env from it
     data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"])}
     dump_json(str(tmp).replace(".h5", ".json"), data, indent=2)
     compressed = tmp.with_name(f".{name}.compressing.h5")
@@ -388,7 +390,7 @@ def merge_runs(paths: list, out) -> Path:
         if seed_a + tasks_a != seed_b:
             raise ValueError(f"{path_a} covers tasks {seed_a} .. {seed_a + tasks_a - 1} and {path_b} starts at "
                              f"{seed_b}: runs must be back to back (no gap, no overlap)")
-        if meta_a["env_info"] != meta_b["env_info"]:
+        if replayable_env_info(meta_a["env_info"]) != replayable_env_info(meta_b["env_info"]):
             raise ValueError(f"{path_a} and {path_b} come from other envs or settings: "
                              f"{meta_a['env_info']} != {meta_b['env_info']}")
     out = Path(out).with_suffix(".h5")
@@ -396,6 +398,7 @@ def merge_runs(paths: list, out) -> Path:
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.merging.h5")
     _merge_quietly(tmp, [path for _, _, path, _ in runs])
     data = load_json(str(tmp.with_suffix(".json")))
+    data["env_info"] = replayable_env_info(data["env_info"])
     (first_seed, _, _, _), (last_seed, last_tasks, _, _) = runs[0], runs[-1]
     data["fetchbench"] = {"tasks": last_seed + last_tasks - first_seed, "first_seed": first_seed,
                           "trajectories": len(data["episodes"]), "runs": [str(path) for _, _, path, _ in runs]}

@@ -53,6 +53,22 @@ def seed_items(env_id: str, episodes: int, seed: int) -> list[WorkItem]:
     return [WorkItem(task_id=f"{env_id}/seed-{s}", seed=s, env_id=env_id) for s in range(seed, seed + episodes)]
 
 
+def check_run_numbers(workers: int, retries: int, task_timeout: float, policy_stride: int = 1) -> None:
+    """A run's numeric options, checked before anything is written: ValueError naming the
+    valid range of the first one out of it."""
+    import math
+
+    checks = (("workers (--workers)", workers, "a whole number >= 1 (worker processes)", 1),
+              ("retries (--retries)", retries, "a whole number >= 1 (tries per task)", 1),
+              ("policy_stride (--policy-stride)", policy_stride, "a whole number >= 1 (control steps per observation)", 1))
+    for name, value, valid, low in checks:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name} must be {valid}, got {value!r}")
+    if isinstance(task_timeout, bool) or not isinstance(task_timeout, (int, float)) or not (
+            task_timeout > 0 and math.isfinite(task_timeout)):
+        raise ValueError(f"task_timeout (--task-timeout) must be a number of seconds > 0, got {task_timeout!r}")
+
+
 def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Optional[str] = None,
              env_id: Optional[str] = None, episodes: int = 10, seed: int = 0, workers: int = 1,
              backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
@@ -75,7 +91,8 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
 
     improvements = tuple(improvements)
     env_options = dict(env_options or {})
-    # unknown method or options: fail before anything is written
+    # unknown method or options, numbers out of range: fail before anything is written
+    check_run_numbers(workers, retries, task_timeout, policy_stride)
     planner_options = check_planner_options(method, planner_options or {})
     grasp_labels = str(Path(grasp_labels).resolve()) if grasp_labels is not None else None
     resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels,

@@ -58,10 +58,18 @@ class ResultsStore:
                                     f"make one with `fetchbench eval ... --out {self.root}`")
         return json.loads(self.manifest_path.read_text())
 
+    def holds_records(self) -> bool:
+        """Whether any task's record was written (a manifest alone, from a run that stopped
+        before its first task, is not a run)."""
+        if self.packed_records_file() is not None:
+            return True
+        return self.results_path.exists() and b"\n" in self.results_path.read_bytes()
+
     def open_run(self, manifest: dict) -> None:
-        """Create the directory for a run, or check that it holds the same run."""
+        """Create the directory for a run, or check that it holds the same run (a directory
+        with a manifest and no records takes the new run's manifest)."""
         manifest = {"format": STORE_FORMAT, "version": STORE_VERSION, **manifest}
-        if self.manifest_path.exists():
+        if self.manifest_path.exists() and self.holds_records():
             old = self.manifest()
             # A suite is identified by its content (the same file may be named by another path).
             source = "source_sha256" if manifest.get("source_sha256") else "source"

@@ -85,7 +85,7 @@ def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
     if not path.is_file():
         raise FileNotFoundError(
             f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
-            f"--export` (docs/imitation.md), or pass --policy-checkpoint PATH")
+            f"--run RUN --export` (docs/imitation.md) and pass --policy-checkpoint RUN/export/imit_{kind}.pt")
     return path
 
 

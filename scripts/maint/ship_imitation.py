@@ -8,7 +8,9 @@ retrains it, the converted data's manifest and the success on ``val`` tasks) and
         --val-runs build/h4/evals/val-cgn-imit-mlp-0 build/h4/evals/val-e2e-mlp-0 ...
 
 ``--hold`` is the hold's root as it came back: ``export/imit_<kind>.{pt,json}``,
-``logs/train_<kind>.log``, ``data/manifest.json``; an export chosen by
+``logs/train_<kind>.log``, ``data/manifest.json``; or one trainer's run folder
+(``baselines/imitation/train_<kind>.py --run RUN --export``: ``RUN/export/imit_<kind>.{pt,json}``,
+its ``log.txt``, and the manifest of the data its export JSON names); an export chosen by
 ``scripts/select_checkpoint.py`` keeps its ``selection`` record (every candidate's val
 figures). A val run is an eval folder (``fetchbench eval --suite val``) of one method; the
 checkpoint its records name must be the shipped one (by sha256), else it is refused; a run
@@ -95,6 +97,19 @@ def add_val_runs(runs: list[Path]) -> int:
     return 0
 
 
+def _manifest(hold: Path, export_meta: dict, cache: dict) -> dict:
+    """The training data's manifest: the hold's ``data/manifest.json``, or (a run folder) the
+    one in the data folder its export JSON names."""
+    path = hold / "data" / "manifest.json"
+    if not path.is_file():
+        path = Path(export_meta.get("args", {}).get("data", "")) / "manifest.json"
+    if not path.is_file():
+        raise SystemExit(f"{hold}: no data/manifest.json, and its export names no data folder holding one ({path})")
+    if path not in cache:
+        cache[path] = json.loads(path.read_text())
+    return cache[path]
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--hold", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
@@ -119,11 +134,12 @@ def main(argv=None) -> int:
     missing = [k for k in kinds if not (hold / "export" / f"imit_{k}.pt").is_file()]
     if missing:
         raise SystemExit(f"{hold}: no export/imit_<kind>.pt for {', '.join(missing)} (--kinds {args.kinds})")
-    manifest = json.loads((hold / "data" / "manifest.json").read_text())
+    manifests = {}
     exported = {k: sha256_file(hold / "export" / f"imit_{k}.pt") for k in kinds}
     val = val_figures([Path(r) for r in args.val_runs], exported)
     for kind in kinds:
         meta = json.loads((hold / "export" / f"imit_{kind}.json").read_text())
+        manifest = _manifest(hold, meta, manifests)
         target = default_checkpoint(kind)
         atomic_write_bytes(target.with_name(target.name + PLANES_SUFFIX),
                            pack_planes((hold / "export" / f"imit_{kind}.pt").read_bytes()))
@@ -137,7 +153,8 @@ def main(argv=None) -> int:
             "note": args.note,
         })
         atomic_write_text(target.with_suffix(".json"), json.dumps(meta, indent=1))
-        shutil.copyfile(hold / "logs" / f"train_{kind}.log", target.with_suffix(".log"))
+        log = hold / "logs" / f"train_{kind}.log"
+        shutil.copyfile(log if log.is_file() else hold / "log.txt", target.with_suffix(".log"))
         chosen = meta.get("selection")  # scripts/select_checkpoint.py's record, kept as it is
         print(f"{target}: step {meta['step']}, {manifest['totals']['demos']} demos, sha256 {exported[kind][:12]}, "
               f"val {[(v['method'], v['successes'], v['tasks']) for v in val[kind]]}"

@@ -259,7 +259,7 @@ def main(argv=None) -> int:
     build = json.loads((work / "build.json").read_text())
 
     # 2. training, from the shipped checkpoint of the kind where it reads this obs mode
-    from fetchbench_ms.policies.agent import checkpoint_obs_mode, load_model
+    from fetchbench_ms.policies.agent import checkpoint_obs_mode
 
     inits, kind_args = {}, []
     for kind in kinds:

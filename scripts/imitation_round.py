@@ -201,6 +201,9 @@ def main(argv=None) -> int:
     p.add_argument("--kinds", default=",".join(KINDS), help=f"policy kinds, comma-separated, of {', '.join(KINDS)}")
     p.add_argument("--steps", default=None, help="KIND=N,...: training steps this round (default "
                                                  + ",".join(f"{k}={v}" for k, v in DEFAULT_STEPS.items()) + ")")
+    p.add_argument("--chunk", type=int, default=512,
+                   help="demos per conversion chunk: each chunk starts its replay and render processes anew, so "
+                        "a chunk of several demos a process amortises their start")
     p.add_argument("--time-limit", type=float, default=420.0, help="s: a trainer's safety net (its steps are recorded)")
     p.add_argument("--trainer-args", default="", help="more flags for every trainer (tests: tiny networks)")
     p.add_argument("--val-tasks", default=VAL_TASKS, help=f"val START:END (at least {MIN_VAL_TASKS} tasks)")
@@ -253,7 +256,7 @@ def main(argv=None) -> int:
     # 1. data
     run([py, "scripts/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
          "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
-         "--frame-stride", str(FRAME_STRIDE), "--chunk", "128", "--device", "cpu" if gpus is None else "cuda"], log)
+         "--frame-stride", str(FRAME_STRIDE), "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda"], log)
     t_data = time.perf_counter() - t0
     manifest = json.loads((work / "data/manifest.json").read_text())
     build = json.loads((work / "build.json").read_text())

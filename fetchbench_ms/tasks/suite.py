@@ -23,6 +23,7 @@ a run records a suite by ``suite_file_sha256``, the same for each form of one su
 """
 from __future__ import annotations
 
+import functools
 import gzip
 import json
 from dataclasses import dataclass, field
@@ -167,8 +168,20 @@ def suite_file_sha256(path) -> str:
 
 
 def load_suite(name_or_path) -> TaskSuite:
-    """Load a suite by shipped name or path; a corrupt, tampered or stale file raises ValueError."""
+    """Load a suite by shipped name or path; a corrupt, tampered or stale file raises ValueError.
+
+    A process reads a file once (a train-suite load is ~2 s: unpacking, the sha256 check and
+    ~6,000 tasks built): later loads of the same file, unchanged (path, size, mtime), share its
+    tasks (plain data, never changed in place) in a suite object of their own."""
     path = suite_path(name_or_path)
+    stat = path.stat()
+    loaded = _load_suite_file(str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    return TaskSuite(name=loaded.name, tasks=dict(loaded.tasks), info=dict(loaded.info))
+
+
+@functools.lru_cache(maxsize=8)  # (a few suites a process: train, val, test, a file of one's own)
+def _load_suite_file(path_text: str, size: int, mtime_ns: int) -> TaskSuite:
+    path = Path(path_text)
     raw = suite_text(path.read_bytes(), path)
     try:
         body = json.loads(raw)

@@ -84,9 +84,17 @@ def main() -> None:
                         "at this stride")
     p.add_argument("--starts", type=int, default=5, help="episode starts timed for composed's start render")
     p.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    p.add_argument("--repeat", type=int, default=1,
+                   help="render the frames this many times over (a long timed loop: copies run at once overlap)")
+    p.add_argument("--modes", default=",".join(MODES),
+                   help=f"comma-separated, of {', '.join(MODES)} (many copies of one mode at once: a machine's "
+                        "throughput in that mode)")
     args = p.parse_args()
-    if args.frames < 1 or args.frame_stride < 1 or args.starts < 1:
-        p.error("--frames, --frame-stride and --starts must be >= 1")
+    modes = [m for m in args.modes.split(",") if m]
+    if not modes or set(modes) - set(MODES):
+        p.error(f"--modes {args.modes!r}: comma-separated, of {', '.join(MODES)}")
+    if min(args.frames, args.frame_stride, args.starts, args.repeat) < 1:
+        p.error("--frames, --frame-stride, --starts and --repeat must be >= 1")
     import gymnasium as gym
     import h5py
     import torch
@@ -110,9 +118,10 @@ def main() -> None:
     env_id = meta["env_info"]["env_id"]
     common = dict(task_suite=meta["env_info"]["env_kwargs"].get("task_suite", "train"), control_mode="pd_joint_pos")
 
-    timers = {name: Timers() for name in MODES}
+    timers = {name: Timers() for name in modes}
     envs = {}
-    for name, obs_mode in MODES.items():
+    for name in modes:
+        obs_mode = MODES[name]
         envs[name] = gym.make(env_id, obs_mode=obs_mode, **common)
         envs[name].reset(**episode["reset_kwargs"])
     seed = int(episode["episode_seed"])
@@ -147,33 +156,38 @@ def main() -> None:
             tm.wrap(composed.ComposedCloud, "compose", "points: compose (targets, links)")
             tm.wrap(type(envs[name].unwrapped), "_links_raw_pose", "poses: the links'")
 
-    for name in MODES:  # warm-up: first renders compile shaders and fill caches
+    for name in modes:  # warm-up: first renders compile shaders and fill caches
         render(name, 0)
-    for t in range(frames):
-        for name in MODES:
+    t_loop = time.perf_counter()
+    for t in list(range(frames)) * args.repeat:
+        for name in modes:
             patch(timers[name], name)
             try:
                 render(name, t)
             finally:
                 timers[name].restore()
+    rendered = frames * args.repeat
+    loop_seconds = time.perf_counter() - t_loop  # (wall time of the timed loop: copies run at once overlap in it)
 
     # composed's render at an episode's start (the reset's get_obs), as a converter pays it per demo.
     start_timer = Timers()
+    start_per_frame = 0.0
     start_timer.wrap(composed.ComposedCloud, "start", "start: points kept (policy_cloud, target frame)")
     start_timer.wrap(pointcloud, "camera_points_base", "start: camera_points_base")
     start_timer.wrap(ManiSkillScene, "update_render", "start: update_render")
     start_timer.wrap(Camera, "capture", "start: take_picture")
     start_timer.wrap(Camera, "get_obs", "start: get_picture (read back)")
     try:
-        env = envs["composed"].unwrapped
-        for _ in range(args.starts):
+        env = envs["composed"].unwrapped if "composed" in envs else None
+        for _ in range(args.starts if env is not None else 0):
             env._composed.stale[:] = True
             with start_timer.part("start"):
                 env.get_obs()
     finally:
         start_timer.restore()
     episode_frames = -(-len(actions) // args.frame_stride)  # the demo's kept frames (about: per stage in fact)
-    start_per_frame = start_timer.seconds["start"] / args.starts / episode_frames
+    if env is not None:
+        start_per_frame = start_timer.seconds["start"] / args.starts / episode_frames
 
     # The state-only replay's physics: one pd_joint_pos step per converted step (~1 per frame).
     replay = gym.make(env_id, obs_mode="state", render_backend="none", **common)
@@ -197,13 +211,13 @@ def main() -> None:
         writing = (time.perf_counter() - t0) / frames
 
     print(f"machine: {platform.node()}, {os.cpu_count()} CPU cores, load average {os.getloadavg()[0]:.1f}; "
-          f"torch threads {args.threads}; render device {envs['policy'].unwrapped.backend.render_device}")
+          f"torch threads {args.threads}; render device {envs[modes[0]].unwrapped.backend.render_device}")
     print(f"{frames} frames of {args.traj_path.name} episode {episode['episode_id']} ({episode['task_id']}), "
           "each mode rendered from the recorded env states, in turn")
     per_frame = {}
-    for name in MODES:
+    for name in modes:
         s = timers[name].seconds
-        per_frame[name] = (s["state set"] + s["total"]) / frames + (start_per_frame if name == "composed" else 0.0)
+        per_frame[name] = (s["state set"] + s["total"]) / rendered + (start_per_frame if name == "composed" else 0.0)
         print(f"\n{name} ({MODES[name]}): {1 / per_frame[name]:.1f} frames/s, {per_frame[name] * 1e3:.1f} ms a frame")
         accounted = 0.0
         for part, sec in sorted(s.items()):
@@ -211,8 +225,8 @@ def main() -> None:
                 continue
             if part != "state set":
                 accounted += sec
-            print(f"  {part:40s} {sec / frames * 1e3:8.2f} ms")
-        print(f"  {'the rest of get_obs (extras, params)':40s} {(s['total'] - accounted) / frames * 1e3:8.2f} ms")
+            print(f"  {part:40s} {sec / rendered * 1e3:8.2f} ms")
+        print(f"  {'the rest of get_obs (extras, params)':40s} {(s['total'] - accounted) / rendered * 1e3:8.2f} ms")
         if name == "composed":
             print(f"  {'the start render, per frame':40s} {start_per_frame * 1e3:8.2f} ms "
                   f"({start_timer.seconds['start'] / args.starts * 1e3:.0f} ms an episode over its {episode_frames} "
@@ -223,7 +237,7 @@ def main() -> None:
     print(f"\nstate-only replay step (physics, pd_joint_pos): {physics * 1e3:.2f} ms a converted step")
     print(f"writing a training file: {writing * 1e3:.3f} ms a frame")
     print()
-    for name in ("policy", "composed"):
+    for name in [m for m in ("policy", "composed") if m in modes and "compact" in modes]:
         speed = per_frame["compact"] / per_frame[name]
         replay_s = args.frame_stride * physics  # the converted steps a kept frame stands for
         with_replay = (per_frame["compact"] + replay_s) / (per_frame[name] + replay_s)
@@ -233,12 +247,13 @@ def main() -> None:
         from fetchbench_ms.utils.io import atomic_write_text
 
         record = {"machine": platform.node(), "cpu_cores": os.cpu_count(), "threads": args.threads,
-                  "render_device": str(envs["policy"].unwrapped.backend.render_device), "frames": frames,
+                  "render_device": str(envs[modes[0]].unwrapped.backend.render_device), "frames": frames,
                   "frame_stride": args.frame_stride, "source": str(args.traj_path), "episode": episode["episode_id"],
-                  "ms_a_frame": {MODES[n]: per_frame[n] * 1e3 for n in MODES},
-                  "frames_a_second": {MODES[n]: 1 / per_frame[n] for n in MODES},
-                  "composed_start_ms_an_episode": start_timer.seconds["start"] / args.starts * 1e3,
-                  "replay_step_ms": physics * 1e3, "write_ms_a_frame": writing * 1e3}
+                  "ms_a_frame": {MODES[n]: per_frame[n] * 1e3 for n in modes},
+                  "frames_a_second": {MODES[n]: 1 / per_frame[n] for n in modes},
+                  "composed_start_ms_an_episode": start_timer.seconds.get("start", 0.0) / args.starts * 1e3,
+                  "replay_step_ms": physics * 1e3, "write_ms_a_frame": writing * 1e3, "repeat": args.repeat,
+                  "loop_seconds": loop_seconds, "loop_start_unix": time.time() - (time.perf_counter() - t_loop)}
         args.json.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.json, json.dumps(record, indent=1) + "\n")
     for env in [*envs.values(), replay]:

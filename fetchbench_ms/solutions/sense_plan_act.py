@@ -42,6 +42,7 @@ is labelled with its stage (``STAGES``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -54,6 +55,7 @@ from ..planning.robot import robot_for_env
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
 from ..planning.world import pose_matrix
+from ..utils.io import sha256_bytes
 from .grasp_source import choose_grasps, object_grasps, predicted_grasps, retreat, tcp_from_hand
 from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
@@ -151,6 +153,15 @@ class SolveConfig:
     ik_grasps: int = 24  # annotated grasps whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)
     goal_set_size: int = 8  # IK solutions handed to the planner at once
+    # Goal sets the pre-grasp plan may try, one after another: when no path to the first
+    # goal_set_size candidates is found, the next ones (the expert; the baselines plan once).
+    pregrasp_goal_sets: int = 1
+    # The mesh world after a grasp reuses an object's convex set while its pose is within this of
+    # the pose it was built at (solutions.worlds.MeshWorldCache; 0: only the exact pose).
+    world_pose_tolerance: float = 0.0
+    # The carried object's balls: fitted once per object in its own frame and moved to the hand
+    # (True, the expert), or fitted in the hand frame at every grasp (False: the baselines).
+    attachment_per_object: bool = False
     # Planning budgets are counts of collision checks, so a plan is the same on a busy or an
     # idle machine, on any CPU (the original's 10 s a try and 30 s an episode at ~3,000 checks
     # a second). Each plan is seeded from the episode's rng (planning.rrt's ``seed``).
@@ -159,6 +170,7 @@ class SolveConfig:
     # Wall-clock safety net per planning call (s): a plan it stops is a ``timeout`` failure.
     plan_safety_seconds: float = 300.0
     speed_scale: float = 0.4  # fraction of the Panda's velocity limits when executing
+    settle_steps: int = 6  # control steps holding a path's end before the next motion
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
@@ -266,8 +278,9 @@ class Executor:
         self.last_qpos = qpos
         self.state.sim_steps += 1
 
-    def follow(self, path: np.ndarray, speed_scale: float, settle_steps: int = 6) -> None:
+    def follow(self, path: np.ndarray, speed_scale: float, settle_steps: int | None = None) -> None:
         robot = self.robot
+        settle_steps = self.state.config.settle_steps if settle_steps is None else settle_steps
         for q in time_parametrize(path, self.dt, robot.velocity_limits, robot.acceleration_limits, speed_scale):
             self.step(q)
         for _ in range(settle_steps):
@@ -429,20 +442,24 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4), near_target)
         if path is not None:
             candidates.append((i, q_pre, path))
-        if len(candidates) >= cfg.goal_set_size:
+        if len(candidates) >= cfg.goal_set_size * cfg.pregrasp_goal_sets:
             break
     if not candidates:
         return "no_grasp_candidate"
     state.phases["ik_found"] = True
 
-    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), method)
-    state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
-                       f"{plan.n_checked} checks {plan.planning_time:.2f}s"
-                       + (" (start escaped)" if plan.start_escaped else ""))
+    for first in range(0, len(candidates), cfg.goal_set_size):
+        goal_set = candidates[first: first + cfg.goal_set_size]
+        plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in goal_set]), method)
+        state.notes.append(f"candidates {len(keep)} ik {len(goal_set)}; pre-grasp plan {plan.status} "
+                           f"{plan.n_checked} checks {plan.planning_time:.2f}s"
+                           + (" (start escaped)" if plan.start_escaped else ""))
+        if plan.success or (state.checks_left <= 0 and _check_budgeted(method)):
+            break
     if not plan.success:
         return _plan_failure(plan)
     state.phases["pregrasp_plan"] = True
-    chosen, _, approach_path = candidates[plan.goal_index]
+    chosen, _, approach_path = goal_set[plan.goal_index]
     tried.add(keep[chosen])
     state.grasp_id = keep[chosen]
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
@@ -472,9 +489,14 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_hand = robot.link_poses(ex.q[None])[robot.hand_link][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
-        parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
-        attachment = Attachment.from_convex_parts(parts_hand, seed=int(rng.integers(2**31)))
-        world = state.timed(mesh_world, env)  # objects may have shifted while grasping
+        seed = int(rng.integers(2**31))
+        if cfg.attachment_per_object:
+            attachment = _object_attachment(task.target.object_id).moved(T_hand_object)
+        else:
+            parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
+            attachment = Attachment.from_convex_parts(parts_hand, seed=seed)
+        # objects may have shifted while grasping
+        world = state.timed(mesh_world, env, cfg.world_pose_tolerance)
     else:
         T_hand_grasp = T_grasp_tcp[chosen] @ np.linalg.inv(tcp_from_hand(np.eye(4)))
         points_hand = (np.linalg.inv(T_hand_grasp) @ np.c_[clouds.target, np.ones(len(clouds.target))].T).T[:, :3]
@@ -519,6 +541,16 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None
+
+
+@functools.lru_cache(maxsize=64)
+def _object_attachment(object_id: str) -> Attachment:
+    """An object's carried balls in its own frame (``SolveConfig.attachment_per_object``), from
+    a seed of its id: the same balls for every grasp of it, in any process."""
+    from ..tasks.objects import load_object
+
+    seed = int(sha256_bytes(object_id.encode())[:8], 16) % 2**31
+    return Attachment.from_convex_parts(load_object(object_id).convex_parts, seed=seed)
 
 
 def _check_budgeted(method: str) -> bool:

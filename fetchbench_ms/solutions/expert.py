@@ -81,7 +81,7 @@ EXPERTS = {
     "reference": ExpertSpec("reference"),
     "fast": ExpertSpec("fast", solve=(("pregrasp_goal_sets", 3), ("world_pose_tolerance", 5e-4),
                                       ("attachment_per_object", True), ("plan_checks_per_try", 15000),
-                                      ("settle_steps", 3))),
+                                      ("settle_steps", 3), ("reuse_candidates", True))),
 }
 DEFAULT_EXPERT = "fast"
 

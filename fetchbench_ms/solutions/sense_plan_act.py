@@ -162,6 +162,9 @@ class SolveConfig:
     # The carried object's balls: fitted once per object in its own frame and moved to the hand
     # (True, the expert), or fitted in the hand frame at every grasp (False: the baselines).
     attachment_per_object: bool = False
+    # Pre-grasp IK solutions and approach paths kept from a task's earlier tries that started
+    # from the same state (``CandidateMemo``; the expert, which resets before every try).
+    reuse_candidates: bool = False
     # Planning budgets are counts of collision checks, so a plan is the same on a busy or an
     # idle machine, on any CPU (the original's 10 s a try and 30 s an episode at ~3,000 checks
     # a second). Each plan is seeded from the episode's rng (planning.rrt's ``seed``).
@@ -433,29 +436,54 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     if not keep:
         return "no_grasp_candidate"
     q_now = ex.q
-    pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds, rng=rng)
-    best_pre = pre.best_per_target()
+    memo = _candidate_memo(task, q_now, object_poses_base(env), rng) if cfg.reuse_candidates else None
+    if memo is None:
+        pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds,
+                          rng=rng)
+        best_pre = pre.best_per_target()
+    else:
+        new = [j for j, grasp_id in enumerate(keep) if grasp_id not in memo.q_pre]
+        if new:
+            pre = state.timed(solve_ik, robot, T_pre_tcp[new], checker=open_checker, q_seed=q_now,
+                              n_seeds=cfg.ik_seeds, rng=rng).best_per_target()
+            memo.q_pre.update({keep[j]: pre.get(k) for k, j in enumerate(new)})
+        best_pre = {j: memo.q_pre[g] for j, g in enumerate(keep) if memo.q_pre[g] is not None}
     # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
-    candidates = []  # (candidate index, q_pre, approach path)
-    for i, q_pre in best_pre.items():
-        T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
-        path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4), near_target)
-        if path is not None:
-            candidates.append((i, q_pre, path))
-        if len(candidates) >= cfg.goal_set_size * cfg.pregrasp_goal_sets:
-            break
-    if not candidates:
-        return "no_grasp_candidate"
-    state.phases["ik_found"] = True
+    pending = iter(best_pre.items())
 
-    for first in range(0, len(candidates), cfg.goal_set_size):
-        goal_set = candidates[first: first + cfg.goal_set_size]
+    def goal_sets():
+        """Up to ``pregrasp_goal_sets`` sets of ``goal_set_size`` (candidate index, q_pre,
+        approach path), each made when it is asked for: only a failed plan pays for the next."""
+        for _ in range(cfg.pregrasp_goal_sets):
+            goal_set = []
+            for i, q_pre in pending:
+                if memo is not None and keep[i] in memo.approach:
+                    path = memo.approach[keep[i]]
+                else:
+                    T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
+                    path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4),
+                                       near_target)
+                    if memo is not None:
+                        memo.approach[keep[i]] = path
+                if path is not None:
+                    goal_set.append((i, q_pre, path))
+                if len(goal_set) >= cfg.goal_set_size:
+                    break
+            if not goal_set:
+                return
+            yield goal_set
+
+    plan = None
+    for goal_set in goal_sets():
+        state.phases["ik_found"] = True
         plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in goal_set]), method)
         state.notes.append(f"candidates {len(keep)} ik {len(goal_set)}; pre-grasp plan {plan.status} "
                            f"{plan.n_checked} checks {plan.planning_time:.2f}s"
                            + (" (start escaped)" if plan.start_escaped else ""))
         if plan.success or (state.checks_left <= 0 and _check_budgeted(method)):
             break
+    if plan is None:
+        return "no_grasp_candidate"
     if not plan.success:
         return _plan_failure(plan)
     state.phases["pregrasp_plan"] = True
@@ -541,6 +569,30 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None
+
+
+@dataclass
+class CandidateMemo:
+    """A task's pre-grasp IK solutions and approach paths by grasp id (None: none found), from
+    its first try on. Every try of the expert starts from the same reset (the same objects'
+    poses, arm configuration and rng state), so a later try reuses them and only solves for
+    grasps it has not met; a try whose untried grasps all have none ends at once."""
+
+    key: tuple
+    q_pre: dict = field(default_factory=dict)
+    approach: dict = field(default_factory=dict)
+
+
+_MEMO: list = [None]  # the process's memo (one env, one task at a time)
+
+
+def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng) -> CandidateMemo:
+    """The memo of this start (``SolveConfig.reuse_candidates``); another start empties it."""
+    key = (task.to_json(), np.asarray(q_now).tobytes(), b"".join(np.asarray(T).tobytes() for T in T_base_objects),
+           repr(rng.bit_generator.state))
+    if _MEMO[0] is None or _MEMO[0].key != key:
+        _MEMO[0] = CandidateMemo(key)
+    return _MEMO[0]
 
 
 @functools.lru_cache(maxsize=64)

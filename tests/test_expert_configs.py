@@ -19,7 +19,8 @@ def test_fast_and_reference_experts():
     baseline = SolveConfig()
     for name in dict(EXPERTS["fast"].solve):
         assert getattr(reference, name) == getattr(baseline, name)
-    assert (fast.pregrasp_goal_sets, fast.attachment_per_object, fast.plan_checks_per_try) == (3, True, 15000)
+    assert (fast.pregrasp_goal_sets, fast.attachment_per_object, fast.reuse_candidates) == (3, True, True)
+    assert (EXPERTS["fast"].max_failures_in_a_row, EXPERTS["reference"].max_failures_in_a_row) == (3, 0)
     assert json.loads(json.dumps(EXPERTS["fast"].to_json()))["solve"]["world_pose_tolerance"] == 5e-4
     with pytest.raises(ValueError, match="unknown expert 'quick'; valid: reference, fast"):
         expert_spec("quick")

@@ -178,6 +178,7 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
     summary = dict(seed=seed, task_id=task_id, scene_type=task.scene_type, category=task.target_label,
                    tries=0, successes=0, frames=0, failures={})
     t0, cpu0 = time.perf_counter(), time.process_time()
+    failures_in_a_row = 0
     for _ in range(job.max_tries):
         n_tried = len(tried)
         demo = solve_demo(rec, seed, reset_options={"task_id": task_id, "task_hash": task.content_hash()[:16]},
@@ -198,13 +199,17 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
                 rec.flush_video(name=f"{name}_{rec._episode_id}")
             summary["successes"] += 1
             summary["frames"] += demo.steps
+            failures_in_a_row = 0
         else:
+            failures_in_a_row += 1
             rec.flush_trajectory(save=False)
             if job.save_video:
                 rec.flush_video(save=False)
             summary["failures"][demo.failure] = summary["failures"].get(demo.failure, 0) + 1
         if summary["successes"] >= job.per_task or len(tried) == n_tried:
             break  # enough, or the try executed no new grasp: another would do the same
+        if failures_in_a_row and failures_in_a_row == expert.max_failures_in_a_row:
+            break
     summary["wall_time"] = round(time.perf_counter() - t0, 2)
     summary["cpu_time"] = round(time.process_time() - cpu0, 2)  # this process's CPU: unlike the wall time, not
     # stretched by other processes on the machine

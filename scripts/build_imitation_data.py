@@ -82,6 +82,8 @@ def main(argv=None) -> int:
     p.add_argument("--tasks", required=True, help="START:END, train task indices (END exclusive)")
     p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert processes, replay processes, render workers")
     p.add_argument("--per-task", type=int, default=5, help="successful trajectories per task at most")
+    p.add_argument("--expert", default="fast", choices=("fast", "reference"),
+                   help="the expert's configuration (solutions.expert.EXPERTS)")
     p.add_argument("--obs-mode", default=POLICY_OBS_MODE, choices=(*POINTS_OBS_MODES, COMPACT_OBS_MODE))
     p.add_argument("--frame-stride", type=int, default=1, help="keep every K-th step of each stage (the converter's)")
     p.add_argument("--chunk", type=int, default=128, help="demos per training file")
@@ -103,7 +105,7 @@ def main(argv=None) -> int:
         raise SystemExit(f"--tasks {args.tasks}: the train suite has {n_suite} tasks (valid END <= {n_suite})")
     root = Path(args.root)
     name = f"train-{start}-{end}"
-    job = DemoJob(env_id=ENV_ID, task_suite="train", per_task=args.per_task)
+    job = DemoJob(env_id=ENV_ID, task_suite="train", per_task=args.per_task, expert=args.expert)
 
     # 1. demos (resumes from finished parts; merging is redone, its bytes the same)
     parts = parts_dir(root / "demos", ENV_ID, name)

@@ -15,7 +15,7 @@ import pytest
 import fetchbench_ms  # noqa: F401
 from fetchbench_ms.cli import main
 from fetchbench_ms.demos.generate import DemoJob, done_parts, merge, parts_dir, suite_task_ids
-from fetchbench_ms.solutions.expert import solve, stage_end_flags
+from fetchbench_ms.solutions.expert import EXPERTS, solve, stage_end_flags
 from fetchbench_ms.solutions.sense_plan_act import STAGES
 
 SUITE = "train"  # the demonstrations' suite (train-split tasks)
@@ -51,6 +51,10 @@ def test_files_are_maniskill_trajectories_with_stage_labels(demos):
     assert "render_backend" not in env_info["env_kwargs"]
     assert env_info["env_kwargs"]["control_mode"] == "pd_joint_pos"
     assert env_info["env_kwargs"]["task_suite"] == SUITE
+    assert "reward_mode" not in env_info["env_kwargs"]  # the generator's own env computes none; conversions get the default
+    assert data["fetchbench"]["expert"] == EXPERTS["fast"].to_json()  # the expert configuration that made them
+    part = next(parts_dir(demos.parents[2], ENV_ID, "trajectory").glob("task_*.json"))
+    assert json.loads(part.read_text())["fetchbench"]["expert"]["name"] == "fast"
     eps = data["episodes"]
     assert len(eps) == 3 and all(e["success"] for e in eps)
     ids = suite_task_ids(ENV_ID, SUITE)
@@ -119,6 +123,9 @@ def test_another_job_in_the_same_parts_is_refused(demos):
         from fetchbench_ms.demos.generate import generate
 
         generate(DemoJob(env_id=ENV_ID, task_suite=SUITE, per_task=1), record_dir, "trajectory", 1, progress=False)
+    with pytest.raises(ValueError, match="another job"):  # the same job by another expert configuration
+        generate(DemoJob(env_id=ENV_ID, task_suite=SUITE, per_task=2, expert="reference"), record_dir, "trajectory", 1,
+                 progress=False)
 
 
 def test_merge_cuts_at_n(demos):

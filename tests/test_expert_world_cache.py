@@ -27,17 +27,26 @@ def _same(a, b) -> bool:
     return ta.keys() == tb.keys() and all(torch.equal(ta[k], tb[k]) for k in ta)
 
 
+def _first_train_task(monkeypatch):
+    """train/0000, its base and objects' poses (base frame), and a fresh process cache."""
+    from fetchbench_ms.solutions import worlds
+    from fetchbench_ms.tasks.suite import load_suite
+
+    suite = load_suite("train")
+    task = suite.get(suite.ids()[0])
+    T_base_world = np.linalg.inv(task.T_world_base())
+    cache = worlds.MeshWorldCache()
+    monkeypatch.setattr(worlds, "MESH_WORLD_CACHE", cache)
+    return task, T_base_world, [T_base_world @ o.transform() for o in task.objects], cache
+
+
 def test_cached_worlds_are_the_rebuilt_ones(monkeypatch):
     from fetchbench_ms.planning.world import pose_matrix
     from fetchbench_ms.solutions import worlds
     from fetchbench_ms.tasks.suite import load_suite
 
-    suite = load_suite("train")
-    task, other = suite.get(suite.ids()[0]), suite.get(suite.ids()[1])
-    T_base_world = np.linalg.inv(task.T_world_base())
-    T_objects = [T_base_world @ o.transform() for o in task.objects]
-    cache = worlds.MeshWorldCache()
-    monkeypatch.setattr(worlds, "MESH_WORLD_CACHE", cache)
+    task, T_base_world, T_objects, cache = _first_train_task(monkeypatch)
+    other = load_suite("train").get(load_suite("train").ids()[1])
     monkeypatch.setenv("FETCHBENCH_MESH_WORLD_CACHE", "0")
     rebuilt = worlds.task_mesh_world(task, T_base_world, T_objects)
     monkeypatch.setenv("FETCHBENCH_MESH_WORLD_CACHE", "1")
@@ -66,3 +75,26 @@ def test_the_generator_makes_the_same_demos_with_the_cache():
     bench = import_script(ROOT / "scripts/bench/bench_expert_world.py")
     # train/0001 gives a trajectory at its first try (train/0000 none: nothing to compare)
     bench.main(["--start", "1", "--tasks", "1", "--per-task", "1"])  # exits non-zero when they differ
+
+
+def test_pose_tolerance_reuses_sets_of_objects_that_barely_moved(monkeypatch):
+    """After a grasp PhysX reports the fixed base and the untouched objects with float noise:
+    within the tolerance their sets are reused; the moved target is built anew. Without a
+    tolerance (the evaluation's worlds) the noise rebuilds, as before."""
+    from fetchbench_ms.planning.world import pose_matrix
+    from fetchbench_ms.solutions import worlds
+
+    task, T_base_world, T_objects, cache = _first_train_task(monkeypatch)
+    monkeypatch.setenv("FETCHBENCH_MESH_WORLD_CACHE", "1")
+    start = worlds.task_mesh_world(task, T_base_world, T_objects)
+    noisy_base = T_base_world + 3e-8
+    noisy = [T + 1e-6 for T in T_objects]
+    noisy[task.target_index] = T_objects[task.target_index] @ pose_matrix([0.0, 0.0, 0.05])
+    after = worlds.task_mesh_world(task, noisy_base, noisy, pose_tolerance=5e-4)
+    assert cache.misses == 1  # the furniture's sets kept
+    others = [k for k in range(len(task.objects)) if k != task.target_index]
+    name = lambda k: "target" if k == task.target_index else f"object:{k}"  # noqa: E731
+    assert all(after.groups[name(k)][0] is start.groups[name(k)][0] for k in others)
+    assert after.groups["target"][0] is not start.groups["target"][0]
+    exact = worlds.task_mesh_world(task, noisy_base, noisy)  # no tolerance: everything at its new pose
+    assert cache.misses == 2 and all(exact.groups[name(k)][0] is not start.groups[name(k)][0] for k in others)

@@ -33,6 +33,8 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-tries", type=int, default=DEFAULT_MAX_TRIES,
                    help=f"expert tries per task at most (default {DEFAULT_MAX_TRIES})")
     p.add_argument("--start-seed", type=int, default=0, help="first task (episode seed) of the run (default 0)")
+    p.add_argument("--expert", default="fast", choices=("fast", "reference"),
+                   help="the expert's configuration (solutions.expert.EXPERTS; default fast)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -44,7 +46,7 @@ def run(args) -> int:
     if args.per_task < 1 or args.max_tries < 1:
         raise ValueError(f"--per-task and --max-tries must be positive (got {args.per_task}, {args.max_tries})")
     job = DemoJob(env_id=args.env_id, task_suite=args.task_suite, obs_mode=args.obs_mode, per_task=args.per_task,
-                  max_tries=args.max_tries, save_video=args.save_video)
+                  max_tries=args.max_tries, save_video=args.save_video, expert=args.expert)
     out = generate(job, args.record_dir, args.traj_name, args.num_traj, args.only_count_success, args.num_procs,
                    args.backend, progress=not args.no_progress, start_seed=args.start_seed)
     from .stats import demo_stats, format_stats

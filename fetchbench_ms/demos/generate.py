@@ -45,6 +45,7 @@ from .env_info import replayable_env_info
 
 PART_PREFIX = "task_"
 TIMING_FILE = "timing.jsonl"  # seconds each task took in its worker (benchmarks read it)
+TIMES = ("wall_time", "cpu_time")  # a task's seconds: in the timing file, never in its part (same bytes)
 DEFAULT_PER_TASK = 5
 DEFAULT_MAX_TRIES = 8  # expert tries per task, successful or not
 SOURCE_DESC = "FetchBench-MS expert: annotated grasps, oracle mesh world, RRTConnect (fetchbench_ms.solutions.expert)"
@@ -61,6 +62,13 @@ class DemoJob:
     max_tries: int = DEFAULT_MAX_TRIES
     save_video: bool = False
     method: str = "ga-mesh-rrt"
+    expert: str = "fast"  # solutions.expert.EXPERTS
+
+    @staticmethod
+    def from_json(job: dict) -> dict:
+        """A recorded job as this version writes it: a job recorded before experts were named
+        was made by the ``reference`` expert."""
+        return {"expert": "reference", **job}
 
     def env_kwargs(self) -> dict:
         kwargs = dict(obs_mode=self.obs_mode, control_mode="pd_joint_pos", task_suite=self.task_suite)
@@ -140,7 +148,11 @@ def _worker_env(job: DemoJob):
         import fetchbench_ms  # noqa: F401  (registers the ids)
 
         torch.set_num_threads(1)
-        _ENV = gym.make(job.env_id, **job.env_kwargs())
+        # No reward: the demos record none, and the dense reward's contact pass over every
+        # resting contact costs a sixth of a control step. The physics, and so the recorded
+        # states, do not read it; the files keep the job's env kwargs (conversions get the
+        # env's default reward).
+        _ENV = gym.make(job.env_id, **job.env_kwargs(), reward_mode="none")
     return _ENV
 
 
@@ -149,8 +161,9 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
     from mani_skill.utils.io_utils import dump_json
     from mani_skill.utils.wrappers.record import RecordEpisode
 
-    from ..solutions.expert import expert_config, solve_demo, stage_end_flags
+    from ..solutions.expert import expert_spec, solve_demo, stage_end_flags
 
+    expert = expert_spec(job.expert)
     env = _worker_env(job)
     tmp = parts / f".tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -159,16 +172,19 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
     rec = RecordEpisode(env, output_dir=str(tmp), trajectory_name=name, save_video=job.save_video,
                         source_type="motionplanning", source_desc=SOURCE_DESC, record_reward=False,
                         save_on_reset=False, video_fps=env.unwrapped.control_freq)
+    info = rec._json_data["env_info"]
+    info["env_kwargs"] = {k: v for k, v in info["env_kwargs"].items() if k != "reward_mode"}  # (_worker_env's)
     task = env.unwrapped.task_suite.get(task_id)
     tried: set = set()
     summary = dict(seed=seed, task_id=task_id, scene_type=task.scene_type, category=task.target_label,
                    tries=0, successes=0, frames=0, failures={})
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    failures_in_a_row = 0
     for _ in range(job.max_tries):
         n_tried = len(tried)
         demo = solve_demo(rec, seed, reset_options={"task_id": task_id, "task_hash": task.content_hash()[:16]},
-                          tried=tried, method=job.method,
-                          config=expert_config())
+                          tried=tried, method=job.method, config=expert.config(),
+                          confirm_steps=expert.confirm_steps)
         summary["tries"] += 1
         if demo.success:
             if demo.steps != len(rec._trajectory_buffer.done) - 1:
@@ -184,16 +200,22 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
                 rec.flush_video(name=f"{name}_{rec._episode_id}")
             summary["successes"] += 1
             summary["frames"] += demo.steps
+            failures_in_a_row = 0
         else:
+            failures_in_a_row += 1
             rec.flush_trajectory(save=False)
             if job.save_video:
                 rec.flush_video(save=False)
             summary["failures"][demo.failure] = summary["failures"].get(demo.failure, 0) + 1
         if summary["successes"] >= job.per_task or len(tried) == n_tried:
             break  # enough, or the try executed no new grasp: another would do the same
+        if failures_in_a_row and failures_in_a_row == expert.max_failures_in_a_row:
+            break
     summary["wall_time"] = round(time.perf_counter() - t0, 2)
-    rec._json_data["fetchbench"] = {"job": dataclasses.asdict(job), "summary": {
-        k: v for k, v in summary.items() if k != "wall_time"}}
+    summary["cpu_time"] = round(time.process_time() - cpu0, 2)  # this process's CPU: unlike the wall time, not
+    # stretched by other processes on the machine
+    rec._json_data["fetchbench"] = {"job": dataclasses.asdict(job), "expert": expert.to_json(), "summary": {
+        k: v for k, v in summary.items() if k not in TIMES}}
     dump_json(rec._json_path, rec._json_data, indent=2)
     rec._h5_file.close()
     # Whole parts only: the h5 first, then the JSON, which marks the part finished.
@@ -234,7 +256,10 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
     check_writable_dir(record_dir, "--record-dir")
     parts.mkdir(parents=True, exist_ok=True)
     job_file = parts / "job.json"
-    if job_file.exists() and json.loads(job_file.read_text()) != dataclasses.asdict(job):
+    from ..solutions.expert import expert_spec
+
+    expert_spec(job.expert)  # an unknown name fails here, before any worker starts
+    if job_file.exists() and DemoJob.from_json(json.loads(job_file.read_text())) != dataclasses.asdict(job):
         raise ValueError(f"{parts} holds parts of another job {job_file.read_text()}; this one is "
                          f"{dataclasses.asdict(job)}: use another --traj-name or --record-dir")
     atomic_write_text(job_file, json.dumps(dataclasses.asdict(job), indent=1))
@@ -280,7 +305,7 @@ def generate(job: DemoJob, record_dir: str | Path, name: str, num_traj: int, onl
                     s = p.get()
                     finished[s["seed"]] = s
                     # Timings vary from run to run, so they stay out of the parts (same bytes).
-                    append_jsonl_atomic(parts / TIMING_FILE, {"seed": s["seed"], "wall_time": s["wall_time"],
+                    append_jsonl_atomic(parts / TIMING_FILE, {"seed": s["seed"], **{t: s[t] for t in TIMES},
                                                               "successes": s["successes"], "frames": s["frames"]})
                     bar.update(min(s["successes"] if only_count_success else 1, max(0, num_traj - bar.n)))
                     bar.set_postfix(tasks=len(finished), success_rate=f"{_yield(finished):.2f}")
@@ -336,13 +361,22 @@ def merge(record_dir, env_id: str, name: str, num_traj: int, only_count_success:
         data["episodes"] = data["episodes"][:keep]
     data.pop("fetchbench", None)
     data["env_info"] = replayable_env_info(data["env_info"])  # ManiSkill's replay tool makes the env from it
-    data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"])}
+    data["fetchbench"] = {"tasks": seed - start_seed, "first_seed": start_seed, "trajectories": len(data["episodes"]),
+                          "expert": _recorded_expert(parts)}
     dump_json(str(tmp).replace(".h5", ".json"), data, indent=2)
     compressed = tmp.with_name(f".{name}.compressing.h5")
     compress_h5(tmp, compressed, pair_json=tmp.with_suffix(".json"))
     tmp.unlink()
     _replace_pair(compressed, tmp.with_suffix(".json"), out)
     return out
+
+
+def _recorded_expert(parts: Path) -> dict:
+    """The expert configuration (``ExpertSpec.to_json``) the parts folder's job names."""
+    from ..solutions.expert import expert_spec
+
+    job = DemoJob.from_json(json.loads((parts / "job.json").read_text())) if (parts / "job.json").exists() else {}
+    return expert_spec(job.get("expert", DemoJob.expert)).to_json()
 
 
 def _replace_pair(h5: Path, json_path: Path, out: Path) -> None:
@@ -393,6 +427,10 @@ def merge_runs(paths: list, out) -> Path:
         if replayable_env_info(meta_a["env_info"]) != replayable_env_info(meta_b["env_info"]):
             raise ValueError(f"{path_a} and {path_b} come from other envs or settings: "
                              f"{meta_a['env_info']} != {meta_b['env_info']}")
+        expert_a, expert_b = (m["fetchbench"].get("expert", {"name": "reference"}) for m in (meta_a, meta_b))
+        if expert_a != expert_b:
+            raise ValueError(f"{path_a} and {path_b} were made by other expert configurations: "
+                             f"{expert_a} != {expert_b}")
     out = Path(out).with_suffix(".h5")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.merging.h5")
@@ -401,7 +439,8 @@ def merge_runs(paths: list, out) -> Path:
     data["env_info"] = replayable_env_info(data["env_info"])
     (first_seed, _, _, _), (last_seed, last_tasks, _, _) = runs[0], runs[-1]
     data["fetchbench"] = {"tasks": last_seed + last_tasks - first_seed, "first_seed": first_seed,
-                          "trajectories": len(data["episodes"]), "runs": [str(path) for _, _, path, _ in runs]}
+                          "trajectories": len(data["episodes"]), "runs": [str(path) for _, _, path, _ in runs],
+                          "expert": runs[0][3]["fetchbench"].get("expert", {"name": "reference"})}
     transport = [meta["fetchbench_transport"] for _, _, _, meta in runs if "fetchbench_transport" in meta]
     if transport:
         data["fetchbench_transport"] = {**transport[0], "source": [t["source"] for t in transport]}

@@ -45,6 +45,12 @@ class Attachment:
             points += [part.vertices, surface, volume_samples(part, n // 2, rng)]
         return cls.from_points(np.concatenate(points), n_spheres, seed)
 
+    def moved(self, T_new_old: np.ndarray) -> "Attachment":
+        """The same balls in another frame: e.g. balls fitted once in the object's frame, put
+        in the hand frame of a grasp with ``T_hand_object``."""
+        T = np.asarray(T_new_old, dtype=float)
+        return Attachment(np.asarray(self.centers_hand) @ T[:3, :3].T + T[:3, 3], np.asarray(self.radii))
+
 
 class CollisionChecker:
     """``valid(q)``: joint limits, self-collision and world clearance for a batch of configs.

@@ -53,6 +53,51 @@ def expert_config(**overrides) -> SolveConfig:
                                **overrides)
 
 
+@dataclass(frozen=True)
+class ExpertSpec:
+    """A named configuration of the expert: what its trajectories depend on besides the task,
+    the seed and the method. The demo generator records it in every file's JSON
+    (``fetchbench.expert``), and a parts folder made with another is refused."""
+
+    name: str
+    confirm_steps: int = CONFIRM_STEPS
+    solve: tuple = ()  # (SolveConfig field, value) pairs on top of expert_config()'s
+    # The generator gives up a task after this many failed tries in a row (0: only the
+    # generator's --max-tries): a task whose grasps keep failing to plan their retrieval
+    # rarely yields later, and each such try costs a whole planning budget.
+    max_failures_in_a_row: int = 0
+
+    def config(self) -> SolveConfig:
+        return expert_config(**dict(self.solve))
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "confirm_steps": self.confirm_steps, "solve": dict(self.solve),
+                "max_failures_in_a_row": self.max_failures_in_a_row}
+
+
+#: The expert's configurations (``fetchbench demos run --expert NAME``):
+#: - ``reference``: every world and every carried object's balls built anew at each try, one
+#:   goal set for the pre-grasp plan (the configuration the published dataset was made with);
+#: - ``fast`` (the default): reuses what a task's tries share and changes little between them
+#:   (an untouched object's convex set while it moved < 0.5 mm; the target's balls fitted once
+#:   in its own frame), and when no pre-grasp plan reaches the best 8 candidates, plans to the
+#:   next 8 (up to 24) within the episode's collision-check budget; 3 settle steps after a
+#:   motion instead of 6; a task is given up after 3 failed tries in a row.
+EXPERTS = {
+    "reference": ExpertSpec("reference"),
+    "fast": ExpertSpec("fast", solve=(("pregrasp_goal_sets", 3), ("world_pose_tolerance", 5e-4),
+                                      ("attachment_per_object", True), ("settle_steps", 3),
+                                      ("reuse_candidates", True)), max_failures_in_a_row=3),
+}
+DEFAULT_EXPERT = "fast"
+
+
+def expert_spec(name: str) -> ExpertSpec:
+    if name not in EXPERTS:
+        raise ValueError(f"unknown expert {name!r}; valid: {', '.join(EXPERTS)}")
+    return EXPERTS[name]
+
+
 @dataclass
 class Demo:
     """One expert try on a task (what the demonstration generator keeps or drops)."""

@@ -42,6 +42,7 @@ is labelled with its stage (``STAGES``).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -54,6 +55,7 @@ from ..planning.robot import robot_for_env
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
 from ..planning.world import pose_matrix
+from ..utils.io import sha256_bytes
 from .grasp_source import choose_grasps, object_grasps, predicted_grasps, retreat, tcp_from_hand
 from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
@@ -151,6 +153,18 @@ class SolveConfig:
     ik_grasps: int = 24  # annotated grasps whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)
     goal_set_size: int = 8  # IK solutions handed to the planner at once
+    # Goal sets the pre-grasp plan may try, one after another: when no path to the first
+    # goal_set_size candidates is found, the next ones (the expert; the baselines plan once).
+    pregrasp_goal_sets: int = 1
+    # The mesh world after a grasp reuses an object's convex set while its pose is within this of
+    # the pose it was built at (solutions.worlds.MeshWorldCache; 0: only the exact pose).
+    world_pose_tolerance: float = 0.0
+    # The carried object's balls: fitted once per object in its own frame and moved to the hand
+    # (True, the expert), or fitted in the hand frame at every grasp (False: the baselines).
+    attachment_per_object: bool = False
+    # Pre-grasp IK solutions and approach paths kept from a task's earlier tries that started
+    # from the same state (``CandidateMemo``; the expert, which resets before every try).
+    reuse_candidates: bool = False
     # Planning budgets are counts of collision checks, so a plan is the same on a busy or an
     # idle machine, on any CPU (the original's 10 s a try and 30 s an episode at ~3,000 checks
     # a second). Each plan is seeded from the episode's rng (planning.rrt's ``seed``).
@@ -159,6 +173,7 @@ class SolveConfig:
     # Wall-clock safety net per planning call (s): a plan it stops is a ``timeout`` failure.
     plan_safety_seconds: float = 300.0
     speed_scale: float = 0.4  # fraction of the Panda's velocity limits when executing
+    settle_steps: int = 6  # control steps holding a path's end before the next motion
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
@@ -266,8 +281,9 @@ class Executor:
         self.last_qpos = qpos
         self.state.sim_steps += 1
 
-    def follow(self, path: np.ndarray, speed_scale: float, settle_steps: int = 6) -> None:
+    def follow(self, path: np.ndarray, speed_scale: float, settle_steps: int | None = None) -> None:
         robot = self.robot
+        settle_steps = self.state.config.settle_steps if settle_steps is None else settle_steps
         for q in time_parametrize(path, self.dt, robot.velocity_limits, robot.acceleration_limits, speed_scale):
             self.step(q)
         for _ in range(settle_steps):
@@ -420,29 +436,58 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     if not keep:
         return "no_grasp_candidate"
     q_now = ex.q
-    pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds, rng=rng)
-    best_pre = pre.best_per_target()
+    memo = _candidate_memo(task, q_now, object_poses_base(env), rng) if cfg.reuse_candidates else None
+    if memo is None:
+        pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds,
+                          rng=rng)
+        best_pre = pre.best_per_target()
+    else:
+        new = [j for j, grasp_id in enumerate(keep) if grasp_id not in memo.q_pre]
+        if new:
+            pre = state.timed(solve_ik, robot, T_pre_tcp[new], checker=open_checker, q_seed=q_now,
+                              n_seeds=cfg.ik_seeds, rng=rng).best_per_target()
+            memo.q_pre.update({keep[j]: pre.get(k) for k, j in enumerate(new)})
+        best_pre = {j: memo.q_pre[g] for j, g in enumerate(keep) if memo.q_pre[g] is not None}
     # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
-    candidates = []  # (candidate index, q_pre, approach path)
-    for i, q_pre in best_pre.items():
-        T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
-        path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4), near_target)
-        if path is not None:
-            candidates.append((i, q_pre, path))
-        if len(candidates) >= cfg.goal_set_size:
-            break
-    if not candidates:
-        return "no_grasp_candidate"
-    state.phases["ik_found"] = True
+    pending = iter(best_pre.items())
 
-    plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in candidates]), method)
-    state.notes.append(f"candidates {len(keep)} ik {len(candidates)}; pre-grasp plan {plan.status} "
-                       f"{plan.n_checked} checks {plan.planning_time:.2f}s"
-                       + (" (start escaped)" if plan.start_escaped else ""))
+    def goal_sets():
+        """Up to ``pregrasp_goal_sets`` sets of ``goal_set_size`` (candidate index, q_pre,
+        approach path), each made when it is asked for: only a failed plan pays for the next."""
+        for _ in range(cfg.pregrasp_goal_sets):
+            goal_set = []
+            for i, q_pre in pending:
+                if memo is not None and keep[i] in memo.approach:
+                    path = memo.approach[keep[i]]
+                else:
+                    T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
+                    path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4),
+                                       near_target)
+                    if memo is not None:
+                        memo.approach[keep[i]] = path
+                if path is not None:
+                    goal_set.append((i, q_pre, path))
+                if len(goal_set) >= cfg.goal_set_size:
+                    break
+            if not goal_set:
+                return
+            yield goal_set
+
+    plan = None
+    for goal_set in goal_sets():
+        state.phases["ik_found"] = True
+        plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in goal_set]), method)
+        state.notes.append(f"candidates {len(keep)} ik {len(goal_set)}; pre-grasp plan {plan.status} "
+                           f"{plan.n_checked} checks {plan.planning_time:.2f}s"
+                           + (" (start escaped)" if plan.start_escaped else ""))
+        if plan.success or (state.checks_left <= 0 and _check_budgeted(method)):
+            break
+    if plan is None:
+        return "no_grasp_candidate"
     if not plan.success:
         return _plan_failure(plan)
     state.phases["pregrasp_plan"] = True
-    chosen, _, approach_path = candidates[plan.goal_index]
+    chosen, _, approach_path = goal_set[plan.goal_index]
     tried.add(keep[chosen])
     state.grasp_id = keep[chosen]
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
@@ -472,9 +517,14 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     T_base_hand = robot.link_poses(ex.q[None])[robot.hand_link][0].numpy()
     if clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
-        parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
-        attachment = Attachment.from_convex_parts(parts_hand, seed=int(rng.integers(2**31)))
-        world = state.timed(mesh_world, env)  # objects may have shifted while grasping
+        seed = int(rng.integers(2**31))
+        if cfg.attachment_per_object:
+            attachment = _object_attachment(task.target.object_id).moved(T_hand_object)
+        else:
+            parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
+            attachment = Attachment.from_convex_parts(parts_hand, seed=seed)
+        # objects may have shifted while grasping
+        world = state.timed(mesh_world, env, cfg.world_pose_tolerance)
     else:
         T_hand_grasp = T_grasp_tcp[chosen] @ np.linalg.inv(tcp_from_hand(np.eye(4)))
         points_hand = (np.linalg.inv(T_hand_grasp) @ np.c_[clouds.target, np.ones(len(clouds.target))].T).T[:, :3]
@@ -519,6 +569,40 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
         return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None
+
+
+@dataclass
+class CandidateMemo:
+    """A task's pre-grasp IK solutions and approach paths by grasp id (None: none found), from
+    its first try on. Every try of the expert starts from the same reset (the same objects'
+    poses, arm configuration and rng state), so a later try reuses them and only solves for
+    grasps it has not met; a try whose untried grasps all have none ends at once."""
+
+    key: tuple
+    q_pre: dict = field(default_factory=dict)
+    approach: dict = field(default_factory=dict)
+
+
+_MEMO: list = [None]  # the process's memo (one env, one task at a time)
+
+
+def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng) -> CandidateMemo:
+    """The memo of this start (``SolveConfig.reuse_candidates``); another start empties it."""
+    key = (task.to_json(), np.asarray(q_now).tobytes(), b"".join(np.asarray(T).tobytes() for T in T_base_objects),
+           repr(rng.bit_generator.state))
+    if _MEMO[0] is None or _MEMO[0].key != key:
+        _MEMO[0] = CandidateMemo(key)
+    return _MEMO[0]
+
+
+@functools.lru_cache(maxsize=64)
+def _object_attachment(object_id: str) -> Attachment:
+    """An object's carried balls in its own frame (``SolveConfig.attachment_per_object``), from
+    a seed of its id: the same balls for every grasp of it, in any process."""
+    from ..tasks.objects import load_object
+
+    seed = int(sha256_bytes(object_id.encode())[:8], 16) % 2**31
+    return Attachment.from_convex_parts(load_object(object_id).convex_parts, seed=seed)
 
 
 def _check_budgeted(method: str) -> bool:

@@ -6,8 +6,9 @@
 Runs the expert on the suite's first ``--tasks`` tasks (``fetchbench demos run -n TASKS``
 without --only-count-success: every task tried once, up to --per-task trajectories each),
 then prints: the fraction of tasks that yield at least one trajectory, trajectories per
-task, mean frames per trajectory, throughput (trajectories and frames per hour per core)
-and the projected wall time of the paper's 27.5k trajectories on 16 cores. With
+task, mean frames per trajectory, throughput (trajectories and frames per hour per core, from
+the workers' wall seconds, and trajectories per hour of the workers' own CPU time, which
+other load on the machine does not stretch) and the projected wall time of the paper's 27.5k trajectories on 16 cores. With
 ``--convert N`` it replays the first N trajectories with ManiSkill's replay tool (through
 ``python -m fetchbench_ms.replay_trajectory``) in each conversion the dataset needs and
 prints each one's success rate. Results also go to OUT/bench.json. Resumable: a rerun
@@ -61,11 +62,14 @@ def main(argv=None) -> int:
     ap.add_argument("--tasks", type=int, default=20)
     ap.add_argument("--procs", type=int, default=2)
     ap.add_argument("--per-task", type=int, default=5)
+    ap.add_argument("--expert", default="fast", help="the expert's configuration (solutions.expert.EXPERTS)")
+    ap.add_argument("--record", default=None, metavar="JSON",
+                    help="also write the figures here (e.g. results/demos/bench-expert-fast.json)")
     ap.add_argument("--convert", type=int, default=0, help="replay this many trajectories in each conversion")
     ap.add_argument("--obs-modes", nargs="+", default=["state"], metavar="OBS_MODE",
                     help="observation modes each conversion is run in (e.g. state pointcloud)")
     ap.add_argument("--traj-name", default=None,
-                    help="name of the demo file (default SUITE-TASKS); a run with more --tasks and the same "
+                    help="name of the demo file (default SUITE-TASKS-EXPERT); a run with more --tasks and the same "
                          "name continues the finished tasks")
     ap.add_argument("--conversions", nargs="+", default=list(CONVERSIONS), choices=list(CONVERSIONS),
                     metavar="NAME", help=f"which conversions to run (default all: {' '.join(CONVERSIONS)})")
@@ -77,7 +81,7 @@ def main(argv=None) -> int:
     from fetchbench_ms.demos.generate import TIMING_FILE, done_parts, parts_dir
     from fetchbench_ms.demos.stats import demo_stats, format_stats
 
-    name = args.traj_name or f"{args.suite}-{args.tasks}"
+    name = args.traj_name or f"{args.suite}-{args.tasks}-{args.expert}"
     parts = parts_dir(args.out, args.env_id, name)
     path = parts.parent / f"{name}.h5"
     result_path = Path(args.out) / f"bench-{name}{'-convert' if args.convert_only else ''}.json"
@@ -90,7 +94,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "fetchbench_ms", "demos", "run", "-e", args.env_id, "--task-suite", args.suite,
            "-n", str(args.tasks), "--record-dir", args.out, "--traj-name", name, "--num-procs", str(args.procs),
-           "--per-task", str(args.per_task), "--no-progress"]
+           "--per-task", str(args.per_task), "--expert", args.expert, "--no-progress"]
     subprocess.run(cmd, check=True)
     wall = time.perf_counter() - t0
     done = done_parts(parts)
@@ -106,8 +110,9 @@ def main(argv=None) -> int:
     trajectories = sum(s["successes"] for s in tried)
     frames = sum(s["frames"] for s in tried)
     result = {
+        "command": "python scripts/bench/bench_demos.py " + " ".join(argv if argv is not None else sys.argv[1:]),
         "suite": args.suite, "env_id": args.env_id, "tasks": len(tried), "procs": args.procs,
-        "per_task": args.per_task,
+        "per_task": args.per_task, "expert": args.expert,
         "tasks_with_demo": round(sum(s["successes"] > 0 for s in tried) / max(1, len(tried)), 4),
         "trajectories": trajectories, "frames": frames,
         "trajectories_per_task": round(trajectories / max(1, len(tried)), 3),
@@ -124,8 +129,16 @@ def main(argv=None) -> int:
                       trajectories_per_core_hour=round(per_core_hour, 1),
                       frames_per_core_hour=round(sum(s["frames"] for s in new) / busy * 3600),
                       projected_hours_27_5k_on_16_cores=round(PAPER_TRAJECTORIES / (per_core_hour * 16), 2))
+        if all("cpu_time" in s for s in new):
+            # The workers' own CPU seconds: what a core-hour buys on an idle machine, read on a busy one.
+            cpu = sum(s["cpu_time"] for s in new)
+            result.update(worker_cpu_seconds=round(cpu, 1), cpu_seconds_per_trajectory=round(
+                cpu / max(1, sum(s["successes"] for s in new)), 2),
+                trajectories_per_cpu_hour=round(sum(s["successes"] for s in new) / cpu * 3600, 1))
     print(format_stats(stats))
     write_result(result, result_path)
+    if args.record:
+        write_result(result, Path(args.record))
     convert(path, args, result, result_path)
     return 0
 

@@ -48,7 +48,8 @@ def run_mode(args) -> None:
     from fetchbench_ms.solutions import worlds
 
     os.environ["FETCHBENCH_MESH_WORLD_CACHE"] = "0" if args.mode == "rebuilt" else "1"
-    job = DemoJob(task_suite=args.suite, per_task=args.per_task)
+    # The reference expert: the fast one reuses sets at nearby poses, which a rebuilt world cannot.
+    job = DemoJob(task_suite=args.suite, per_task=args.per_task, expert="reference")
     ids = suite_task_ids(job.env_id, args.suite)
     out = Path(args.parts)
     (out / "warm-up").mkdir(parents=True)

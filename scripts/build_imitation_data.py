@@ -144,7 +144,8 @@ def main(argv=None) -> int:
     # 3. throughput
     print(f"training files: {after['demos']} demos, {after['frames']} frames in {root / 'data'}")
     tasks_with_one = sum(1 for t in timed.values() if t["successes"] > 0)
-    summary = {"tasks": [start, end], "per_task": args.per_task, "procs": args.procs, "trajectories": trajectories,
+    summary = {"tasks": [start, end], "per_task": args.per_task, "expert": args.expert, "procs": args.procs,
+               "trajectories": trajectories,
                "tasks_timed": len(timed), "tasks_with_a_trajectory": tasks_with_one,
                "yield": round(tasks_with_one / len(timed), 4) if timed else None,
                "expert_core_hours": round(core_hours, 4),

@@ -162,6 +162,53 @@ def status(record: dict) -> str:
     return "\n".join(lines)
 
 
+#: The records behind docs/imitation-rounds.md's cost figures (``--costs`` prints its block).
+COST_RECORDS = {"cpu2": "results/training/bench-policy-obs-cpu2.json",
+                "node": "results/training/bench-policy-obs-2xh200.json",
+                "node32": "results/training/bench-policy-obs-2xh200-32proc.json",
+                "expert_before": "results/demos/bench-expert-before-train40.json",
+                "expert_fast": "results/demos/bench-expert-fast-train40.json",
+                "expert_node": "results/training/imitation-rounds/expert-x4-train0-700.json"}
+PAPER_TRAJECTORIES = 27_500
+
+
+def costs_block() -> str:
+    """The cost tables of docs/imitation-rounds.md, from the records in ``COST_RECORDS``."""
+    r = {k: json.loads((ROOT / v).read_text()) for k, v in COST_RECORDS.items()}
+    modes = ("compact_pointcloud", "policy_pointcloud", "composed_pointcloud")
+    lines = ["| obs mode | 2-core CPU, ms a frame (frames/s) | 32-core node, 2 H200, one process: ms a frame (frames/s) |",
+             "| --- | --- | --- |"]
+    for m in modes:
+        a, b = r["cpu2"]["ms_a_frame"][m], r["node"]["ms_a_frame"][m]
+        lines.append(f"| `{m}` | {a:.1f} ({1e3 / a:.0f}) | {b:.1f} ({1e3 / b:.0f}) |")
+    ratio = [r[k]["ms_a_frame"]["compact_pointcloud"] / r[k]["ms_a_frame"]["composed_pointcloud"] for k in ("cpu2", "node")]
+    n32 = r["node32"]
+    lines += ["", f"`composed_pointcloud` is {ratio[0]:.1f}x cheaper a frame than `compact_pointcloud` on the 2-core "
+              f"CPU and {ratio[1]:.1f}x in one process of the node (its start render: "
+              f"{r['cpu2']['composed_start_ms_an_episode']:.0f} and {r['node']['composed_start_ms_an_episode']:.0f} ms "
+              f"an episode, included at stride {r['cpu2']['frame_stride']}); {n32['processes']} processes at once on the "
+              f"node make **{n32['frames_a_second']:,.0f} frames a second**. A state-only replay step (converting the "
+              f"expert's actions) costs {r['cpu2']['replay_step_ms']:.1f} / {r['node']['replay_step_ms']:.1f} ms.", ""]
+    before, fast, node = r["expert_before"], r["expert_fast"], r["expert_node"]
+    lines += ["| expert | where | tasks | yield | trajectories | a CPU-hour | a worker-hour (wall) |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, e in (("`reference`", before), ("`fast`", fast)):
+        lines.append(f"| {name} | 2-core CPU, 1 worker | train 0:{e['tasks']} | {e['tasks_with_demo']:.3f} | "
+                     f"{e['trajectories']} | {e['trajectories_per_cpu_hour']:,.0f} | {e['trajectories_per_core_hour']:,.0f} |")
+    lines.append(f"| `reference` | 64-core node, 64 workers | train 0:{node['tasks']} | {node['yield']:.3f} | "
+                 f"{node['trajectories']} | - | {node['trajectories_per_core_hour']:,.0f} |")
+    hours = PAPER_TRAJECTORIES / node["trajectories_per_core_hour"]
+    speedup = fast["trajectories_per_cpu_hour"] / before["trajectories_per_cpu_hour"]
+    frames = PAPER_TRAJECTORIES * fast["mean_frames"] / r["cpu2"]["frame_stride"]
+    lines += ["", f"The paper's {PAPER_TRAJECTORIES:,} demonstrations on one 32-core node with two H200s, at these "
+              f"rates: the expert {hours:.0f} worker-hours at the node's `reference` rate ({hours / 32:.1f} h on 32 "
+              f"workers; `fast` is {speedup:.2f}x that per CPU-hour on the CPU: ~{hours / 32 / speedup:.1f} h), and their "
+              f"~{frames / 1e6:.1f} M frames at stride {r['cpu2']['frame_stride']} {frames / n32['frames_a_second'] / 60:.0f}"
+              " minutes of `composed_pointcloud` observations (the state-only replay that converts their actions "
+              "comes on top)."]
+    return "\n".join(lines)
+
+
 def plot(record: dict, out: Path) -> None:
     import matplotlib
 
@@ -193,6 +240,8 @@ def main(argv=None) -> int:
     p.add_argument("--record", type=Path, default=RECORD, help="the rounds' record folder (rounds.json)")
     p.add_argument("--status", action="store_true", help="print where the rounds stand and exit")
     p.add_argument("--plot", type=Path, default=None, help="write the validation curve PNG here and exit")
+    p.add_argument("--costs", action="store_true",
+                   help="print the cost tables of docs/imitation-rounds.md from their records and exit")
     p.add_argument("--work", type=Path, default=None, help="work folder (round_NN/ inside; re-running resumes)")
     p.add_argument("--tasks", type=int, default=600, help="train tasks this round takes, after the last round's")
     p.add_argument("--per-task", type=int, default=3, help="expert trajectories a task at most")
@@ -210,6 +259,9 @@ def main(argv=None) -> int:
     p.add_argument("--allow-small-val", action="store_true", help="fewer val tasks (tests; recorded as such)")
     p.add_argument("--ship", action="store_true", help="write the winners to assets/checkpoints/ (else only report)")
     args = p.parse_args(argv)
+    if args.costs:
+        print(costs_block())
+        return 0
     record = load_record(args.record)
     if args.status:
         print(status(record))
@@ -307,7 +359,7 @@ def main(argv=None) -> int:
              "frames": manifest["totals"]["frames"], "chunks": len(manifest["chunks"]),
              "source_sha256": manifest["settings"]["source_sha256"],
              "data_sha256": json.loads((work / "export" / f"imit_{kinds[0]}.json").read_text())["data_sha256"],
-             "expert": {k: build[k] for k in ("trajectories", "tasks_timed", "tasks_with_a_trajectory", "yield",
+             "expert": {k: build[k] for k in ("expert", "trajectories", "tasks_timed", "tasks_with_a_trajectory", "yield",
                                               "trajectories_per_core_hour", "conversion_frames_per_second")},
              "command": command, "val_tasks": args.val_tasks,
              "small_val": bool(args.allow_small_val and val[1] - val[0] < MIN_VAL_TASKS),

@@ -87,3 +87,11 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     assert png.read_bytes()[:4] == b"\x89PNG"
     # The next round takes the next tasks.
     assert rounds.next_tasks(data, 5) == (2, 7)
+
+
+def test_the_cost_tables_of_the_docs_are_their_records(rounds):
+    """docs/imitation-rounds.md's cost block is what `imitation_round.py --costs` prints from the
+    shipped records (a figure without its record, or a stale one, fails here)."""
+    page = (ROOT / "docs/imitation-rounds.md").read_text()
+    block = page.split("<!-- imitation-costs:begin -->\n")[1].split("\n<!-- imitation-costs:end -->")[0]
+    assert block == rounds.costs_block()

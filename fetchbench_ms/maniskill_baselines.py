@@ -24,7 +24,7 @@ pd_joint_delta_pos --save-traj``. What the scripts import beyond this package (t
 diffusers; wandb with ``--track``) is the ``[baselines]`` extra. ACT imports torchvision too,
 which must be the build made for the installed torch (a torchvision from the package index
 is built against CUDA torch and does not load beside torch's CPU build); a missing package or
-a torchvision of another build ends in one line that gives the pip command. docs/demos.md
+a torchvision of another build ends in one line that gives the pip command. docs/maniskill-baselines.md
 has the commands and their times.
 """
 from __future__ import annotations

@@ -24,6 +24,12 @@ env's joint targets, so they run as ManiSkill wrote them.
 A demo recorded without a renderer (``render_backend="none"`` in its env kwargs, e.g.
 state-only data collection) is replayed with ManiSkill's default renderer when the replay
 needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so.
+
+A raw point-cloud conversion (``-o pointcloud --save-traj``) writes every camera pixel of
+every step (~5 MB a step at 320x240): the wrapper prints the size it will write before it
+starts and refuses (exit 2) when that exceeds the free disk of the output folder, unless
+``--allow-exceeding-disk``; ``-o compact_pointcloud`` (~139 KB a step) or the imitation
+converter's points modes are what to store.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ import contextlib
 import json
 import multiprocessing as mp
 import os
+import shutil
 import sys
 
 import fetchbench_ms  # noqa: F401  (registers FetchBench-*-v0)
@@ -171,9 +178,47 @@ def stock_action_conversion():
         _maniskill_replay.action_conversion = override
 
 
+#: Bytes a saved raw ``pointcloud`` step takes per camera pixel (ManiSkill's xyzw float32, colour
+#: and segmentation, plus ``xyz_base`` and ``fetch_label``, gzip on the labels): 1.24 GB for the
+#: demo sample's first demo (258 steps, two 320x240 cameras) is ~31 bytes a pixel.
+RAW_POINTCLOUD_BYTES_PER_PIXEL = 32
+ALLOW_EXCEEDING_DISK = "--allow-exceeding-disk"
+
+
+def raw_pointcloud_bytes(meta: dict, count: int | None) -> tuple[int, int]:
+    """(steps, estimated bytes) a ``-o pointcloud --save-traj`` replay of the demos' first ``count``
+    episodes (all for None) writes."""
+    env_kwargs = meta["env_info"]["env_kwargs"]
+    pixels = 2 * int(env_kwargs.get("camera_width") or 320) * int(env_kwargs.get("camera_height") or 240)
+    episodes = meta["episodes"][:count] if count is not None else meta["episodes"]
+    steps = sum(int(e.get("elapsed_steps", 0)) + 1 for e in episodes)  # (+1: the reset's observation)
+    return steps, steps * pixels * RAW_POINTCLOUD_BYTES_PER_PIXEL
+
+
+def check_raw_size(args, meta: dict, allow: bool) -> str | None:
+    """None, or the one-line refusal of a raw point-cloud conversion larger than the free disk;
+    prints the estimate of any raw point-cloud conversion that saves its trajectories."""
+    if args.obs_mode != "pointcloud" or not args.save_traj:
+        return None
+    steps, size = raw_pointcloud_bytes(meta, args.count)
+    folder = os.path.dirname(os.path.abspath(args.traj_path))
+    free = shutil.disk_usage(folder).free
+    print(f"note: -o pointcloud --save-traj writes every camera pixel of every step: ~{size / 1e9:.1f} GB for "
+          f"{steps:,} steps ({size / max(steps, 1) / 1e6:.1f} MB a step; {free / 1e9:.1f} GB free in {folder}); "
+          "-o compact_pointcloud writes ~139 KB a step")
+    if size > free and not allow:
+        return (f"the raw point clouds would take ~{size / 1e9:.1f} GB, more than the {free / 1e9:.1f} GB free in "
+                f"{folder}: convert with -o compact_pointcloud, fewer demos (--count), or add {ALLOW_EXCEEDING_DISK}")
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """ManiSkill's replay tool; bad input (an unknown obs mode, a missing, truncated or
-    mismatched trajectory file) is one line on stderr and exit status 2."""
+    mismatched trajectory file, raw point clouds larger than the free disk) is one line on
+    stderr and exit status 2."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    allow_large = ALLOW_EXCEEDING_DISK in argv
+    argv = [a for a in argv if a != ALLOW_EXCEEDING_DISK]
     args = _maniskill_replay.parse_args(argv)
     try:
         check_obs_mode(args.obs_mode)  # a typo: the valid choices, before anything is built
@@ -183,7 +228,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     json_path = args.traj_path.replace(".h5", ".json")  # as ManiSkill's tool finds it
     with open(json_path) as f:
-        env_kwargs = json.load(f)["env_info"]["env_kwargs"]
+        meta = json.load(f)
+    env_kwargs = meta["env_info"]["env_kwargs"]
+    refusal = check_raw_size(args, meta, allow_large)
+    if refusal is not None:
+        print(f"replay_trajectory: error: {refusal}", file=sys.stderr)
+        return 2
     override = _replay_env_kwargs(args, env_kwargs)
     if override is None:
         _maniskill_replay.main(args)

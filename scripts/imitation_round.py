@@ -16,7 +16,8 @@ A round takes the next ``--tasks`` tasks of the ``train`` suite after the last r
    (``--init-from``, ``--new-data``: the weights go on, the data is new), else from scratch;
    the kinds share the GPUs in turn (``scripts/train_imitation_gpus.py``);
 3. **val**: each candidate end to end (``e2e-<kind>``) and as the hybrid
-   (``cgn-imit-<kind>``, the paper's pipeline) on ``--val-tasks`` (val 0:100) at policy stride 3;
+   (``cgn-imit-<kind>``, the paper's pipeline) on ``--val-tasks`` (val 0:100) at policy stride 3,
+   the runs at once with the ``--procs`` workers shared among them (``RUN/val/<method>/eval.log``);
 4. **choice**: a candidate replaces the shipped checkpoint of its kind when its val successes,
    summed over the methods the shipped one has val figures of on the same tasks, exceed the
    shipped one's (a tie keeps the shipped one); with ``--ship`` the winners are written to
@@ -338,20 +339,34 @@ def main(argv=None) -> int:
     for kind in kinds:  # ship_imitation.py's layout: logs/train_<kind>.log
         (work / "logs" / f"train_{kind}.log").write_text((work / "runs" / kind / "log.txt").read_text())
 
-    # 3. val: every candidate end to end and as the hybrid (resumable eval folders)
+    # 3. val: every candidate end to end and as the hybrid (resumable eval folders), all at once:
+    # the --procs workers shared among them (one start-up for all), each eval on a GPU in turn.
     t2 = time.perf_counter()
-    figures = {}
-    for kind in kinds:
-        export = work / "export" / f"imit_{kind}.pt"
-        figures[kind] = {}
-        for method in methods(kind):
-            out = work / "val" / method
-            run([py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
-                 "--policy-checkpoint", str(export), "--policy-stride", str(FRAME_STRIDE), "--workers",
-                 str(args.procs), "--out", str(out)], log)
-            successes, n = eval_successes(out)
-            figures[kind][method] = {"successes": successes, "tasks": n, "success_rate": round(successes / n, 4),
-                                     "run": str(out.relative_to(args.work))}
+    evals = [(kind, method) for kind in kinds for method in methods(kind)]
+    workers = max(1, args.procs // len(evals))
+    processes = []
+    for i, (kind, method) in enumerate(evals):
+        out = work / "val" / method
+        command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
+                   "--policy-checkpoint", str(work / "export" / f"imit_{kind}.pt"), "--policy-stride",
+                   str(FRAME_STRIDE), "--workers", str(workers), "--out", str(out)]
+        env = dict(os.environ)
+        if gpus is not None:
+            env["CUDA_VISIBLE_DEVICES"] = gpus[i % len(gpus)]
+        log(f"$ {shlex.join(command)}")
+        out.mkdir(parents=True, exist_ok=True)
+        processes.append((method, subprocess.Popen(command, cwd=ROOT, env=env, stdout=open(out / "eval.log", "a"),
+                                                   stderr=subprocess.STDOUT)))
+    failed = [f"{method} (exit {code}, {work / 'val' / method / 'eval.log'})"
+              for method, process in processes if (code := process.wait()) != 0]
+    if failed:
+        raise SystemExit(f"stopped: val runs failed: {', '.join(failed)}; run the same command to resume")
+    figures = {kind: {} for kind in kinds}
+    for kind, method in evals:
+        out = work / "val" / method
+        successes, n = eval_successes(out)
+        figures[kind][method] = {"successes": successes, "tasks": n, "success_rate": round(successes / n, 4),
+                                 "run": str(out.relative_to(args.work))}
     t_val = time.perf_counter() - t2
 
     # 4. choice (and shipping), 5. record

@@ -78,6 +78,9 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     assert not mlp["shipped"]  # no --ship: the shipped checkpoints stay as they are
     export = tmp_path / "work/round_01/export/imit_mlp.json"
     assert json.loads(export.read_text())["obs_mode"] == "composed_pointcloud"
+    for method in ("e2e-mlp", "cgn-imit-mlp"):  # the runs record the obs mode their policy read
+        line = (tmp_path / "work/round_01/val" / method / "results.jsonl").read_text().splitlines()[0]
+        assert json.loads(line)["policy_obs_mode"] == "composed_pointcloud", method
     capsys.readouterr()
     assert rounds.main(["--record", str(record), "--status"]) == 0
     out = capsys.readouterr().out

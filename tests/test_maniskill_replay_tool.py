@@ -105,3 +105,32 @@ def test_pointcloud_obs_of_the_first_steps(tmp_path):
     assert xyz.shape == (POINTCLOUD_STEPS + 1, 2 * 320 * 240, 3) and labels.shape[:2] == xyz.shape[:2]
     assert np.isfinite(xyz).all() and len(np.unique(labels)) > 1  # segmented: more than one label
 
+
+
+def test_a_raw_point_cloud_conversion_says_its_size_and_is_refused_beyond_the_free_disk(tmp_path, capsys, monkeypatch):
+    """`-o pointcloud --save-traj` writes ~5 MB a step: the size is printed before anything runs,
+    and a conversion larger than the free disk is one line and exit 2 (nothing written)."""
+    import shutil
+    from collections import namedtuple
+
+    from fetchbench_ms import replay_trajectory
+
+    for suffix in (".h5", ".json"):
+        shutil.copy(SAMPLE.with_suffix(suffix), tmp_path / f"demos{suffix}")
+    traj = str(tmp_path / "demos.h5")
+    meta = json.loads((tmp_path / "demos.json").read_text())
+    steps, size = replay_trajectory.raw_pointcloud_bytes(meta, 1)
+    assert steps == meta["episodes"][0]["elapsed_steps"] + 1 and 3e6 < size / steps < 7e6
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(replay_trajectory.shutil, "disk_usage", lambda path: usage(10**12, 10**12 - 10**8, 10**8))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert replay_trajectory.main(["--traj-path", traj, "-o", "pointcloud", "--save-traj", "--count", "1"]) == 2
+    captured = capsys.readouterr()
+    assert "GB" in captured.out and "compact_pointcloud" in captured.out
+    assert len(captured.err.strip().splitlines()) == 1 and "--allow-exceeding-disk" in captured.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    # with the flag, or without saving, nothing is refused (checked without running the replay)
+    args = replay_trajectory._maniskill_replay.parse_args(["--traj-path", traj, "-o", "pointcloud", "--save-traj"])
+    assert replay_trajectory.check_raw_size(args, meta, allow=True) is None
+    args = replay_trajectory._maniskill_replay.parse_args(["--traj-path", traj, "-o", "pointcloud"])
+    assert replay_trajectory.check_raw_size(args, meta, allow=False) is None

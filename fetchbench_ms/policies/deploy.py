@@ -109,12 +109,20 @@ def _sha256(path: str) -> str:
     return content_sha256(path)
 
 
+@functools.lru_cache(maxsize=None)
+def _obs_mode(path: str) -> str:
+    from .agent import checkpoint_obs_mode
+
+    return checkpoint_obs_mode(path)
+
+
 def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
-    """What a record says of the policy it ran: the checkpoint's path and the sha256 of its
+    """What a record says of the policy it ran: the checkpoint's path, the sha256 of its
     ``.pt`` bytes (unpacked: the shipped checkpoint's JSON names the val runs made with
-    exactly these bytes)."""
+    exactly these bytes) and the obs mode it reads."""
     path = resolve_checkpoint(method, checkpoint)
-    return {"checkpoint": str(path), "checkpoint_sha256": _sha256(str(path.resolve()))}
+    return {"checkpoint": str(path), "checkpoint_sha256": _sha256(str(path.resolve())),
+            "policy_obs_mode": _obs_mode(str(path.resolve()))}
 
 
 def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, stride: int = 1,

@@ -545,6 +545,8 @@ MANISKILL_EVAL_CONTRACT = textwrap.dedent("""
         demo_path, num_envs, obs_horizon, video_dir = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
         meta = json.load(open(demo_path[:-2] + "json"))
         env_info = meta["env_info"]
+        # the scripts' --env-id: the file's id, or the one a user types (argv 5)
+        env_id = sys.argv[5] if len(sys.argv) > 5 else env_info["env_id"]
         control_mode = env_info["env_kwargs"]["control_mode"]
         with h5py.File(demo_path, "r") as f:
             traj = f[f"traj_{meta['episodes'][0]['episode_id']}"]
@@ -555,7 +557,7 @@ MANISKILL_EVAL_CONTRACT = textwrap.dedent("""
                           max_episode_steps=MAX_STEPS)
         if obs_horizon:
             env_kwargs["human_render_camera_configs"] = dict(shader_pack="default")
-        thunks = [make_thunk(env_info["env_id"], seed, env_kwargs, video_dir if seed == 0 else None, obs_horizon)
+        thunks = [make_thunk(env_id, seed, env_kwargs, video_dir if seed == 0 else None, obs_horizon)
                   for seed in range(num_envs)]
         envs = (gym.vector.SyncVectorEnv(thunks) if num_envs == 1
                 else gym.vector.AsyncVectorEnv(thunks, context="forkserver"))
@@ -617,11 +619,12 @@ def test_maniskill_baselines_launcher_runs_their_evaluation_on_the_converted_dem
 
 
 def test_maniskill_baselines_fail_without_the_launcher(tmp_path, converted_sample):
-    """Each of the launcher's two fixes is needed: without it the ids are unknown; with the
-    plugin imported but gymnasium 1.x's vector env as it is, their evaluate() finds no final_info."""
+    """Each of the launcher's two fixes is needed: without it the plain ids a user passes
+    (`--env-id FetchBench-v0`) are unknown; with the plugin imported but gymnasium 1.x's vector
+    env as it is, their evaluate() finds no final_info."""
     script = tmp_path / "evaluate_like_maniskill.py"
     script.write_text(MANISKILL_EVAL_CONTRACT)
-    args = [str(script), str(converted_sample), "1", "0", ""]
+    args = [str(script), str(converted_sample), "1", "0", "", "FetchBench-v0"]
     plain = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=600, env=ENV,
                            cwd=tmp_path)
     assert plain.returncode != 0, plain.stdout[-2000:]

@@ -23,7 +23,8 @@ env's joint targets, so they run as ManiSkill wrote them.
 
 A demo recorded without a renderer (``render_backend="none"`` in its env kwargs, e.g.
 state-only data collection) is replayed with ManiSkill's default renderer when the replay
-needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so.
+needs one (a camera obs mode, ``--save-video``, ``--vis``); a note says so. A replay that
+renders nothing (``-o state`` without videos) runs without a renderer.
 
 A raw point-cloud conversion (``-o pointcloud --save-traj``) writes every camera pixel of
 every step (~5 MB a step at 320x240): the wrapper prints the size it will write before it
@@ -55,7 +56,12 @@ def _needs_renderer(args, env_kwargs: dict) -> bool:
 
 def _replay_env_kwargs(args, env_kwargs: dict) -> dict | None:
     """The recorded env kwargs to replay with, or None to keep them as recorded."""
-    if env_kwargs.get("render_backend", "gpu") not in (None, "none") or not _needs_renderer(args, env_kwargs):
+    if not _needs_renderer(args, env_kwargs):
+        # Nothing is rendered: no renderer either (its start costs seconds a process on a GPU
+        # node, and a state-only conversion runs in many processes); the written env_info
+        # leaves the backend out (replayable_env_info), as the source's did.
+        return None if env_kwargs.get("render_backend") == "none" else {**env_kwargs, "render_backend": "none"}
+    if env_kwargs.get("render_backend", "gpu") not in (None, "none"):
         return None
     kwargs = {k: v for k, v in env_kwargs.items() if k != "render_backend"}  # ManiSkill's default renderer
     what = f"obs mode {args.obs_mode or env_kwargs.get('obs_mode')!r}"

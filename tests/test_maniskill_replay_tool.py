@@ -134,3 +134,17 @@ def test_a_raw_point_cloud_conversion_says_its_size_and_is_refused_beyond_the_fr
     assert replay_trajectory.check_raw_size(args, meta, allow=True) is None
     args = replay_trajectory._maniskill_replay.parse_args(["--traj-path", traj, "-o", "pointcloud"])
     assert replay_trajectory.check_raw_size(args, meta, allow=False) is None
+
+
+def test_a_replay_that_renders_nothing_runs_without_a_renderer():
+    """-o state (no video) replays with render_backend="none" (no renderer to start in each of a
+    conversion's processes); a camera obs mode keeps the recorded backend, or gets the default."""
+    from fetchbench_ms import replay_trajectory
+
+    parse = replay_trajectory._maniskill_replay.parse_args
+    state = parse(["--traj-path", str(SAMPLE), "-o", "state"])
+    assert replay_trajectory._replay_env_kwargs(state, {"obs_mode": "state"})["render_backend"] == "none"
+    assert replay_trajectory._replay_env_kwargs(state, {"render_backend": "none"}) is None
+    camera = parse(["--traj-path", str(SAMPLE), "-o", "pointcloud"])
+    assert replay_trajectory._replay_env_kwargs(camera, {"obs_mode": "state"}) is None
+    assert "render_backend" not in replay_trajectory._replay_env_kwargs(camera, {"render_backend": "none"})

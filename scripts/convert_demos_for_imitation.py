@@ -8,7 +8,9 @@ farthest-point sampled per segment + joints + TCP + arm action + the source's st
 139 KB-a-frame file is deleted. Resumable: finished chunks are skipped, so the same command
 continues after ``--time-limit`` or a kill. ``OUT/manifest.json`` records the source's hash,
 the sizes and every chunk's hash and frames (the trainers record its hash). Demos of test
-tasks or test-split objects are refused (exit 2) before anything is written.
+tasks or test-split objects are refused (exit 2) before anything is written; so are another
+env's demos, a file the replay tool already converted and demos without stage labels (one
+line naming what is valid, exit 1).
 
 ``--frame-stride K`` (K > 1) keeps every K-th converted step of each stage, its arm action the
 mean over the K steps it stands for (``policies.data.select_frames``), as the original
@@ -45,6 +47,7 @@ from pathlib import Path
 
 import h5py
 
+from fetchbench_ms.envs import PLUGIN_MODULE, recorded_env_id
 from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, COMPOSED_OBS_MODE, POINTS_OBS_MODES, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
 from fetchbench_ms.render_env_states import render_backends
 from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
@@ -162,6 +165,38 @@ def refuse_test_demos(meta: dict, purpose: str) -> None:
     cli_guard(refuse_test_objects, [e.get("target_object") for e in episodes], purpose)
 
 
+OUR_DEMOS = "valid: the demos `fetchbench demos run` records (FetchBench-*-v0, -c pd_joint_pos, stage labels)"
+
+
+def refuse_other_demos(source: Path, meta: dict) -> None:
+    """Only FetchBench demos as ``fetchbench demos run`` writes them become training data: a
+    FetchBench env's, recorded with ``pd_joint_pos`` (the replay converts from it), with the
+    expert's stage labels (``refuse_unlabelled_demos``). Another env's demos or a file the
+    replay tool already converted (``pd_joint_delta_pos``) end in one line naming what is valid."""
+    env_info = meta.get("env_info") if isinstance(meta, dict) else None
+    env_id = env_info.get("env_id") if isinstance(env_info, dict) else None
+    if not isinstance(env_id, str) or not recorded_env_id(env_id).startswith(f"{PLUGIN_MODULE}:"):
+        raise SystemExit(f"{source} holds demos of {env_id or 'no env'!r}, not of a FetchBench env; {OUR_DEMOS}")
+    episodes = meta.get("episodes") or []
+    modes = {(env_info.get("env_kwargs") or {}).get("control_mode")} | {e.get("control_mode") for e in episodes}
+    modes.discard(None)
+    if modes and modes != {"pd_joint_pos"}:
+        obs_mode = (env_info.get("env_kwargs") or {}).get("obs_mode")
+        raise SystemExit(f"{source} is a converted file (control mode {', '.join(sorted(modes))}, obs mode "
+                         f"{obs_mode}), not the demos it was made from; {OUR_DEMOS}")
+
+
+def refuse_unlabelled_demos(source: Path, meta: dict) -> None:
+    """The source's first trajectory is in its h5 and carries the expert's stage labels."""
+    episodes = meta.get("episodes") or []
+    if episodes:
+        with h5py.File(source, "r") as f:
+            name = f"traj_{episodes[0].get('episode_id')}"
+            if name not in f or "stage" not in f[name]:
+                raise SystemExit(f"{source}: {name} {'carries no stage labels' if name in f else 'is missing'}; "
+                                 f"{OUR_DEMOS}")
+
+
 def write_manifest(path: Path, settings: dict, records: dict, n_chunks: int) -> dict:
     chunks = [records[name] for name in sorted(records)]
     frames, nbytes = sum(r["frames"] for r in chunks), sum(r["bytes"] for r in chunks)
@@ -223,7 +258,9 @@ def main(argv=None) -> int:
     if not source.is_file() or not source.with_suffix(".json").is_file():
         raise SystemExit(f"no demos at {source} (+ .json); make them with `fetchbench demos run` (docs/demos.md)")
     meta = json.loads(source.with_suffix(".json").read_text())
-    refuse_test_demos(meta, "demo conversion for imitation")  # before anything is written
+    refuse_other_demos(source, meta)  # before anything is written
+    refuse_test_demos(meta, "demo conversion for imitation")
+    refuse_unlabelled_demos(source, meta)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log_file = open(out / "convert.log", "a")

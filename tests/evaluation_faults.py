@@ -3,13 +3,28 @@
 ``faulty`` behaves per task seed as ``FETCHBENCH_TEST_FAULTS`` (JSON ``{seed: behaviour}``,
 inherited by the worker processes) says: ``raise``, ``hang`` (sleeps far past any limit),
 ``crash`` (the process dies at once, as on a segfault); other tasks return a cheap
-deterministic failed record without simulating.
+deterministic failed record without simulating. ``FETCHBENCH_TEST_SLOW_ENV`` (seconds)
+delays each task's env (``TaskRunner.env``, before the reset and the method) by that much,
+as a slow env build on a loaded machine would (the workers import this module to find the
+method, and so get the delay).
 """
 from __future__ import annotations
 
 import json
 import os
 import time
+
+from fetchbench_ms.evaluation.methods import TaskRunner
+
+_make_env = TaskRunner.env
+
+
+def _slow_env(self, env_id: str):
+    time.sleep(float(os.environ.get("FETCHBENCH_TEST_SLOW_ENV", 0)))
+    return _make_env(self, env_id)
+
+
+TaskRunner.env = _slow_env
 
 
 def faulty(env, seed):

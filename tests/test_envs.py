@@ -1,6 +1,8 @@
 """FetchBench-*-v0 envs on CPU: make/reset/step, determinism, success logic, bad input."""
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -110,10 +112,14 @@ def test_success_logic_on_scripted_states(env):
     assert not info["success"]  # the target is still on its support, in front of the robot
     assert float(info["target_com_base"][0, 0]) > 0.0
     assert float(info["max_others_moved"]) == 0.0
+    # The height flag says where the target is, not that it was lifted (a high shelf's target
+    # starts above the success height): so it is not called is_lifted.
+    assert "is_lifted" not in info and float(info["target_lift"]) == pytest.approx(0.0, abs=1e-4)
+    assert bool(info["is_above_height"]) == (float(info["target_height"]) > 0.30)
 
     _place_target_com_in_base(env, [-0.2, 0.25, 0.66])  # the original's retrieval pose: held in free space
     info = base.evaluate()
-    assert info["success"] and info["others_undisturbed"]
+    assert info["success"] and info["others_undisturbed"] and bool(info["is_above_height"])
     assert float(info["target_height"]) == pytest.approx(0.66, abs=1e-4)
 
     # Another object knocked 20 cm off its place: a failure even with the target retrieved.
@@ -247,6 +253,9 @@ def test_rewards_are_finite_and_normalised():
         (lambda: gym.make("FetchBench-v0", control_mode="pd_joint_foo"), ValueError, "valid: pd_joint_delta_pos, pd_joint_pos"),
         (lambda: gym.make("FetchBench-v0", camera_width=100), ValueError, "valid: 320x240, 640x480"),
         (lambda: gym.make("FetchBench-v0", success_criteria="strict"), ValueError, "valid: paper, release"),
+        (lambda: gym.make("FetchBench-v0", camera_widht=320), ValueError,
+         "unknown env kwarg 'camera_widht'; did you mean 'camera_width'\\? valid: .*camera_height"),
+        (lambda: gym.make("FetchBench-v0", sim_bakend="cpu"), ValueError, "did you mean 'sim_backend'"),
     ],
 )
 def test_bad_env_arguments_name_valid_values(call, error, message):
@@ -434,3 +443,25 @@ def test_seed_sampled_tasks_use_train_objects_unless_test_is_asked_for():
             assert {o.object_id for o in env.unwrapped.tasks[0].objects} <= test, kwargs
         finally:
             env.close()
+
+
+def test_gpu_simulation_without_cuda_is_one_clear_error(monkeypatch):
+    """sim_backend="gpu" on a machine without CUDA: a ValueError at make naming what works
+    here (not SAPIEN's traceback from deep in the scene build)."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for backend in ("gpu", "physx_cuda", "cuda:0"):
+        with pytest.raises(ValueError, match=f"sim_backend='{backend}' simulates on a CUDA GPU, and no CUDA device "
+                                             "is available here; valid here: sim_backend='auto' or 'physx_cpu'"):
+            gym.make("FetchBench-v0", obs_mode="state", sim_backend=backend)
+
+
+def test_an_empty_subset_of_the_complete_default_suite_raises_at_make():
+    """FetchBench-Desk-v0 with category="Drawer" and default kwargs (the shipped default suite,
+    complete): a ValueError at make naming the scene types the suite has for the category,
+    no warning of a partial suite, no sampling that fails later."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="task suite 'train' has no task for scene type 'Desk' and category "
+                                             "'Drawer'; its tasks cover scene types .*Drawer.* for category 'Drawer'"):
+            gym.make("FetchBench-Desk-v0", category="Drawer", obs_mode="state")
+    assert not [w for w in caught if "task suite" in str(w.message)], [str(w.message) for w in caught]

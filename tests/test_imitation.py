@@ -1190,3 +1190,31 @@ def test_render_workers_are_spawned_with_one_thread_each(monkeypatch):
     with one_thread_per_spawned_worker():
         assert os.environ["OMP_NUM_THREADS"] == "2" and os.environ["MKL_NUM_THREADS"] == "1"
     assert os.environ["OMP_NUM_THREADS"] == "2" and "MKL_NUM_THREADS" not in os.environ
+
+
+@pytest.mark.parametrize("kind", sorted(TRAINER_KW))
+def test_trainer_flags_show_their_own_help(kind, capsys, monkeypatch):
+    """Each trainer flag's --help text is its own: --log-every and --ckpt-every do not repeat
+    --init-from's (tyro reads a comment above a field as the help of the fields after it)."""
+    import tyro
+
+    module = _import(ROOT / f"baselines/imitation/train_{kind}.py", f"train_{kind}")
+    monkeypatch.setenv("COLUMNS", "200")
+    with pytest.raises(SystemExit):
+        tyro.cli(module.Args, args=["--help"])
+    helps, flag = {}, None
+    for line in capsys.readouterr().out.splitlines():
+        text = line.strip().strip("│").strip()
+        if text.startswith("--"):
+            flag, _, text = text.partition(" ")  # the text: metavar, then help
+            helps[flag.rstrip(",")] = text
+        elif flag is not None and text and not text.startswith(("╭", "╰")):
+            helps[flag.rstrip(",")] += " " + text
+        else:
+            flag = None
+    helps = {k: " ".join(v.split()) for k, v in helps.items()}
+    assert "from an exported checkpoint" in helps["--init-from"]
+    assert "steps between progress lines" in helps["--log-every"]
+    assert "steps between the run's full checkpoints" in helps["--ckpt-every"]
+    texts = [h.split(" (default")[0] for h in helps.values() if len(h) > 40]
+    assert len(texts) == len(set(texts)), [t for t in texts if texts.count(t) > 1]

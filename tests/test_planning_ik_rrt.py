@@ -61,7 +61,7 @@ def test_rrtconnect_into_shelf_is_collision_free_on_exact_meshes(robot, shelf):
     goal_pose = hand_pose([0.68, -0.1, 0.12])
     goals = solve_ik(robot, goal_pose, checker=checker, q_seed=Q_DEFAULT, n_seeds=64)
     assert goals.found
-    result = plan_rrtconnect(checker, Q_DEFAULT, goals.q[:4], time_limit=20.0)
+    result = plan_rrtconnect(checker, Q_DEFAULT, goals.q[:4])
     assert result.success, result.status
     assert result.status == "solved"  # the straight segment hits the shelf: a real search
     assert np.allclose(result.path[0], Q_DEFAULT)
@@ -76,7 +76,7 @@ def test_rrtconnect_reports_unreachable_goal(robot, shelf):
     world, exact, checker = shelf
     q_bad = Q_DEFAULT.copy()
     q_bad[1] = 1.7  # arm folded down into the robot table
-    result = plan_rrtconnect(checker, Q_DEFAULT, q_bad, time_limit=1.0)
+    result = plan_rrtconnect(checker, Q_DEFAULT, q_bad)
     assert not result.success and result.status == "no_valid_goal"
 
 
@@ -161,9 +161,9 @@ def test_a_start_the_spheres_call_in_collision_is_escaped_not_deepened(robot, sh
         q_goal[0] += 0.6
         q_goal[1] -= 0.3
         assert start_check.valid(q_goal)[0]
-        assert plan_rrtconnect(start_check, Q_DEFAULT, q_goal, time_limit=5.0).status == "start_invalid"
+        assert plan_rrtconnect(start_check, Q_DEFAULT, q_goal).status == "start_invalid"
         assert escape_start(start_check, Q_DEFAULT, tolerance=depth / 2) is None  # deeper than allowed
-        result = plan_rrtconnect(start_check, Q_DEFAULT, q_goal, time_limit=10.0, start_tolerance=0.05)
+        result = plan_rrtconnect(start_check, Q_DEFAULT, q_goal, start_tolerance=0.05)
         assert result.success and result.start_escaped
         assert np.allclose(result.path[0], Q_DEFAULT) and np.allclose(result.path[-1], q_goal)
         first = densify(result.path[:2], 0.02)

@@ -55,7 +55,7 @@ def test_plan_onto_a_procedural_shelf_is_collision_free(shelf_scene):
     target_base = (T_base_scene @ target_scene)[:3]
     goals = solve_ik(robot, hand_pose(target_base), checker=checker, q_seed=Q_DEFAULT, n_seeds=64)
     assert goals.found
-    result = plan_rrtconnect(checker, Q_DEFAULT, goals.q[:4], time_limit=20.0)
+    result = plan_rrtconnect(checker, Q_DEFAULT, goals.q[:4])
     assert result.success, result.status
     exact_robot = ExactRobot(robot)
     for q in densify(result.path, 0.01):

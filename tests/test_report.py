@@ -101,6 +101,21 @@ def test_report_tables_match_the_records(runs):
     assert text.count("<div class='card'>") == 4
 
 
+def test_report_and_tables_give_the_c_space_median_of_the_successes(runs):
+    """One definition of the C-space length column (the successes' median, 4.0 here; over
+    every task that ran it would be 3.0), named as the results table names it."""
+    from fetchbench_ms.evaluation.metrics import format_table
+
+    page = build_report([runs[0]], runs[0] / "report", render=False)
+    category_table = re.search(r'<table class="by_category">(.*?)</table>', page.read_text()).group(1)
+    assert "median C-space length (successes, rad)" in category_table
+    row = re.findall(r"<td>([^<]*)</td>", category_table)
+    assert row[-1] == "4.00" and "3.00" not in row
+    text = format_table(summarize(RUN_A))
+    assert "med C-len (succ)" in text.splitlines()[0]
+    assert text.splitlines()[-1].split()[5] == "4.00"  # all: tasks, success, errors, time, C-len
+
+
 def test_comparing_two_runs_side_by_side(runs, tmp_path, capsys):
     out = tmp_path / "cmp"
     assert main(["report", str(runs[0]), str(runs[1]), "--out", str(out), "--no-render"]) == 0
@@ -132,6 +147,22 @@ def test_gallery_renders_the_start_of_a_failed_task(tmp_path):
 
     image = np.asarray(Image.open(images[0]))
     assert image.shape == (240, 640, 3) and image.std() > 10  # two 320x240 views, not blank
+    # The target is outlined in a view that sees it.
+    from fetchbench_ms.evaluation.report import TARGET_OUTLINE
+
+    assert (image == TARGET_OUTLINE).all(axis=-1).sum() > 20
+
+
+def test_outline_target_draws_around_the_mask_only():
+    from fetchbench_ms.evaluation.report import TARGET_OUTLINE, outline_target
+    import numpy as np
+
+    rgb = np.full((10, 10, 3), 7, np.uint8)
+    mask = np.zeros((10, 10), bool)
+    mask[4:6, 4:6] = True
+    out = outline_target(rgb, mask, width=1)
+    drawn = (out == TARGET_OUTLINE).all(axis=-1)
+    assert drawn.sum() == 8 and not (drawn & mask).any() and (out[mask] == 7).all()
 
 
 @pytest.mark.slow
@@ -155,3 +186,16 @@ def test_paper_row_goes_to_the_paper_variant_only():
     assert paper_reference(run())[0] == 0.121  # CGN-Cabinet
     assert paper_reference(run(env_options={"sim_freq": 60})) is None
     assert paper_reference(run(planner_options={"mppi_goal_region": 0})) is None
+
+
+def test_report_of_a_run_where_every_task_errored_warns_nothing(tmp_path):
+    import warnings
+
+    errored = [{**r, "failure": "error", "computation_time": None, "cspace_length": None, "phases": None,
+                "success": False, "error": {"kind": "exception", "message": "boom", "traceback": ""}}
+               for r in RUN_B]
+    root = write_run(tmp_path / "e", "idle", errored)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build_report([root], root / "report", render=False)
+    assert not [str(w.message) for w in caught if "legend" in str(w.message).lower()]

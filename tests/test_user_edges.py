@@ -680,3 +680,91 @@ def test_eval_where_every_task_ended_in_an_error_exits_non_zero(tmp_path, monkey
     assert main(["eval", "--method", "evaluation_faults:faulty", "--suite", "smoke", "--tasks", "0:2",
                  "--out", str(tmp_path / "eval")]) == 1
     assert "every one of the 2 tasks ended in an error: nothing was evaluated" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- imitation conversion: other files
+def _demo_pair(folder: Path, env_info: dict, episodes: list, steps: int = 4) -> Path:
+    """A demo file of ``episodes`` (zero actions of ``steps`` steps each) and its JSON."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "demos.h5"
+    with h5py.File(path, "w") as f:
+        for e in episodes:
+            f.create_dataset(f"traj_{e['episode_id']}/actions", data=np.zeros((steps, 8), np.float32))
+    path.with_suffix(".json").write_text(json.dumps({"env_info": env_info, "episodes": episodes}))
+    return path
+
+
+def _conversion_refused(source: Path, out: Path) -> str:
+    """The converter's one line for ``source``; nothing written."""
+    from script_modules import import_script
+
+    convert = import_script(REPO / "scripts/convert_demos_for_imitation.py")
+    with pytest.raises(SystemExit) as excinfo:
+        convert.main(["--traj-path", str(source), "--out", str(out)])
+    message = excinfo.value.code
+    assert isinstance(message, str) and "\n" not in message and "Traceback" not in message, message
+    assert not out.exists()
+    return message
+
+
+def test_imitation_conversion_refuses_another_envs_demos(tmp_path):
+    episode = {"episode_id": 0, "episode_seed": 0, "control_mode": "pd_joint_pos", "elapsed_steps": 4,
+               "reset_kwargs": {"seed": 0}, "success": True}
+    source = _demo_pair(tmp_path / "pickcube", {"env_id": "PickCube-v1", "env_kwargs": {
+        "obs_mode": "none", "control_mode": "pd_joint_pos"}, "max_episode_steps": 50}, [episode])
+    line = _conversion_refused(source, tmp_path / "out")
+    assert "'PickCube-v1', not of a FetchBench env" in line and "valid: the demos `fetchbench demos run`" in line
+
+
+def test_imitation_conversion_refuses_a_converted_file(tmp_path):
+    """The replay tool's output (pd_joint_delta_pos, compact clouds) is not a source: it would
+    convert to 0 frames, on which the trainers fail."""
+    meta = json.loads(SAMPLE.with_suffix(".json").read_text())
+    kwargs = {**meta["env_info"]["env_kwargs"], "control_mode": "pd_joint_delta_pos", "obs_mode": "compact_pointcloud"}
+    episodes = [{**e, "control_mode": "pd_joint_delta_pos"} for e in meta["episodes"][:2]]
+    source = _demo_pair(tmp_path / "converted", {**meta["env_info"], "env_kwargs": kwargs}, episodes)
+    line = _conversion_refused(source, tmp_path / "out")
+    assert "is a converted file (control mode pd_joint_delta_pos, obs mode compact_pointcloud)" in line
+    assert "valid: the demos `fetchbench demos run` records" in line
+
+
+def test_imitation_conversion_refuses_demos_without_stage_labels(tmp_path):
+    source = _copy_sample(tmp_path / "unlabelled")
+    first = json.loads(source.with_suffix(".json").read_text())["episodes"][0]["episode_id"]
+    with h5py.File(source, "r+") as f:
+        del f[f"traj_{first}/stage"]
+    line = _conversion_refused(source, tmp_path / "out")
+    assert f"traj_{first} carries no stage labels" in line
+
+
+# ----------------------------------------------------------------------------- demos stats: other files
+def test_demos_stats_refuses_another_envs_file(tmp_path, capsys):
+    episode = {"episode_id": 0, "episode_seed": 0, "control_mode": "pd_joint_pos", "elapsed_steps": 4,
+               "reset_kwargs": {"seed": 0}, "success": True}
+    source = _demo_pair(tmp_path / "pickcube", {"env_id": "PickCube-v1", "env_kwargs": {}}, [episode])
+    assert main(["demos", "stats", str(source)]) == 2
+    assert "'PickCube-v1', not of a FetchBench env; valid:" in _one_error_line(capsys.readouterr().err)
+
+
+def test_demos_stats_reads_a_converted_file(tmp_path, capsys):
+    """The replay tool's conversion keeps each trajectory's task in its reset options only:
+    its tasks, scene types and categories are those of its source; its C-space length is
+    not recorded (no 'None rad')."""
+    from fetchbench_ms.demos.stats import PAIR_ATTR, demo_stats
+
+    source = demo_stats(SAMPLE)
+    path = _copy_sample(tmp_path / "converted")
+    meta = json.loads(path.with_suffix(".json").read_text())
+    for e in meta["episodes"]:
+        for key in ("task_id", "grasp_id", "scene_type", "category", "target_object", "cspace_length"):
+            e.pop(key, None)
+        e["control_mode"] = "pd_joint_delta_pos"
+    path.with_suffix(".json").write_text(json.dumps(meta))
+    with h5py.File(path, "r+") as f:  # the pair mark of a merged file names the old .json
+        f.attrs.pop(PAIR_ATTR, None)
+    stats = demo_stats(path)
+    assert stats["tasks"] == source["tasks"] == 12
+    assert stats["by_scene_type"] == source["by_scene_type"] and stats["by_category"] == source["by_category"]
+    assert main(["demos", "stats", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "C-space length not recorded" in out and "None" not in out

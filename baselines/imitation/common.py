@@ -66,25 +66,27 @@ class TrainArgs:
     eval_workers: int = min(16, os.cpu_count() or 1)  # processes of the val-success evaluation
     time_limit: float = 0.0  # s; > 0: checkpoint and stop after this long (re-run to resume)
     until_step: int = 0  # > 0: checkpoint and stop at this step (re-run to resume; the LR schedule spans --steps)
-    # Resume the run's checkpoint on other data: the next shard of a dataset converted and
-    # trained in several runs (scripts/convert_demos_for_imitation.py --start). Each data hash and
-    # the step it began at are recorded (checkpoint, export JSON).
     new_data: bool = False
-    # Start a new run folder from an exported checkpoint (assets/checkpoints/imit_<kind>.pt or a
-    # hold's export): its weights, step and data history go on; the optimiser starts afresh
-    # (an export has no Adam moments) and the learning rate warms up again over --warmup steps.
-    # What carries a run from one session to the next when its full checkpoint (~85 MB with the
-    # optimiser state, three trainers) could not be kept: an export is the fp16 weights alone.
+    """Resume the run's checkpoint on other data: the next shard of a dataset converted and
+    trained in several runs (scripts/convert_demos_for_imitation.py --start). Each data hash and
+    the step it began at are recorded (checkpoint, export JSON)."""
     init_from: str = ""
+    """Start a new run folder from an exported checkpoint (assets/checkpoints/imit_<kind>.pt or a
+    hold's export): its weights, step and data history go on; the optimiser starts afresh (an
+    export has no Adam moments) and the learning rate warms up again over --warmup steps. What
+    carries a run from one session to the next when its full checkpoint (~85 MB with the
+    optimiser state, three trainers) could not be kept: an export is the fp16 weights alone."""
     log_every: int = 100
+    """steps between progress lines (the first steps are logged too: the rate and ETA show at once)"""
     ckpt_every: int = 1000
-    # > 0: every this many steps, and at the end of the schedule, export a candidate checkpoint
-    # (<run>/candidates/step_NNNNNNN.pt + .json, as --export writes): what
-    # scripts/select_checkpoint.py chooses from on val tasks
+    """steps between the run's full checkpoints (<run>/checkpoint.pt; re-running resumes from it)"""
     save_every: int = 0
-    # When done, export the fp16 checkpoint and its JSON (evaluate it with `fetchbench eval
-    # --policy-checkpoint`; scripts/maint/ship_imitation.py makes it the package's own)
+    """> 0: every this many steps, and at the end of the schedule, export a candidate checkpoint
+    (<run>/candidates/step_NNNNNNN.pt + .json, as --export writes): what
+    scripts/select_checkpoint.py chooses from on val tasks"""
     export: bool = False
+    """When done, export the fp16 checkpoint and its JSON (evaluate it with `fetchbench eval
+    --policy-checkpoint`; scripts/maint/ship_imitation.py makes it the package's own)"""
     export_path: str = ""  # default <run>/export/imit_<kind>.pt; never the package's checkpoints
     point_dims: tuple[int, ...] = (64, 128, 256)  # the shared PointNet's layer widths
 

@@ -93,16 +93,51 @@ def check_trajectory_file(path: str | Path) -> dict:
     return data
 
 
+def episode_task_id(episode: dict):
+    """A trajectory's task id: the generator's ``task_id``, or the one in its reset options
+    (what the replay tool's conversions keep)."""
+    options = (episode.get("reset_kwargs") or {}).get("options") or {}
+    return episode.get("task_id") or options.get("task_id")
+
+
+def _suite_labels(task_ids) -> dict:
+    """(scene type, category) of each ``SUITE/NNNN`` task id found in its shipped suite."""
+    from ..tasks.suite import load_suite, shipped_suite_file
+
+    out = {}
+    for name in sorted({str(t).split("/")[0] for t in task_ids if t and "/" in str(t)}):
+        if shipped_suite_file(name) is None:
+            continue
+        suite = load_suite(name)
+        for task_id in task_ids:
+            if task_id in suite.tasks:
+                task = suite.tasks[task_id]
+                out[task_id] = (task.scene_type, task.target_label)
+    return out
+
+
 def demo_stats(path: str | Path) -> dict:
     """Counts of a trajectory file: trajectories, frames, tasks, by category and scene type
-    (the .h5 is checked against its .json first: ``check_trajectory_file``)."""
+    (the .h5 is checked against its .json first: ``check_trajectory_file``). A FetchBench
+    file only (``fetchbench demos run``'s, or the replay tool's conversion of one, whose
+    trajectories carry their task in their reset options: scene type and category are then
+    read from the task's suite); another env's file is a ValueError."""
+    from ..envs import PLUGIN_MODULE, recorded_env_id
+
     path = resolve(path)
     data = check_trajectory_file(path)
+    env_id = (data.get("env_info") or {}).get("env_id")
+    if not isinstance(env_id, str) or not recorded_env_id(env_id).startswith(f"{PLUGIN_MODULE}:"):
+        raise ValueError(f"{path} holds trajectories of {env_id or 'no env'!r}, not of a FetchBench env; valid: the "
+                         "files `fetchbench demos run` writes and the replay tool's conversions of them")
     eps = data["episodes"]
     steps = np.array([e["elapsed_steps"] for e in eps], dtype=int)
-    tasks = Counter(e.get("task_id") for e in eps)
-    by_category = Counter(e.get("category") for e in eps)
-    by_type = Counter(e.get("scene_type") for e in eps)
+    task_ids = [episode_task_id(e) for e in eps]
+    tasks = Counter(task_ids)
+    missing = [t for e, t in zip(eps, task_ids) if "scene_type" not in e or "category" not in e]
+    labels = _suite_labels(missing) if missing else {}
+    by_category = Counter(e.get("category", labels.get(t, (None, None))[1]) for e, t in zip(eps, task_ids))
+    by_type = Counter(e.get("scene_type", labels.get(t, (None, None))[0]) for e, t in zip(eps, task_ids))
     cspace = np.array([e["cspace_length"] for e in eps if "cspace_length" in e], dtype=float)
     return {
         "path": str(path),
@@ -125,9 +160,11 @@ def format_stats(s: dict) -> str:
     lines = [f"{s['path']}: {s['trajectories']} trajectories ({s['success']} successful), {s['frames']} frames, "
              f"{s['tasks']} tasks" + (f" of {s['tasks_tried']} tried" if s.get("tasks_tried") else ""),
              f"  env {s['env_id']}, control mode {s['control_mode']}; {s['trajectories_per_task']} trajectories a "
-             f"task, {s['mean_frames']} frames a trajectory, C-space length {s['mean_cspace_length']} rad"]
+             f"task, {s['mean_frames']} frames a trajectory, C-space length "
+             + (f"{s['mean_cspace_length']} rad" if s["mean_cspace_length"] is not None else "not recorded")]
     lines.append("  by category:   " + ", ".join(f"{c} {n}" for c, n in s["by_category"].items()))
-    lines.append("  by scene type: " + ", ".join(f"{t} {n}" for t, n in s["by_scene_type"].items()))
+    lines.append("  by scene type: " + ", ".join(f"{'unknown' if t is None else t} {n}"
+                                                 for t, n in s["by_scene_type"].items()))
     return "\n".join(lines)
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import functools
 import gc
+import inspect
 import math
 import warnings
 from typing import Any, Optional
@@ -143,12 +145,16 @@ def check_obs_mode(obs_mode: Optional[str], render_backend: Optional[str] = "gpu
 
 
 def check_num_envs(num_envs: int, sim_backend: str = "auto") -> None:
-    """ValueError for several sub-scenes where GPU simulation is impossible (ManiSkill
-    raises a bare RuntimeError about a missing "cuda" device or a CPU backend), naming
-    both ways to run many environments."""
+    """ValueError for GPU simulation asked for without a CUDA device, and for several
+    sub-scenes where GPU simulation is impossible (ManiSkill raises a bare RuntimeError
+    about a missing "cuda" device or a CPU backend), naming the ways that work."""
+    backend = str(sim_backend).split(":")[0]
+    if sim_backend_name_mapping.get(backend) == "physx_cuda" and not torch.cuda.is_available():
+        raise ValueError(f"sim_backend={sim_backend!r} simulates on a CUDA GPU, and no CUDA device is available "
+                         "here; valid here: sim_backend='auto' or 'physx_cpu' (one sub-scene an env; for many, "
+                         "fetchbench_ms.envs.make_vec_env)")
     if num_envs <= 1:
         return
-    backend = str(sim_backend).split(":")[0]
     cpu = backend in ("cpu", "physx_cpu")
     if cpu or not torch.cuda.is_available():
         why = (f"sim_backend={sim_backend!r} simulates one sub-scene" if cpu
@@ -158,6 +164,21 @@ def check_num_envs(num_envs: int, sim_backend: str = "auto") -> None:
             "machine with a CUDA GPU (and SAPIEN's PhysX GPU runtime), or on the CPU use "
             f"fetchbench_ms.envs.make_vec_env(env_id, {num_envs}, **kwargs): a gymnasium AsyncVectorEnv of "
             "single-scene CPU envs")
+
+
+def _check_kwarg_names(cls, kwargs: dict) -> None:
+    """ValueError for a keyword argument neither the env nor ManiSkill's ``BaseEnv`` takes
+    (``camera_widht``), with the closest valid name; Python would raise a bare TypeError
+    from deep inside ManiSkill."""
+    taken = {fn: [name for name, p in inspect.signature(fn).parameters.items()
+                  if name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+             for fn in (cls.__init__, BaseEnv.__init__)}
+    unknown = [name for name in kwargs if name not in taken[BaseEnv.__init__]]
+    if unknown:
+        valid = sorted({name for names in taken.values() for name in names})
+        close = difflib.get_close_matches(unknown[0], valid, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ValueError(f"unknown env kwarg {unknown[0]!r}; {hint}valid: {', '.join(valid)}")
 
 
 def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
@@ -255,17 +276,19 @@ def _resolve_task_source(task_source: Optional[str], task_suite, object_split: s
             if (scene_type is None or t.scene_type == scene_type) and (labels is None or t.target_label in labels)]
     if curriculum is not None and curriculum.max_tasks is not None:
         pool = pool[: curriculum.max_tasks]
-    if not pool and defaulted:
-        # The shipped default suite may be partial (docs/suite.md, "State"): an id it does
-        # not cover yet samples, as it would without the suite, and says so.
+    if not pool and defaulted and not suite.info.get("complete"):
+        # A partial default suite (docs/suite.md, "State"): an id it does not cover yet
+        # samples, as it would without the suite, and says so. A complete suite without the
+        # subset raises below: no task of it exists.
         warnings.warn(f"the default task suite {suite.name!r} has no task yet for "
                       f"{scene_type or 'any scene type'}/{category or 'any category'} (it is partial: "
                       f"{suite.info.get('complete_scenes')} of {suite.info.get('planned_scenes')} scenes); seed resets "
                       "sample raw, unfiltered tasks (task_source='sampled')", stacklevel=3)
         return "sampled", None, None
     if not pool:
+        curriculum_labels = sorted(labels or ()) if curriculum is not None and curriculum.target_labels else None
         what = " and ".join(f"{k} {v!r}" for k, v in (("scene type", scene_type), ("category", category),
-                                                        ("target labels", sorted(labels or ()))) if v)
+                                                        ("target labels", curriculum_labels)) if v)
         types = sorted({t.scene_type for t in suite.tasks.values() if labels is None or t.target_label in labels})
         raise ValueError(f"task suite {suite.name!r} has no task for {what}; its tasks cover scene types "
                          f"{', '.join(types) or '(none)'}" + (f" for category {category!r}" if category else "")
@@ -348,6 +371,7 @@ class FetchBenchEnv(BaseEnv):
         id_fixes: Optional[dict] = None,
         **kwargs,
     ):
+        _check_kwarg_names(type(self), kwargs)
         category = category_name(category)  # either vocabulary: Shelf or on_shelf
         _check_id_fixes(id_fixes, scene_type=scene_type, category=category)
         if scene_type is not None and scene_type not in SCENE_TYPES:
@@ -838,7 +862,9 @@ class FetchBenchEnv(BaseEnv):
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],
             target_moved=moved[rows, b.target_index],
             max_others_moved=max_others_moved,
-            is_lifted=lifted,
+            # The target's centre of mass above the success height (not "lifted from its
+            # start": a target on a high shelf starts above it; ``target_lift`` is the rise).
+            is_above_height=lifted,
             is_retrieved=retrieved,
             others_undisturbed=undisturbed,
             task_filtered=self._task_filtered.clone(),
@@ -992,7 +1018,7 @@ class FetchBenchEnv(BaseEnv):
         grasped = info["is_grasped"].float()
         reach = torch.maximum(1 - torch.tanh(REACH_SCALE * torch.relu(self.target_surface_distance() - REACH_TOLERANCE)),
                               grasped)
-        in_region = (info["is_lifted"] & info["is_retrieved"]).float()
+        in_region = (info["is_above_height"] & info["is_retrieved"]).float()
         # Out in the success region counts as off the support, also where the carry went
         # down from a high shelf to below the target's start height.
         lift = grasped * torch.maximum(torch.clamp(info["target_lift"] / LIFT_HEIGHT, 0.0, 1.0), in_region)

@@ -112,15 +112,16 @@ def add_commands(subparsers) -> None:
     p.add_argument("--env", default=None,
                    help="instead of a suite: sample tasks from this env id's seeds, with test-split objects "
                         "(an evaluation; the env's own default for seeds is the train split)")
-    p.add_argument("--episodes", type=int, default=10, help="with --env: number of seeds")
-    p.add_argument("--seed", type=int, default=0, help="with --env: first seed")
-    p.add_argument("--workers", type=int, default=1, help="worker processes (one core each)")
+    p.add_argument("--episodes", type=int, default=10, help="with --env: number of seeds (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="with --env: first seed (default %(default)s)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes, one core each (default %(default)s)")
     p.add_argument("--backend", default="local", help=f"one of: {', '.join(BACKENDS)}")
     p.add_argument("--address", default=None, help="ray: address of an existing cluster (default: start a local one)")
     p.add_argument("--task-timeout", type=float, default=600.0,
-                   help="s per task before it is killed: a safety net only (budgets are counts); such a task "
-                        "is recorded as failure 'timeout'")
-    p.add_argument("--retries", type=int, default=1, help="tries per task (FetchBench's --retries 5)")
+                   help="s a task's method may run, counted from its start in the worker (its env made and "
+                        "reset), before it is killed: a safety net only (budgets are counts); such a task is "
+                        "recorded as failure 'timeout' (default %(default)s)")
+    p.add_argument("--retries", type=int, default=1, help="tries per task (default %(default)s; FetchBench's --retries 5)")
     p.add_argument("--retry-errors", action="store_true", help="run again the tasks recorded as errors")
     p.add_argument("--videos", action="store_true",
                    help="record a GIF of every failed task (OUT/videos/), shown in the report's gallery")

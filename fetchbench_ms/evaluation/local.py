@@ -16,9 +16,10 @@ import time
 from multiprocessing.connection import wait
 from typing import Callable, Iterable
 
-from .methods import RunnerSpec, WorkItem, error_record
+from .methods import RunnerSpec, WorkItem, error_record, setup_limit, timeout_message
 
 READY = "ready"
+STARTED = "started"  # ("started", task id): the task's env is made and reset, its method runs (its limit starts)
 PROGRESS = "progress"  # ("progress", task id, control steps of its episode, seconds): a task still running
 PROGRESS_AFTER = 5.0  # s a task runs before its worker reports its control steps
 PROGRESS_EVERY = 2.0  # s between two such reports
@@ -49,6 +50,12 @@ def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
     torch.set_num_threads(1)
     runner = spec.make()
     send_lock, running = threading.Lock(), {}
+
+    def method_started(item: WorkItem) -> None:
+        with send_lock:
+            conn.send((STARTED, item.task_id))
+
+    runner.on_method_start = method_started
     threading.Thread(target=_report_progress, args=(conn, send_lock, runner, running), daemon=True).start()
     with send_lock:
         conn.send(READY)
@@ -95,7 +102,8 @@ class _Worker:
         self.proc.start()
         child.close()
         self.ready = False
-        self.started = time.monotonic()
+        self.started = time.monotonic()  # the process's start, then each task's dispatch
+        self.method_started: float | None = None  # when the current task's method started
         self.item: WorkItem | None = None
 
     def kill(self) -> None:
@@ -106,7 +114,14 @@ class _Worker:
 
 
 def _deadline(worker: _Worker, task_timeout: float) -> float:
-    return worker.started + (task_timeout if worker.ready else STARTUP_TIMEOUT)
+    """The start-up's limit, then a task's: ``task_timeout`` from its method's start in the
+    worker (not from its dispatch: a loaded machine's slow env build is not the method's
+    time), and ``setup_limit`` for making and resetting its env before that."""
+    if not worker.ready:
+        return worker.started + STARTUP_TIMEOUT
+    if worker.method_started is not None:
+        return worker.method_started + task_timeout
+    return worker.started + setup_limit(task_timeout)
 
 
 def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
@@ -129,7 +144,7 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
             now = time.monotonic()
             for w in pool:
                 if w.ready and w.item is None and queue:
-                    w.item, w.started = queue.popleft(), now
+                    w.item, w.started, w.method_started = queue.popleft(), now, None
                     w.conn.send(w.item)
             if not queue and all(w.item is None for w in pool):
                 break
@@ -147,6 +162,9 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
                     died = True
                 if message == READY:
                     w.ready, failed_starts = True, 0
+                elif isinstance(message, tuple) and message[0] == STARTED:
+                    if w.item is not None and message[1] == w.item.task_id:
+                        w.method_started = time.monotonic()
                 elif isinstance(message, tuple) and message[0] == PROGRESS:
                     if on_progress is not None and w.item is not None and message[1] == w.item.task_id:
                         on_progress(*message[1:])  # (then on to the deadline check: news is no reprieve)
@@ -160,7 +178,8 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
                     continue
                 if w.item is not None:
                     if timed_out:
-                        record = error_record(w.item, "timeout", f"ran past the task time limit of {task_timeout:g} s")
+                        record = error_record(w.item, "timeout",
+                                              timeout_message(w.method_started is not None, task_timeout))
                     else:
                         w.proc.join(5)  # its pipe closes a moment before it can be reaped
                         record = error_record(w.item, "crash", f"the worker process died "

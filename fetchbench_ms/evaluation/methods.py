@@ -26,6 +26,22 @@ IDLE = "idle"
 #: train split (safe for learning); suite tasks carry their objects and ignore this.
 SAMPLED_TASK_SPLIT = "test"
 ERROR_FAILURE = "error"  # the failure class of a task that crashed or timed out
+#: s a worker may take to make and reset a task's env (before the method runs) when the task
+#: time limit is shorter: the limit counts the method's run, from its start in the worker, so
+#: a machine's load (a slow env build) does not turn a task's outcome into a timeout.
+ENV_BUILD_LIMIT = 300.0
+
+
+def setup_limit(task_timeout: float) -> float:
+    """s a task may spend before its method starts (making and resetting its env)."""
+    return max(task_timeout, ENV_BUILD_LIMIT)
+
+
+def timeout_message(method_started: bool, task_timeout: float) -> str:
+    """The message of a timeout record: the method's limit, or the env build's before it."""
+    if method_started:
+        return f"ran past the task time limit of {task_timeout:g} s"
+    return f"took longer than {setup_limit(task_timeout):g} s to make and reset its env"
 
 
 def builtin_methods() -> tuple[str, ...]:
@@ -243,6 +259,17 @@ class TaskRunner:
         # Every record of a pipeline method names its variant (error records too).
         self.pipeline_fields = pipeline_fields(method_name, improvements)
         self.envs: dict = {}
+        # time.monotonic() when the current task's method started (its env made and reset),
+        # None between methods; ``on_method_start(item)`` is told at that moment. The task
+        # time limit counts from there (the backends' deadlines).
+        self.method_started: Optional[float] = None
+        self.current_item: Optional[WorkItem] = None  # the task being run, None between tasks
+        self.on_method_start: Optional[Callable[[WorkItem], None]] = None
+
+    def method_elapsed(self) -> Optional[float]:
+        """s since the current task's method started; None while none runs."""
+        started = self.method_started
+        return None if started is None else time.monotonic() - started
 
     def env(self, env_id: str):
         from ..envs import make
@@ -266,10 +293,14 @@ class TaskRunner:
 
     def __call__(self, item: WorkItem) -> dict:
         t = time.perf_counter()
+        self.current_item = item
         try:
             env = self.current_env = self.env(item.env_id)  # (the worker's progress reports read its steps)
             options = {"task": item.task} if item.task is not None else None
             env.reset(seed=item.seed, options=options)
+            self.method_started = time.monotonic()
+            if self.on_method_start is not None:
+                self.on_method_start(item)
             if self.video_dir:
                 with VideoRecorder(env) as video:
                     record = dict(self.method.run(env, item.seed))
@@ -291,6 +322,7 @@ class TaskRunner:
             # The env may be half-way through a reconfigure: start the next task on a fresh one.
             self.close()
             record = error_record(item, "exception", f"{type(error).__name__}: {error}", traceback.format_exc())
+        self.method_started = self.current_item = None
         record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
                       wall_time=round(time.perf_counter() - t, 2))
         for key, value in self.pipeline_fields.items():

@@ -5,7 +5,9 @@ A task that errored (crash, timeout, exception) counts as a failed task of the m
 its rate is in every table (column ``errors``) so a broken run cannot look like a good one.
 ``timeout`` (failure class) is a task or a plan stopped by a wall-clock safety net (the
 budgets are counts; a timeout says the machine was too slow): counted apart (``timeouts``).
-Medians of computation time and C-space length are over tasks that ran (no error).
+Medians of computation time and C-space length are over tasks that ran (no error); the
+tables (``format_table``, the report, ``results_table``) show the C-space length's median
+over the successes (``median_cspace_length_successes``): a failure's path is cut short.
 
 The funnel is the paper's (approach plan, approach execution, retrieval plan, final) plus
 the stages between; a stage no record of the group has (an imitation method plans
@@ -105,13 +107,14 @@ def format_table(summary: dict, by: str = "by_category", timing: bool = True) ->
         return "no task ran"
     label = "category" if by == "by_category" else "scene type"
     time_header = f"{'med time s':>11}" if timing else ""
-    header = f"{label:<22}{'tasks':>6}{'success':>9}{'errors':>7}{time_header}{'med C-len':>10}  failures"
+    header = f"{label:<22}{'tasks':>6}{'success':>9}{'errors':>7}{time_header}{'med C-len (succ)':>17}  failures"
     lines = [header, "-" * len(header)]
     rows = list(summary[by].items()) + [("all", summary["all"])]
     for name, s in rows:
         failures = ", ".join(f"{k} {v}" for k, v in s["failures"].items() if v) or "-"
         t = "-" if s["median_computation_time"] is None else f"{s['median_computation_time']:.2f}"
         t = f"{t:>11}" if timing else ""
-        c = "-" if s["median_cspace_length"] is None else f"{s['median_cspace_length']:.2f}"
-        lines.append(f"{name:<22}{s['tasks']:>6}{s['success_rate']:>9.1%}{s['errors']:>7}{t}{c:>10}  {failures}")
+        c = s["median_cspace_length_successes"]
+        c = "-" if c is None else f"{c:.2f}"
+        lines.append(f"{name:<22}{s['tasks']:>6}{s['success_rate']:>9.1%}{s['errors']:>7}{t}{c:>17}  {failures}")
     return "\n".join(lines)

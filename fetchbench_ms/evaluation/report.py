@@ -121,13 +121,18 @@ def plots(runs: list[Run]) -> dict[str, bytes]:
     for key, xlabel, name in (("computation_time", "computation time per task (s)", "computation_time.png"),
                               ("cspace_length", "C-space path length per task (rad, 9 joints)", "cspace_length.png")):
         fig, ax = plt.subplots(figsize=(6, 3.2))
+        drawn = False
         for r in runs:
             values = [x[key] for x in r.records if not x.get("error") and x.get(key) is not None]
             if values:
                 ax.hist(values, bins=20, alpha=0.6, label=f"{r.label} (n={len(values)})")
+                drawn = True
         ax.set_xlabel(xlabel)
         ax.set_ylabel("tasks")
-        ax.legend(fontsize=8)
+        if drawn:  # (every task errored: no histogram, and no legend of nothing)
+            ax.legend(fontsize=8)
+        else:
+            ax.text(0.5, 0.5, "no task ran to the end", ha="center", va="center", transform=ax.transAxes)
         out[name] = _png(fig)
     return out
 
@@ -183,13 +188,14 @@ def tables(runs: list[Run]) -> dict[str, str]:
     for r in runs:
         rows.append([esc(r.label)] + [_pct(r.summary["by_category"].get(c)) for c in categories] + [
             _pct(r.summary["all"]), str(r.summary["all"]["errors"]),
-            _num(r.summary["all"]["median_computation_time"]), _num(r.summary["all"]["median_cspace_length"])])
+            _num(r.summary["all"]["median_computation_time"]), _num(r.summary["all"]["median_cspace_length_successes"])])
         paper = paper_reference(r)
         if paper is not None:  # the paper's figure for this method, beside ours
             rows.append([f"<i>FetchBench paper: {esc(r.manifest['method'])}</i>"]
                         + _paper_row(len(categories) + 4, len(categories), paper[0]))
     out["by_category"] = _table(
-        ["method"] + [esc(c) for c in categories] + ["all", "errors", "median time (s)", "median C-space length"],
+        ["method"] + [esc(c) for c in categories] + ["all", "errors", "median time (s)",
+                       "median C-space length (successes, rad)"],
         rows, "by_category")
     out["by_scene_type"] = _table(["scene type"] + [esc(r.label) for r in runs],
                                   [[esc(t)] + [_pct(r.summary["by_scene_type"].get(t)) for r in runs]
@@ -240,8 +246,31 @@ def _task_for(run: Run, record: dict):
                                                    "options": {"task": suite.get(record["task_id"]).to_dict()}}
 
 
+#: RGB of the outline drawn around the target in the gallery's start images.
+TARGET_OUTLINE = (255, 0, 255)
+
+
+def outline_target(rgb, mask, width: int = 2):
+    """``rgb`` [H, W, 3] uint8 with a ``TARGET_OUTLINE`` band of ``width`` px drawn just
+    outside ``mask`` [H, W] (the target's pixels), which stay as rendered."""
+    import numpy as np
+
+    grown = mask.copy()
+    for _ in range(width):
+        shifted = grown.copy()
+        shifted[1:] |= grown[:-1]
+        shifted[:-1] |= grown[1:]
+        shifted[:, 1:] |= grown[:, :-1]
+        shifted[:, :-1] |= grown[:, 1:]
+        grown = shifted
+    out = rgb.copy()
+    out[grown & ~mask] = TARGET_OUTLINE
+    return out
+
+
 def render_starts(run: Run, records: list[dict]) -> dict[str, bytes]:
-    """task id -> PNG of the left and right cameras at the task's start."""
+    """task id -> PNG of the left and right cameras at the task's start, the target outlined
+    (``TARGET_OUTLINE``) where a camera sees it."""
     import numpy as np
     from PIL import Image
 
@@ -254,9 +283,14 @@ def render_starts(run: Run, records: list[dict]) -> dict[str, bytes]:
             env_id, reset = _task_for(run, r)
             if env_id not in envs:
                 # Seed records rebuild their task only with the split the run sampled from.
-                envs[env_id] = make(env_id, obs_mode="rgb", object_split=SAMPLED_TASK_SPLIT)
+                envs[env_id] = make(env_id, obs_mode="rgb+segmentation", object_split=SAMPLED_TASK_SPLIT)
             obs, _ = envs[env_id].reset(**reset)
-            views = [obs["sensor_data"][f"{side}_camera"]["rgb"][0].cpu().numpy() for side in ("left", "right")]
+            target_id = int(envs[env_id].unwrapped.target.per_scene_id[0])
+            views = []
+            for side in ("left", "right"):
+                camera = obs["sensor_data"][f"{side}_camera"]
+                mask = camera["segmentation"][0, ..., 0].cpu().numpy() == target_id
+                views.append(outline_target(camera["rgb"][0].cpu().numpy(), mask))
             buffer = io.BytesIO()
             Image.fromarray(np.concatenate(views, axis=1)).save(buffer, format="PNG")
             images[r["task_id"]] = buffer.getvalue()

@@ -398,7 +398,7 @@ def main(argv=None) -> int:
         log(f"{kind}: {val_text}; {'ships' if choice['ships'] else 'stays'}: {choice['why']}")
     if args.ship and winners:
         val_runs = [str(work / "val" / m) for k in winners for m in methods(k)]
-        run([py, "scripts/maint/ship_imitation.py", "--hold", str(work), "--kinds", ",".join(winners),
+        run([py, "scripts/maint/ship_imitation.py", "--run", str(work), "--kinds", ",".join(winners),
              "--retrain", command, "--note", f"imitation round {number} (scripts/imitation_round.py --status)",
              "--val-runs", *val_runs], log)
     record.setdefault("val", {})["tasks"] = args.val_tasks

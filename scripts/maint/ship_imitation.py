@@ -112,7 +112,7 @@ def _manifest(hold: Path, export_meta: dict, cache: dict) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--hold", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
+    p.add_argument("--run", "--hold", dest="hold", metavar="RUN", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
                                   "to the shipped checkpoints)")
     p.add_argument("--retrain", help="the one command that retrains them (into the JSON; with --hold)")
     p.add_argument("--kinds", default="mlp,transformer,diffusion",

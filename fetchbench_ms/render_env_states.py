@@ -127,27 +127,51 @@ def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
     return _worker_renderer.render(job)
 
 
+class StateRenderPool:
+    """``workers`` processes with an env each that render ``RenderJob``s, started once and kept
+    for every batch of jobs given to ``imap`` (a conversion of many chunks pays each worker's
+    start, ~5 s of imports, suite and renderer, once); 1 renders in this process.
+    ``backends`` (``render_backends``): worker i renders on backends[i % n]. Use as a context
+    manager: the workers end with it."""
+
+    def __init__(self, env_id: str, env_kwargs: dict, workers: int = 1, obs_mode: str = COMPACT_OBS_MODE,
+                 backends: list[str] | None = None):
+        self.renderer, self.pool, self.workers = None, None, max(workers, 1)
+        if workers <= 1:
+            self.renderer = StateRenderer(env_id, _with_backend(env_kwargs, backends and backends[0]), obs_mode)
+            return
+        # Spawned, as ManiSkill's replay tool starts its workers (warp does not survive a fork).
+        context = mp.get_context("spawn")
+        slots = context.Queue()  # each worker takes its index, and with it its render backend
+        for i in range(workers):
+            slots.put(i)
+        with one_thread_per_spawned_worker():
+            self.pool = context.Pool(workers, _start_worker, (env_id, env_kwargs, obs_mode, backends, slots))
+
+    def imap(self, jobs: list[RenderJob]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        """The clouds of every job, job by job in order (a job to whichever worker is free)."""
+        if self.pool is None:
+            return (self.renderer.render(job) for job in jobs)
+        return self.pool.imap(_render_in_worker, jobs)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.terminate()
+            self.pool.join()
+        if self.renderer is not None:
+            self.renderer.close()
+
+    def __enter__(self) -> "StateRenderPool":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def render_compact_clouds(env_id: str, env_kwargs: dict, jobs: list[RenderJob], workers: int = 1,
                           obs_mode: str = COMPACT_OBS_MODE,
                           backends: list[str] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """The clouds of every job (``StateRenderer.render`` in ``obs_mode``), job by job in order,
-    from ``workers`` processes with an env each (a job to whichever is free), or from this
-    process for 1. ``backends`` (``render_backends``): worker i renders on backends[i % n]."""
-    if workers <= 1 or len(jobs) <= 1:
-        renderer = StateRenderer(env_id, _with_backend(env_kwargs, backends and backends[0]), obs_mode)
-        try:
-            for job in jobs:
-                yield renderer.render(job)
-        finally:
-            renderer.close()
-        return
-    # Spawned, as ManiSkill's replay tool starts its workers (warp does not survive a fork).
-    context = mp.get_context("spawn")
-    n = min(workers, len(jobs))
-    slots = context.Queue()  # each worker takes its index, and with it its render backend
-    for i in range(n):
-        slots.put(i)
-    with one_thread_per_spawned_worker():
-        pool = context.Pool(n, _start_worker, (env_id, env_kwargs, obs_mode, backends, slots))
-    with pool:
-        yield from pool.imap(_render_in_worker, jobs)
+    from a ``StateRenderPool`` of ``min(workers, len(jobs))`` processes started for them."""
+    with StateRenderPool(env_id, env_kwargs, min(workers, len(jobs)), obs_mode, backends) as pool:
+        yield from pool.imap(jobs)

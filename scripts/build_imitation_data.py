@@ -1,7 +1,8 @@
 """Train tasks -> expert demos -> imitation training files, in one resumable command.
 
     python scripts/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda --render-gpus 4 \
-        [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5] [--demos N]
+        [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5] [--demos N] \
+        [--labels expert-states]
 
 1. ``fetchbench_ms.demos.generate``: the expert on ``train`` tasks START..END-1 (episode seed i
    = task i of the suite, up to --per-task trajectories each, --procs processes), one part per
@@ -65,7 +66,7 @@ def converter_args(args, merged: Path, data: Path) -> list[str]:
     """``scripts/convert_demos_for_imitation.py``'s arguments for the merged demos."""
     out = ["--traj-path", str(merged), "--out", str(data), "--chunk", str(args.chunk), "--num-envs", str(args.procs),
            "--device", args.device, "--obs-mode", args.obs_mode, "--frame-stride", str(args.frame_stride),
-           "--render-gpus", str(args.render_gpus)]
+           "--render-gpus", str(args.render_gpus), "--labels", args.labels]
     if args.demos is not None:
         out += ["--count", str(args.demos)]
     if args.first_steps is not None:
@@ -87,6 +88,9 @@ def main(argv=None) -> int:
     p.add_argument("--obs-mode", default=POLICY_OBS_MODE, choices=(*POINTS_OBS_MODES, COMPACT_OBS_MODE))
     p.add_argument("--frame-stride", type=int, default=1, help="keep every K-th step of each stage (the converter's)")
     p.add_argument("--chunk", type=int, default=128, help="demos per training file")
+    p.add_argument("--labels", default="replay", choices=("replay", "expert-states"),
+                   help="the converter's --labels: the replay tool's converted states, or (points obs modes) the "
+                        "demos' own states without a replay")
     p.add_argument("--device", default="cpu", help="the converter's --device (cuda on a GPU machine)")
     p.add_argument("--render-gpus", type=int, default=1, help="the converter's --render-gpus (4 on a 4-GPU machine)")
     p.add_argument("--demos", type=int, default=None,
@@ -151,7 +155,7 @@ def main(argv=None) -> int:
                "expert_core_hours": round(core_hours, 4),
                "trajectories_per_core_hour": round(timed_trajectories / core_hours, 1) if core_hours > 0 else None,
                "demos": after["demos"], "frames": after["frames"], "obs_mode": args.obs_mode,
-               "frame_stride": args.frame_stride,
+               "frame_stride": args.frame_stride, "labels": args.labels,
                "conversion_frames_per_second": round(new_frames / t_convert, 1) if new_frames else None}
     from fetchbench_ms.utils.io import atomic_write_text
 

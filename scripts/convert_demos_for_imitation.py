@@ -49,8 +49,9 @@ import h5py
 
 from fetchbench_ms.envs import PLUGIN_MODULE, recorded_env_id
 from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE, COMPOSED_OBS_MODE, POINTS_OBS_MODES, POLICY_CLOUD_SIZES, POLICY_OBS_MODE
-from fetchbench_ms.render_env_states import render_backends
-from fetchbench_ms.policies.data import POLICY_SIZES, convert_episodes, write_training_file
+from fetchbench_ms.render_env_states import StateRenderPool, render_backends
+from fetchbench_ms.policies.data import (EXPERT_STATE_LABELS, POLICY_SIZES, REPLAY_LABELS, convert_episodes,
+                                         expert_state_episodes, write_training_file)
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_env_kwargs, refuse_test_objects, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_file
 
@@ -236,6 +237,12 @@ def main(argv=None) -> int:
     p.add_argument("--render-gpus", type=int, default=1,
                    help="render workers spread over GPUs cuda:0 .. N-1 (a machine of several GPUs; the frames are "
                         "the same on GPUs of one model); 1: ManiSkill's default device")
+    p.add_argument("--labels", default="replay", choices=("replay", "expert-states"),
+                   help="replay: ManiSkill's replay tool converts the actions by stepping the physics (frames at its "
+                        "states); expert-states (points obs modes): no replay, the frames are the demos' own recorded "
+                        "states and their actions those that set the expert's arm targets there "
+                        "(policies.data.expert_state_episodes), rendered by one pool of --num-envs processes kept "
+                        "for all chunks")
     p.add_argument("--overlap-replay", action="store_true",
                    help="K > 1: run the next chunk's state-only replay in the background while this chunk's "
                         "kept frames are rendered (the same output)")
@@ -253,6 +260,10 @@ def main(argv=None) -> int:
     if args.overlap_replay and args.frame_stride == 1 and not policy_obs:
         raise SystemExit("--overlap-replay overlaps a state-only replay with the render pass of --frame-stride K > 1; "
                          "at stride 1 the replay renders and there is no separate render pass to overlap")
+    expert_states = args.labels == "expert-states"
+    if expert_states and (not policy_obs or args.overlap_replay):
+        raise SystemExit(f"--labels expert-states renders the points obs modes ({', '.join(POINTS_OBS_MODES)}) "
+                         f"without a replay: give one as --obs-mode (got {args.obs_mode}) and leave --overlap-replay out")
     sizes = parse_sizes(args.sizes)
     source = Path(args.traj_path)
     if not source.is_file() or not source.with_suffix(".json").is_file():
@@ -283,9 +294,11 @@ def main(argv=None) -> int:
         settings["frame_stride"] = args.frame_stride
     if policy_obs:  # (absent: compact_pointcloud, as every conversion made before the policy obs mode)
         settings["obs_mode"] = args.obs_mode
+    if expert_states:  # (absent: the replay's labels)
+        settings["labels"] = EXPERT_STATE_LABELS
     manifest_path = out / "manifest.json"
     if manifest_path.is_file():
-        absent = {"frame_stride": 1, "obs_mode": COMPACT_OBS_MODE}  # what a setting left out means
+        absent = {"frame_stride": 1, "obs_mode": COMPACT_OBS_MODE, "labels": REPLAY_LABELS}  # a setting left out
         old = {**absent, **json.loads(manifest_path.read_text())["settings"]}
         differ = {k: (old.get(k), v) for k, v in {**absent, **settings}.items()
                   if old.get(k) != v and k != "source"}
@@ -313,6 +326,10 @@ def main(argv=None) -> int:
         return start_replay(k, work, chunk_h5, min(args.num_envs, len(chunk)), args.first_steps is not None,
                             obs_mode, background)
 
+    if expert_states:
+        totals, records = convert_at_expert_states(args, source, meta, todo, out, manifest_path, settings, records,
+                                                   len(chunks), backends, log)
+        return finish(out, records, chunks, totals, log)
     running: dict[int, Replay] = {}  # replays started and not waited for, by chunk
     try:
         for i, (k, chunk) in enumerate(todo):
@@ -352,10 +369,42 @@ def main(argv=None) -> int:
         for k, replay in running.items():
             stop_replay(replay)
             log(f"  stopped the replay of chunk {k} (it is redone on resuming)")
+    return finish(out, records, chunks, totals, log)
+
+
+def finish(out: Path, records: dict, chunks: list, totals: dict, log) -> int:
     shutil.rmtree(out / "work", ignore_errors=True)
     log(f"{len(records)}/{len(chunks)} chunks done, {totals['frames']} frames, {totals['bytes'] / 1e9:.2f} GB"
         + ("" if len(records) == len(chunks) else " (incomplete: run again)"))
     return 0
+
+
+def convert_at_expert_states(args, source: Path, meta: dict, todo: list, out: Path, manifest_path: Path,
+                             settings: dict, records: dict, n_chunks: int, backends, log) -> tuple[dict, dict]:
+    """``--labels expert-states``: every chunk's frames rendered at its demos' recorded states by
+    one pool of render processes (no replay); returns the manifest's totals and the records."""
+    totals = write_manifest(manifest_path, settings, records, n_chunks)
+    if not todo:
+        return totals, records
+    t_start, longest = time.perf_counter(), 0.0
+    env_id, env_kwargs = meta["env_info"]["env_id"], meta["env_info"]["env_kwargs"]
+    workers = min(args.num_envs, max(len(chunk) for _, chunk in todo))
+    with StateRenderPool(env_id, env_kwargs, workers, args.obs_mode, backends) as pool:
+        for k, chunk in todo:
+            if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
+                log(f"time limit: stopped before chunk {k}; run the same command again to resume")
+                break
+            t_chunk = time.perf_counter()
+            target = out / f"chunk_{k:05d}.imit.h5"
+            data = expert_state_episodes(source, chunk, pool, args.obs_mode, args.frame_stride, log, args.first_steps)
+            size = write_training_file(target, data)
+            frames = int(len(data.get("qpos", [])))
+            log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos at their recorded states, {frames} frames, "
+                f"{size / 1e6:.1f} MB, in {time.perf_counter() - t_chunk:.1f} s")
+            records[target.name] = chunk_record(target)
+            totals = write_manifest(manifest_path, settings, records, n_chunks)
+            longest = max(longest, time.perf_counter() - t_chunk)
+    return totals, records
 
 
 if __name__ == "__main__":

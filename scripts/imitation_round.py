@@ -10,7 +10,8 @@
 A round takes the next ``--tasks`` tasks of the ``train`` suite after the last round's and:
 
 1. **data**: the expert on them (up to ``--per-task`` trajectories a task) and their frames in
-   ``composed_pointcloud`` at frame stride 3 (``scripts/build_imitation_data.py``);
+   ``composed_pointcloud`` at frame stride 3 at the demos' own states, no replay (``--labels
+   expert-states``; ``scripts/build_imitation_data.py``);
 2. **training**: each policy kind (``--kinds``) for its ``--steps`` on this round's frames,
    from the shipped checkpoint of its kind when that one reads ``composed_pointcloud``
    (``--init-from``, ``--new-data``: the weights go on, the data is new), else from scratch;
@@ -53,6 +54,8 @@ KINDS = ("act", "transformer", "mlp", "diffusion")  # (the order the GPUs are ha
 DEFAULT_STEPS = {"act": 6000, "transformer": 2500, "mlp": 5000, "diffusion": 2500}
 OBS_MODE = "composed_pointcloud"
 FRAME_STRIDE = 3
+#: The frames are the demos' own recorded states, no replay (policies.data.expert_state_episodes).
+LABELS = "expert-states"
 VAL_TASKS = "0:100"
 MIN_VAL_TASKS = 100
 
@@ -66,7 +69,7 @@ def load_record(record: Path) -> dict:
     path = record / "rounds.json"
     if path.is_file():
         return json.loads(path.read_text())
-    return {"obs_mode": OBS_MODE, "frame_stride": FRAME_STRIDE, "suite": "train", "val": {"suite": "val"},
+    return {"obs_mode": OBS_MODE, "frame_stride": FRAME_STRIDE, "labels": LABELS, "suite": "train", "val": {"suite": "val"},
             "rounds": []}
 
 
@@ -287,9 +290,10 @@ def main(argv=None) -> int:
     if val[1] - val[0] < MIN_VAL_TASKS and not args.allow_small_val:
         p.error(f"--val-tasks {args.val_tasks}: at least {MIN_VAL_TASKS} val tasks choose a checkpoint "
                 "(--allow-small-val for a test)")
-    if record["rounds"] and (record["obs_mode"], record["frame_stride"]) != (OBS_MODE, FRAME_STRIDE):
-        raise SystemExit(f"{args.record}: rounds of {record['obs_mode']} at stride {record['frame_stride']}; this "
-                         f"code makes {OBS_MODE} at stride {FRAME_STRIDE}")
+    made = (record["obs_mode"], record["frame_stride"], record.get("labels", "replay"))
+    if record["rounds"] and made != (OBS_MODE, FRAME_STRIDE, LABELS):
+        raise SystemExit(f"{args.record}: rounds of {made[0]} at stride {made[1]}, labels {made[2]}; this code "
+                         f"makes {OBS_MODE} at stride {FRAME_STRIDE}, labels {LABELS}")
     number = len(record["rounds"]) + 1
     start, end = next_tasks(record, args.tasks)
     work = args.work / f"round_{number:02d}"
@@ -309,7 +313,7 @@ def main(argv=None) -> int:
     # 1. data
     run([py, "scripts/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
          "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
-         "--frame-stride", str(FRAME_STRIDE), "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda"], log)
+         "--frame-stride", str(FRAME_STRIDE), "--labels", LABELS, "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda"], log)
     t_data = time.perf_counter() - t0
     manifest = json.loads((work / "data/manifest.json").read_text())
     build = json.loads((work / "build.json").read_text())

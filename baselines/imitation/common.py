@@ -208,6 +208,8 @@ class Frames:
         self.frame_stride = int(raw.get("frame_stride", 1))
         # The env obs mode the points were made with: the policy reads that mode at deployment.
         self.obs_mode = raw.get("obs_mode") or COMPACT_OBS_MODE
+        # Where the actions were labelled (policies.data: the replay's states or the expert's own).
+        self.labels = raw.get("labels") or "replay"
 
     def observation(self, index: torch.Tensor, history: int = 1, jitter: float = 0.0,
                     generator: Optional[torch.Generator] = None) -> dict:
@@ -280,7 +282,7 @@ def init_from_export(path: str, model: torch.nn.Module, frames: Frames, dhash: s
     step = int(meta["step"])
     data = [dict(d) for d in meta.get("data_history") or [{"data_sha256": meta["data_sha256"], "from_step": 0}]]
     if meta["data_sha256"] != dhash:
-        data.append({"data_sha256": dhash, "from_step": step})
+        data.append({"data_sha256": dhash, "from_step": step, "labels": frames.labels})
     return {"step": step, "val_loss": [], "val_success": [], "data": data,
             "init_from": {"path": str(path), "sha256": content_sha256(path), "step": step}}
 
@@ -338,7 +340,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
         step, history = saved["step"], saved["history"]
         history.setdefault("data", [{"data_sha256": saved["data_sha256"], "from_step": 0}])
         if saved["data_sha256"] != dhash:
-            history["data"].append({"data_sha256": dhash, "from_step": step})
+            history["data"].append({"data_sha256": dhash, "from_step": step, "labels": frames.labels})
             log(f"resumed at step {step} on new data {dhash[:12]} (was {saved['data_sha256'][:12]})")
         else:
             log(f"resumed at step {step}")
@@ -351,7 +353,7 @@ def train(args: TrainArgs, kind: str, make_model: Callable[[], torch.nn.Module],
             f"(sha256 {history['init_from']['sha256'][:12]}; a fresh optimiser, warming up over {args.warmup} steps); "
             f"{command}")
     else:
-        history["data"] = [{"data_sha256": dhash, "from_step": 0}]
+        history["data"] = [{"data_sha256": dhash, "from_step": 0, "labels": frames.labels}]
         log(f"{kind}: {n_params / 1e6:.2f} M parameters; {command}")
     restart = history.get("init_from", {}).get("step", 0)
 

@@ -22,7 +22,10 @@ A training file (``*.imit.h5``) holds frames of whole trajectories back to back:
 - ``episode_start`` [E] int64, ``episode_length`` [E] int64, and the attribute ``episodes``:
   JSON of each trajectory's source (file, episode id, task id, grasp id);
 - the attribute ``frame_stride`` K when the frames are every K-th converted step of each
-  stage (``select_frames``; absent: every step, K = 1, as in every file written before it).
+  stage (``select_frames``; absent: every step, K = 1, as in every file written before it);
+- the attribute ``labels`` ``expert_states`` when the frames are the source demos' own
+  states, their actions those that set the expert's targets there (``expert_state_episodes``,
+  no replay); absent: the replay tool's converted trajectories (``convert_episodes``).
 
 The same functions turn a live observation into the policy's input (``PolicyInput``), so
 training and deployment see the same numbers.
@@ -291,7 +294,8 @@ class _KeptFrames:
 
 def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes: dict = POLICY_SIZES,
                      device: str = "cpu", log=print, frame_stride: int = 1, render_workers: int = 1,
-                     render_obs_mode: str = COMPACT_OBS_MODE, render_backends: list[str] | None = None) -> dict:
+                     render_obs_mode: str = COMPACT_OBS_MODE, render_backends: list[str] | None = None,
+                     pool=None) -> dict:
     """Frames of every converted trajectory (the replay tool's ``pd_joint_delta_pos`` output)
     that matches a source demo, in the training format's arrays (see the module docstring),
     with the source's stage labels.
@@ -304,9 +308,6 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     renders the states in that obs mode, whose points are the frames' as they are (``sizes``
     must be ``POLICY_CLOUD_SIZES``); the result then carries ``obs_mode``."""
     import h5py
-    from mani_skill.trajectory.utils import index_dict
-
-    from ..render_env_states import RenderJob, render_compact_clouds
 
     converted_path, source_path = Path(converted_path), Path(source_path)
     source_json = json.loads(source_path.with_suffix(".json").read_text())
@@ -321,8 +322,6 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     if policy_obs and (obs_mode != "state" or dict(sizes) != POLICY_CLOUD_SIZES):
         raise ValueError(f"{render_obs_mode} frames are rendered from a state-only replay (-o state) at its own "
                          f"sizes {POLICY_CLOUD_SIZES}; got obs_mode={obs_mode!r}, sizes {dict(sizes)}")
-    parts: dict[str, list] = {k: [] for k in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage",
-                                                "stage_end")}
     episodes, kept = [], []
     with h5py.File(source_path, "r") as source_h5, h5py.File(converted_path, "r") as converted_h5:
         pairs = match_converted_episodes(source_json, converted_json, source_h5, converted_h5)
@@ -352,30 +351,55 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
             clouds = ((d.traj["obs"]["pointcloud"]["xyz"][:][d.frame], d.traj["obs"]["pointcloud"]["seg"][:][d.frame])
                       for d in kept)
         else:
-            jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
-                              index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
-            clouds = render_compact_clouds(converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers,
-                                           render_obs_mode, render_backends)
-        t = time.perf_counter()
-        for demo, (xyz, label) in zip(kept, clouds):
-            if policy_obs:  # the obs mode's own points, as a policy reads them at deployment
-                points, point_label = xyz, label
-            else:
-                points, point_label = subsample_compact(xyz, label, sizes, device=device)
-            parts["points"].append(points)
-            parts["point_label"].append(point_label)
-            parts["qpos"].append(demo.qpos)
-            parts["tcp"].append(tcp_features(demo.qpos))
-            for key, value in demo.labels.items():
-                parts[key].append(value)
-        if obs_mode != COMPACT_OBS_MODE and kept:
-            frames = sum(len(d.frame) for d in kept)
-            log(f"  rendered {frames} frames of {len(kept)} demos from their env states "
-                f"({render_workers} processes) and subsampled them in {time.perf_counter() - t:.0f} s")
+            clouds = _rendered_clouds(kept, converted_json["env_info"]["env_id"], env_kwargs, render_workers,
+                                      render_obs_mode, render_backends, pool)
+        out = _training_arrays(kept, episodes, clouds, sizes, render_obs_mode, frame_stride, device, log,
+                               rendered=obs_mode != COMPACT_OBS_MODE, workers=render_workers)
     dropped = len(converted_json["episodes"]) - len(pairs)
     if dropped:
         log(f"{converted_path.name}: {dropped} converted trajectories matched no source demo (left out)")
+    return out
+
+
+def _rendered_clouds(kept: list[_KeptFrames], env_id: str, env_kwargs: dict, workers: int, obs_mode: str,
+                     backends: list[str] | None, pool=None):
+    """The clouds of the kept frames rendered from their env states, by ``pool`` (a
+    ``StateRenderPool`` kept over many calls) or by workers started for them."""
+    from mani_skill.trajectory.utils import index_dict
+
+    from ..render_env_states import RenderJob, render_compact_clouds
+
+    jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
+                      index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
+    if pool is not None:
+        return pool.imap(jobs)
+    return render_compact_clouds(env_id, env_kwargs, jobs, workers, obs_mode, backends)
+
+
+def _training_arrays(kept: list[_KeptFrames], episodes: list[dict], clouds, sizes: dict, render_obs_mode: str,
+                     frame_stride: int, device: str, log, rendered: bool, workers: int, labels: str | None = None) -> dict:
+    """The training format's arrays (``write_training_file``) of the kept frames and their clouds."""
+    parts: dict[str, list] = {k: [] for k in ARRAYS}
+    policy_obs = render_obs_mode in POINTS_OBS_MODES
+    t = time.perf_counter()
+    for demo, (xyz, label) in zip(kept, clouds):
+        if policy_obs:  # the obs mode's own points, as a policy reads them at deployment
+            points, point_label = xyz, label
+        else:
+            points, point_label = subsample_compact(xyz, label, sizes, device=device)
+        parts["points"].append(points)
+        parts["point_label"].append(point_label)
+        parts["qpos"].append(demo.qpos)
+        parts["tcp"].append(tcp_features(demo.qpos))
+        for key, value in demo.labels.items():
+            parts[key].append(value)
+    if rendered and kept:
+        frames = sum(len(d.frame) for d in kept)
+        log(f"  rendered {frames} frames of {len(kept)} demos from their env states "
+            f"({workers} processes) and subsampled them in {time.perf_counter() - t:.0f} s")
     extra = {"obs_mode": render_obs_mode} if policy_obs else {}
+    if labels is not None:
+        extra["labels"] = labels
     if not episodes:
         return {"episodes": [], "sizes": dict(sizes), "frame_stride": frame_stride, **extra}
     out = {k: np.concatenate(v) for k, v in parts.items()}
@@ -387,6 +411,61 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     out["frame_stride"] = frame_stride
     out.update(extra)
     return out
+
+
+#: ``labels`` of a training file whose actions are the expert's at its own recorded states
+#: (``expert_state_episodes``); absent (``REPLAY_LABELS``): at the replay tool's converted states.
+EXPERT_STATE_LABELS, REPLAY_LABELS = "expert_states", "replay"
+
+
+def expert_state_actions(source_actions: np.ndarray, source_qpos: np.ndarray) -> np.ndarray:
+    """[n, 8] the ``pd_joint_delta_pos`` actions that give, at each recorded state, the arm
+    targets the expert's ``pd_joint_pos`` actions gave: (target - joints) / 0.1 rad, as
+    ManiSkill's ``qpos_to_pd_joint_delta_pos`` computes it (float32, as in the controller),
+    clipped to [-1, 1]; the gripper action copied. ``source_qpos`` [n, >= 7]: the joints of
+    the state before each action (``state_qpos`` of the demo's env states)."""
+    actions = np.asarray(source_actions, np.float32)
+    delta = (actions[:, :ARM_DOF] - np.asarray(source_qpos, np.float32)[:len(actions), :ARM_DOF]) \
+        / np.float32(DELTA_POS_LIMIT)
+    return np.concatenate([np.clip(delta, -1, 1), actions[:, ARM_DOF:]], axis=1).astype(np.float32)
+
+
+def expert_state_episodes(source_path: str | Path, episodes: list[dict], pool, obs_mode: str,
+                          frame_stride: int = 1, log=print, first_steps: int | None = None) -> dict:
+    """Frames of the source demos ``episodes`` (entries of the source's JSON) at their own
+    recorded states, without a replay: each kept step's env state is set and rendered in
+    ``obs_mode`` (one of ``POINTS_OBS_MODES``) by ``pool`` (a ``StateRenderPool``), and its
+    action is the ``pd_joint_delta_pos`` action that sets the expert's arm targets there
+    (``expert_state_actions``). The replay tool's conversion instead steps the physics with
+    those actions and, where a delta exceeds 0.1 rad (the PD-tracked arm lags its targets),
+    takes a second clipped step: its trajectories are longer and lag the expert's; here the
+    states are the expert's and such an action is clipped. The stride, stage labels and
+    training format are ``convert_episodes``'; the result carries ``labels``. ``first_steps``
+    N keeps each demo's first N steps (tests)."""
+    import h5py
+
+    if obs_mode not in POINTS_OBS_MODES:
+        raise ValueError(f"frames at the expert's states are made in the points obs modes "
+                         f"({', '.join(POINTS_OBS_MODES)}), got {obs_mode!r}")
+    source_path = Path(source_path)
+    kept, out_episodes = [], []
+    with h5py.File(source_path, "r") as source_h5:
+        for source in episodes:
+            s_traj = source_h5[f"traj_{source['episode_id']}"]
+            n = len(s_traj["actions"]) if first_steps is None else min(first_steps, len(s_traj["actions"]))
+            qpos = state_qpos(s_traj["env_states"])[:n]
+            actions = expert_state_actions(s_traj["actions"][:n], qpos)
+            stage = s_traj["stage"][:n].astype(np.int8)
+            stage_end = s_traj["stage_end"][:n].astype(bool)
+            labels = select_frames(stage, stage_end, actions, frame_stride)
+            frame = labels.pop("frame")
+            kept.append(_KeptFrames(s_traj, source, frame, labels, qpos[frame].astype(np.float32)))
+            out_episodes.append({"source": source_path.name, "episode_id": int(source["episode_id"]),
+                                 "task_id": source.get("task_id"), "grasp_id": source.get("grasp_id"),
+                                 "length": len(frame), "source_length": int(len(actions))})
+        clouds = _rendered_clouds(kept, "", {}, 1, obs_mode, None, pool)
+        return _training_arrays(kept, out_episodes, clouds, POLICY_CLOUD_SIZES, obs_mode, frame_stride, "cpu", log,
+                                rendered=True, workers=getattr(pool, "workers", 1), labels=EXPERT_STATE_LABELS)
 
 
 def write_training_file(path: str | Path, data: dict) -> int:
@@ -406,6 +485,8 @@ def write_training_file(path: str | Path, data: dict) -> int:
             f.attrs["frame_stride"] = int(data["frame_stride"])
         if data.get("obs_mode", COMPACT_OBS_MODE) != COMPACT_OBS_MODE:  # (absent: compact_pointcloud)
             f.attrs["obs_mode"] = data["obs_mode"]
+        if data.get("labels") is not None:  # (absent: the replay tool's converted trajectories)
+            f.attrs["labels"] = data["labels"]
         for key in ("points", "point_label", "qpos", "tcp", "action", "gripper", "stage", "stage_end",
                     "episode_start", "episode_length"):
             if key in data:
@@ -429,7 +510,7 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
         raise FileNotFoundError(f"no training files (*.imit.h5) in {paths}; make them with "
                                 "scripts/convert_demos_for_imitation.py")
     parts = {k: [] for k in ARRAYS}
-    episodes, lengths, file_sizes, file_stride, file_mode = [], [], None, None, None
+    episodes, lengths, file_sizes, file_stride, file_mode, file_labels = [], [], None, None, None, None
     for path in files:
         with h5py.File(path, "r") as f:
             if int(f.attrs.get("format_version", -1)) != FORMAT_VERSION:
@@ -452,6 +533,11 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
                 raise ValueError(f"{path}: frames of obs mode {mode}, the other files' {file_mode}: train on files "
                                  "of one obs mode")
             file_mode = mode
+            labels = str(f.attrs.get("labels", REPLAY_LABELS))
+            if file_labels is not None and labels != file_labels:
+                raise ValueError(f"{path}: actions labelled at {labels}, the other files' at {file_labels}: train "
+                                 "on files of one conversion")
+            file_labels = labels
             if "points" not in f:  # a chunk none of whose trajectories replayed
                 continue
             for k in ARRAYS:
@@ -470,5 +556,6 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
     out["sizes"] = file_sizes
     out["frame_stride"] = file_stride
     out["obs_mode"] = file_mode
+    out["labels"] = file_labels
     out["files"] = [str(p) for p in files]
     return out

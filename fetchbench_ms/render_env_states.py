@@ -23,6 +23,7 @@ kept frames (the robot's mostly); the others are the replay's to the bit.
 from __future__ import annotations
 
 import multiprocessing as mp
+import time
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -65,6 +66,7 @@ class StateRenderer:
             raise ValueError(f"unknown obs mode {obs_mode!r} to render states in; valid: "
                              f"{', '.join((COMPACT_OBS_MODE, *POINTS_OBS_MODES))}")
         self.obs_mode = obs_mode
+        self.seconds = {"reset": 0.0, "frames": 0.0}  # spent in render(), summed
         self.env = gym.make(env_id, **render_env_kwargs(env_kwargs, "pointcloud" if obs_mode == COMPACT_OBS_MODE
                                                         else obs_mode))
 
@@ -79,11 +81,14 @@ class StateRenderer:
 
     def render(self, job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
         """(xyz [F, M, 3] float16, seg [F, M] uint8): the compact cloud of each of the job's steps;
-        for the ``POINTS_OBS_MODES``, the obs mode's points and labels ([F, N, 3], [F, N])."""
+        for the ``POINTS_OBS_MODES``, the obs mode's points and labels ([F, N, 3], [F, N]). The
+        seconds of its reset and of its frames are added to ``seconds``."""
         from mani_skill.trajectory.utils import index_dict
         from mani_skill.utils import common
 
-        self.env.reset(**job.reset_kwargs)
+        t0 = time.perf_counter()
+        self.env.reset(**job.reset_kwargs)  # (the same task as the last one: no new scene is built)
+        t1 = time.perf_counter()
         xyz, seg = [], []
         for i, step in enumerate(job.steps):
             obs = self.observation(index_dict(job.states, slice(i, i + 1)), int(step))
@@ -93,6 +98,8 @@ class StateRenderer:
                 cloud = compact_pointcloud_obs(obs, [compact_seed(job.episode_seed, int(step))])["pointcloud"]
             xyz.append(common.to_numpy(cloud["xyz"])[0])
             seg.append(common.to_numpy(cloud["seg"])[0])
+        self.seconds["reset"] += t1 - t0
+        self.seconds["frames"] += time.perf_counter() - t1
         return np.stack(xyz), np.stack(seg)
 
     def close(self) -> None:
@@ -123,8 +130,27 @@ def _start_worker(env_id: str, env_kwargs: dict, obs_mode: str, backends: list[s
     _worker_renderer = StateRenderer(env_id, _with_backend(env_kwargs, backend), obs_mode)
 
 
-def _render_in_worker(job: RenderJob) -> tuple[np.ndarray, np.ndarray]:
-    return _worker_renderer.render(job)
+def _render_group(renderer: StateRenderer, jobs: list[RenderJob]) -> tuple[list, dict]:
+    """The clouds of jobs of one task, one after the other in one env, and the seconds spent."""
+    before = dict(renderer.seconds)
+    clouds = [renderer.render(job) for job in jobs]
+    return clouds, {k: renderer.seconds[k] - before[k] for k in before}
+
+
+def _render_group_in_worker(jobs: list[RenderJob]) -> tuple[list, dict]:
+    return _render_group(_worker_renderer, jobs)
+
+
+def task_groups(jobs: list[RenderJob]) -> list[list[RenderJob]]:
+    """Consecutive jobs of the same reset (one task's demos, as demo files hold them) as one group:
+    a worker renders a group in one env, which then builds the task's scene once."""
+    groups: list[list[RenderJob]] = []
+    for job in jobs:
+        if groups and groups[-1][0].reset_kwargs == job.reset_kwargs:
+            groups[-1].append(job)
+        else:
+            groups.append([job])
+    return groups
 
 
 class StateRenderPool:
@@ -137,6 +163,7 @@ class StateRenderPool:
     def __init__(self, env_id: str, env_kwargs: dict, workers: int = 1, obs_mode: str = COMPACT_OBS_MODE,
                  backends: list[str] | None = None):
         self.renderer, self.pool, self.workers = None, None, max(workers, 1)
+        self.seconds = {"reset": 0.0, "frames": 0.0}  # the workers' time in render(), summed
         if workers <= 1:
             self.renderer = StateRenderer(env_id, _with_backend(env_kwargs, backends and backends[0]), obs_mode)
             return
@@ -149,10 +176,15 @@ class StateRenderPool:
             self.pool = context.Pool(workers, _start_worker, (env_id, env_kwargs, obs_mode, backends, slots))
 
     def imap(self, jobs: list[RenderJob]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """The clouds of every job, job by job in order (a job to whichever worker is free)."""
-        if self.pool is None:
-            return (self.renderer.render(job) for job in jobs)
-        return self.pool.imap(_render_in_worker, jobs)
+        """The clouds of every job, job by job in order; the jobs of one task (``task_groups``) go
+        to one worker, whichever is free. The workers' seconds add up in ``seconds``."""
+        groups = task_groups(jobs)
+        results = (_render_group(self.renderer, group) for group in groups) if self.pool is None \
+            else self.pool.imap(_render_group_in_worker, groups)
+        for clouds, seconds in results:
+            for key, value in seconds.items():
+                self.seconds[key] += value
+            yield from clouds
 
     def close(self) -> None:
         if self.pool is not None:

@@ -394,13 +394,16 @@ def convert_at_expert_states(args, source: Path, meta: dict, todo: list, out: Pa
             if args.time_limit and time.perf_counter() - t_start + longest > args.time_limit:
                 log(f"time limit: stopped before chunk {k}; run the same command again to resume")
                 break
-            t_chunk = time.perf_counter()
+            t_chunk, before = time.perf_counter(), dict(pool.seconds)
             target = out / f"chunk_{k:05d}.imit.h5"
             data = expert_state_episodes(source, chunk, pool, args.obs_mode, args.frame_stride, log, args.first_steps)
             size = write_training_file(target, data)
             frames = int(len(data.get("qpos", [])))
+            spent = {key: pool.seconds[key] - before[key] for key in before}
             log(f"  chunk {k}: {len(data['episodes'])}/{len(chunk)} demos at their recorded states, {frames} frames, "
-                f"{size / 1e6:.1f} MB, in {time.perf_counter() - t_chunk:.1f} s")
+                f"{size / 1e6:.1f} MB, in {time.perf_counter() - t_chunk:.1f} s (its {workers} workers: resets "
+                f"{spent['reset']:.0f} s, frames {spent['frames']:.0f} s, i.e. {spent['frames'] / max(frames, 1) * 1e3:.1f} "
+                f"ms a frame and {spent['reset'] / max(len(chunk), 1):.2f} s a demo's reset)")
             records[target.name] = chunk_record(target)
             totals = write_manifest(manifest_path, settings, records, n_chunks)
             longest = max(longest, time.perf_counter() - t_chunk)

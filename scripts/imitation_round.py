@@ -115,6 +115,11 @@ def shipped(kind: str) -> tuple[Path | None, dict]:
     return (path if path.is_file() else None), (json.loads(side.read_text()) if side.is_file() else {})
 
 
+def export_complete(meta_path: Path, steps: int) -> bool:
+    """Whether a round's export of a kind exists with all its ``steps``."""
+    return meta_path.is_file() and int(json.loads(meta_path.read_text()).get("step", -1)) >= steps
+
+
 def val_successes(meta: dict, method: str, tasks: tuple[int, int]) -> int | None:
     """A shipped checkpoint's val successes of ``method`` on exactly ``tasks`` (None: no such run)."""
     for v in meta.get("validation_success", []):
@@ -313,7 +318,8 @@ def main(argv=None) -> int:
     # 1. data
     run([py, "scripts/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
          "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
-         "--frame-stride", str(FRAME_STRIDE), "--labels", LABELS, "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda"], log)
+         "--frame-stride", str(FRAME_STRIDE), "--labels", LABELS, "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda",
+         "--render-gpus", str(1 if gpus is None else len(gpus))], log)
     t_data = time.perf_counter() - t0
     manifest = json.loads((work / "data/manifest.json").read_text())
     build = json.loads((work / "build.json").read_text())
@@ -333,11 +339,17 @@ def main(argv=None) -> int:
         if init:
             flags += f" --init-from {init} --new-data"
         kind_args += ["--kind-args", f"{kind}={flags}"]
-    gpu_list = "cpu" if gpus is None else ",".join(gpus[i % len(gpus)] for i in range(len(kinds)))
+    # A kind whose export finished its steps is not trained again: a resumed trainer exports anew
+    # (other bytes), and its val records would no longer name the file they judged.
+    todo = [kind for kind in kinds
+            if not export_complete(work / "export" / f"imit_{kind}.json", inits[kind]["step"] + steps[kind])]
+    kind_args = [a for kind, pair in zip(kinds, zip(kind_args[::2], kind_args[1::2])) if kind in todo for a in pair]
     t1 = time.perf_counter()
-    run([py, "scripts/train_imitation_gpus.py", "--data", str(work / "data"), "--runs", str(work / "runs"),
-         "--kinds", ",".join(kinds), "--gpus", gpu_list, "--time-limit", str(args.time_limit),
-         "--trainer-args", f"--eval-every 0 {args.trainer_args}".strip(), *kind_args], log)
+    if todo:
+        gpu_list = "cpu" if gpus is None else ",".join(gpus[i % len(gpus)] for i in range(len(todo)))
+        run([py, "scripts/train_imitation_gpus.py", "--data", str(work / "data"), "--runs", str(work / "runs"),
+             "--kinds", ",".join(todo), "--gpus", gpu_list, "--time-limit", str(args.time_limit),
+             "--trainer-args", f"--eval-every 0 {args.trainer_args}".strip(), *kind_args], log)
     t_train = time.perf_counter() - t1
     (work / "logs").mkdir(exist_ok=True)
     for kind in kinds:  # ship_imitation.py's layout: logs/train_<kind>.log
@@ -351,15 +363,15 @@ def main(argv=None) -> int:
     processes = []
     for i, (kind, method) in enumerate(evals):
         out = work / "val" / method
-        command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
+        eval_command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
                    "--policy-checkpoint", str(work / "export" / f"imit_{kind}.pt"), "--policy-stride",
                    str(FRAME_STRIDE), "--workers", str(workers), "--out", str(out)]
         env = dict(os.environ)
         if gpus is not None:
             env["CUDA_VISIBLE_DEVICES"] = gpus[i % len(gpus)]
-        log(f"$ {shlex.join(command)}")
+        log(f"$ {shlex.join(eval_command)}")
         out.mkdir(parents=True, exist_ok=True)
-        processes.append((method, subprocess.Popen(command, cwd=ROOT, env=env, stdout=open(out / "eval.log", "a"),
+        processes.append((method, subprocess.Popen(eval_command, cwd=ROOT, env=env, stdout=open(out / "eval.log", "a"),
                                                    stderr=subprocess.STDOUT)))
     failed = [f"{method} (exit {code}, {work / 'val' / method / 'eval.log'})"
               for method, process in processes if (code := process.wait()) != 0]

@@ -2,6 +2,7 @@
 (two train tasks, a tiny MLP, one val task), its record, status, curve and choice rule."""
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -81,6 +82,17 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     for method in ("e2e-mlp", "cgn-imit-mlp"):  # the runs record the obs mode their policy read
         line = (tmp_path / "work/round_01/val" / method / "results.jsonl").read_text().splitlines()[0]
         assert json.loads(line)["policy_obs_mode"] == "composed_pointcloud", method
+    # The same round again in the same work folder (a round stopped after its val): nothing is
+    # trained or exported again, so the val records still name the exported file's bytes.
+    pt = tmp_path / "work/round_01/export/imit_mlp.pt"
+    before = pt.read_bytes()
+    (record / "rounds.json").rename(record / "first.json")
+    assert rounds.main(argv) == 0
+    assert pt.read_bytes() == before
+    sha = hashlib.sha256(before).hexdigest()
+    for method in ("e2e-mlp", "cgn-imit-mlp"):
+        lines = (tmp_path / "work/round_01/val" / method / "results.jsonl").read_text().splitlines()
+        assert len(lines) == 1 and json.loads(lines[0])["checkpoint_sha256"] == sha, method
     capsys.readouterr()
     assert rounds.main(["--record", str(record), "--status"]) == 0
     out = capsys.readouterr().out

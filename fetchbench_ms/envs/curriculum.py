@@ -251,11 +251,11 @@ def curriculum_pool(env_id: str, curriculum, task_suite: Optional[str] = None) -
     """The suite tasks an env ``env_id`` with this curriculum serves (before the curriculum
     is applied to them)."""
     from . import ENV_KWARGS
-    from .fetchbench import _resolve_task_source
+    from .task_source import resolve_task_source
 
     fixed = ENV_KWARGS[env_id]
-    _, suite, pool = _resolve_task_source("suite", task_suite, "train", fixed.get("scene_type"),
-                                          fixed.get("category"), resolve_curriculum(curriculum))
+    _, suite, pool = resolve_task_source("suite", task_suite, "train", fixed.get("scene_type"),
+                                         fixed.get("category"), resolve_curriculum(curriculum))
     return [suite.get(i) for i in pool]
 
 

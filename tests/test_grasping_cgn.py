@@ -402,7 +402,7 @@ def test_fine_tuning_keeps_the_batchnorm_running_statistics():
 
 
 def test_validation_objects_are_held_out_train_split_objects():
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
 
     train = load_trainer()
     fit, val = train.train_val_objects(0.05)

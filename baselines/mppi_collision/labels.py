@@ -186,7 +186,7 @@ def label_task(env, task_id: str, args: Args) -> dict:
     from fetchbench_ms.planning.robot import panda
     from fetchbench_ms.solutions.grasp_source import object_grasps, retreat, tcp_from_hand
     from fetchbench_ms.solutions.worlds import mesh_world, object_poses_base, remove_robot_points
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
 
     t0 = time.perf_counter()
     seed = task_seed(task_id, args.seed)

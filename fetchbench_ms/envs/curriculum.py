@@ -144,7 +144,7 @@ class _TaskBox:
 def _apply_cached(curriculum: Curriculum, task_hash: str, box: _TaskBox) -> TaskSpec:
     """The curriculum's task for the task of content hash ``task_hash``: from the disk
     cache, else made and stored there (written atomically: parallel workers may race)."""
-    from ..tasks.objects import object_source
+    from ..objects.loading import object_source
     from ..utils.io import atomic_write_text, sha256_bytes
     from ..utils.mesh_cache import cache_dir
 

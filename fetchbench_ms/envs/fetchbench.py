@@ -24,11 +24,11 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
+from ..objects.loading import check_object_source
 from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
 from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' ManiSkill agents)
 from ..scenes import SCENE_TYPES
 from ..tasks.camera_views import paper_camera_pair
-from ..tasks.objects import check_object_source
 from ..tasks.sampler import SamplerConfig, look_at_quat
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat

@@ -38,7 +38,7 @@ def object_grasps(object_id: str, directory: str | None = None) -> GraspCandidat
         return GraspCandidates(load_grasps(object_id, directory).successful.T_object_hand, "annotated")
     except (KeyError, FileNotFoundError):  # no store, or no labels for this object (stale/corrupt stores raise)
         from ..grasps.sampler import sample_candidates
-        from ..tasks.objects import load_object
+        from ..objects.loading import load_object
 
         seed = int(sha256_bytes(object_id.encode())[:8], 16)
         candidates = sample_candidates(load_object(object_id), STANDIN_CANDIDATES, np.random.default_rng(seed))

@@ -71,7 +71,7 @@ class MeshWorldCache:
 
     def sets(self, task, T_base_world: np.ndarray, T_base_objects: list[np.ndarray],
              pose_tolerance: float = 0.0) -> tuple[list, list]:
-        from ..tasks.objects import load_object
+        from ..objects.loading import load_object
 
         T_base_world = np.asarray(T_base_world, dtype=float)
         key = (task.to_json(), T_base_world.tobytes())
@@ -124,7 +124,7 @@ def task_mesh_world(task, T_base_world: np.ndarray, T_base_objects: list[np.ndar
     ``MeshWorldCache.sets`` (with the cache on)."""
     import os
 
-    from ..tasks.objects import load_object
+    from ..objects.loading import load_object
 
     if os.environ.get("FETCHBENCH_MESH_WORLD_CACHE", "1") != "0":
         scene, objects = MESH_WORLD_CACHE.sets(task, T_base_world, T_base_objects, pose_tolerance)

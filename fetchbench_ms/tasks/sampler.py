@@ -42,10 +42,10 @@ import trimesh
 from scipy.spatial import ConvexHull
 from shapely.geometry import Point, Polygon
 
+from ..objects.loading import collision_vertices, load_object, object_ids, object_source
 from ..scenes import SCENE_TYPES, generate, get_scene_type
 from ..utils.canonical import canonical_lengths, canonical_quat
 from .camera_views import Occluders, camera_axes, sample_camera_pair
-from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, category_name, matrix_to_pose
 
 SAMPLER_VERSION = "4"  # 4: poses on the grids of utils.canonical (machine-independent); 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights

@@ -144,7 +144,7 @@ def cmd_quality(args) -> dict:
     from fetchbench_ms.grasps import load_grasps
     from fetchbench_ms.grasps.physics import GraspLabeller
     from fetchbench_ms.solutions.worlds import object_poses_base
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
 
     torch.set_num_threads(args.threads)
     suite, _, _ = open_suite(args.suite)

@@ -28,13 +28,13 @@ from ..objects.loading import check_object_source
 from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
 from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' ManiSkill agents)
 from ..scenes import SCENE_TYPES
+from ..sim.bodies import default_sim_config
 from ..tasks.camera_views import paper_camera_pair
 from ..tasks.sampler import SamplerConfig, look_at_quat
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
 from . import composed, pointcloud
 from .composed import ComposedCloud
-from .bodies import default_sim_config
 from .curriculum import resolve_curriculum
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
@@ -260,7 +260,7 @@ class FetchBenchEnv(BaseEnv):
     ``fetchbench_ms.envs.pointcloud``.
 
     **Rates:** physics 120 Hz (``sim_freq=60``: the original's 60 Hz), control 20 Hz
-    (see ``fetchbench_ms.envs.bodies`` and ``fetchbench_ms.envs.options``).
+    (see ``fetchbench_ms.sim.bodies`` and ``fetchbench_ms.envs.options``).
     """
 
     SUPPORTED_ROBOTS = list(ROBOT_UIDS)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from fetchbench_ms.grasping import pointops
+from fetchbench_ms.geometry import pointops
 
 from script_modules import load_script
 
@@ -68,7 +68,7 @@ def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
     def broken(points, n):
         raise RuntimeError("out of resources")
 
-    monkeypatch.setitem(sys.modules, "fetchbench_ms.grasping.fps_triton",
+    monkeypatch.setitem(sys.modules, "fetchbench_ms.geometry.fps_triton",
                         types.SimpleNamespace(farthest_point_sample_triton=broken))
     monkeypatch.setattr(pointops, "_FPS_BACKENDS", {"cpu": "triton"})
     monkeypatch.setattr(pointops, "fps_backend", lambda device: pointops._FPS_BACKENDS[str(device)])

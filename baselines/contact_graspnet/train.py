@@ -76,7 +76,7 @@ import torch
 import tyro
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
-from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
+from fetchbench_ms.geometry.pointops import farthest_point_sample, fps_backend, gather
 from fetchbench_ms.utils.workers import one_thread_per_spawned_worker
 
 DATA_VERSION = 3  # bump when make_scene / render_view change what a seed produces

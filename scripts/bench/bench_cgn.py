@@ -89,7 +89,7 @@ def cmd_speed(args) -> dict:
 
     import torch
 
-    from fetchbench_ms.grasping.pointops import fps_backend
+    from fetchbench_ms.geometry.pointops import fps_backend
     from fetchbench_ms.grasping.predict import predict_batch
 
     torch.set_num_threads(args.threads)

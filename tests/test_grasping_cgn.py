@@ -203,8 +203,8 @@ def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smok
     from fetchbench_ms.grasping import predict_from_clouds
     from fetchbench_ms.planning.checker import CollisionChecker
     from fetchbench_ms.planning.robot import panda
-    from fetchbench_ms.solutions.grasp_source import tcp_from_hand
-    from fetchbench_ms.solutions.worlds import mesh_world
+    from fetchbench_ms.grasps.candidates import tcp_from_hand
+    from fetchbench_ms.planning.world_models import mesh_world
 
     obs, _ = smoke_table_env.reset(options={"task_id": "smoke/0003"})
     clouds = fetch_clouds(obs)

@@ -193,7 +193,7 @@ def _arm_clear(task: TaskSpec, q7) -> bool:
     """The arm at ``q7`` (fingers open) is clear of the task's world, target included."""
     from ..planning.checker import CollisionChecker
     from ..planning.robot import panda
-    from ..solutions.worlds import task_mesh_world
+    from ..planning.world_models import task_mesh_world
 
     T_base_world = np.linalg.inv(task.T_world_base())
     world = task_mesh_world(task, T_base_world, [T_base_world @ o.transform() for o in task.objects])
@@ -225,11 +225,11 @@ def _advance_base(task: TaskSpec, advance: float) -> tuple[TaskSpec, float]:
 def _pregrasp_qpos(task: TaskSpec, distance: float) -> Optional[np.ndarray]:
     """A collision-free arm configuration (7,) with the TCP ``distance`` back from one of
     the target's annotated grasps, closest to the task's start configuration; None if none."""
+    from ..grasps.candidates import object_grasps, retreat, tcp_from_hand
     from ..planning.checker import CollisionChecker
     from ..planning.ik import solve_ik
     from ..planning.robot import panda
-    from ..solutions.grasp_source import object_grasps, retreat, tcp_from_hand
-    from ..solutions.worlds import task_mesh_world
+    from ..planning.world_models import task_mesh_world
 
     T_base_world = np.linalg.inv(task.T_world_base())
     T_base_objects = [T_base_world @ o.transform() for o in task.objects]

@@ -54,10 +54,11 @@ from ..planning.ik import solve_ik
 from ..planning.robot import robot_for_env
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
+from ..grasping.candidates import predicted_grasps
+from ..grasps.candidates import choose_grasps, object_grasps, retreat, tcp_from_hand
 from ..planning.world import pose_matrix
+from ..planning.world_models import T_world_base, mesh_world, object_poses_base, pointcloud_world
 from ..utils.io import sha256_bytes
-from .grasp_source import choose_grasps, object_grasps, predicted_grasps, retreat, tcp_from_hand
-from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
 METHODS = {
     "ga-mesh-rrt": dict(world="mesh", grasps="oracle", planner="rrt"),

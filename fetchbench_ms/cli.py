@@ -13,18 +13,24 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "demos", "evaluation")
 # Further command modules (a package's second set of commands).
 COMMAND_MODULES = ("fetchbench_ms.evaluation.results_cli",)
+# Sub-packages that add sub-commands to another package's command: package -> that command
+# (its ``add_commands`` returns its sub-commands). ``fetchbench grasps predict`` is grasp prediction's.
+SUBCOMMAND_PACKAGES = {"grasping": "grasps"}
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fetchbench", description="FetchBench-MS: fetching benchmark on ManiSkill3")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = {}
     for package in COMMAND_PACKAGES:
         # Only a package without a cli module is skipped; a cli module that fails to import
         # is a real error and is raised. (Looked for as a file: find_spec of a sub-module
         # would import its package, and a package may load torch.)
         if not (PACKAGE_DIR / package / "cli.py").is_file():
             continue
-        importlib.import_module(f"fetchbench_ms.{package}.cli").add_commands(subparsers)
+        commands[package] = importlib.import_module(f"fetchbench_ms.{package}.cli").add_commands(subparsers)
+    for package, command in SUBCOMMAND_PACKAGES.items():
+        importlib.import_module(f"fetchbench_ms.{package}.cli").add_commands(commands[command])
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).add_commands(subparsers)
     # The main job (`make demo`); its content changes as the project grows.

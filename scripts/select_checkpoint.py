@@ -12,9 +12,9 @@ candidate's step, sha256 and val figures); ``OUT/selection.json`` holds the same
 
     # every 2,000 steps a candidate (trainer flag --save-every 2000), then on a 16-core GPU node:
     python scripts/select_checkpoint.py --candidates runs/imit/mlp/candidates --workers 16 \\
-        --export-path build/hold/export/imit_mlp.pt
+        --export-path build/imit/export/imit_mlp.pt
     # ship it (scripts/maint/ship_imitation.py keeps the selection record), the chosen run as its val figures
-    python scripts/maint/ship_imitation.py --hold build/hold --kinds mlp --retrain "..." \\
+    python scripts/maint/ship_imitation.py --run build/imit --kinds mlp --retrain "..." \\
         --val-runs out/select/e2e-mlp/step_0012000
 
 Choices are made on ``val`` only: the test suite is refused (exit 2, before anything runs or

@@ -219,7 +219,7 @@ def test_maniskill_style_solve_returns_the_last_step_or_minus_one():
 
 
 def test_demo_suites_hold_train_objects_only():
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
     from fetchbench_ms.tasks.suite import load_suite, shipped_suites
 
     test_objects = set(object_ids("test"))

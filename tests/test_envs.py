@@ -323,7 +323,7 @@ def test_every_control_mode_steps(mode):
 def _close_gripper_on_target_in_free_space(env):
     """Swing the arm out over the robot's side (free space), put the target between the open
     fingers (its thinnest axis across them), close the gripper for 1.5 s."""
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
     from mani_skill.utils.geometry.rotation_conversions import matrix_to_quaternion, quaternion_to_matrix
 
     base = env.unwrapped

@@ -14,7 +14,7 @@ import sapien
 import torch
 
 import fetchbench_ms  # noqa: F401
-from fetchbench_ms.envs import fetchbench as fetchbench_env
+from fetchbench_ms.envs import task_source
 from fetchbench_ms.envs import make_vec_env, pointcloud
 from fetchbench_ms.tasks.suite import load_suite
 from mani_skill.utils import common
@@ -103,7 +103,7 @@ def test_converted_compact_trajectory_is_at_most_150_kb_a_step(tmp_path):
 def test_default_seed_resets_draw_filtered_suite_tasks(monkeypatch):
     """With default kwargs a seed picks a task of the default (filtered) suite, restricted
     to the id's category, deterministically; sampled tasks stay available."""
-    monkeypatch.setattr(fetchbench_env, "DEFAULT_TASK_SUITE", SUITE)
+    monkeypatch.setattr(task_source, "DEFAULT_TASK_SUITE", SUITE)
     suite = load_suite(SUITE)
     env = gym.make("FetchBench-Shelf-v0", obs_mode="state", render_backend="none")
     try:
@@ -147,7 +147,7 @@ def test_default_suite_tasks_pass_the_filters_on_a_sample(monkeypatch):
     checked here on the task of one seed with the filters themselves."""
     from fetchbench_ms.tasks.filters import FilterEnv
 
-    monkeypatch.setattr(fetchbench_env, "DEFAULT_TASK_SUITE", SUITE)
+    monkeypatch.setattr(task_source, "DEFAULT_TASK_SUITE", SUITE)
     env = gym.make("FetchBench-Table-v0", obs_mode="state", render_backend="none")
     try:
         env.reset(seed=0)

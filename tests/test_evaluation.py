@@ -150,7 +150,7 @@ def test_seed_mode_runs_env_seeds(monkeypatch):
     in-process, as a worker runs it)."""
     from fetchbench_ms.evaluation.methods import TaskRunner
     from fetchbench_ms.evaluation.runner import seed_items
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
 
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", "{}")
     items = seed_items("FetchBench-Shelf-v0", 2, 7)

@@ -35,7 +35,7 @@ def test_a_job_recorded_before_experts_had_names_is_the_reference_one():
 def test_balls_fitted_in_the_object_frame_cover_the_object_in_the_hand():
     from fetchbench_ms.planning.world import pose_matrix
     from fetchbench_ms.solutions.sense_plan_act import _object_attachment
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
     from fetchbench_ms.tasks.suite import load_suite
 
     object_id = load_suite("train").get(load_suite("train").ids()[1]).target.object_id

@@ -1,4 +1,4 @@
-"""The per-task mesh-world cache of the expert (``solutions.worlds.MESH_WORLD_CACHE``): the
+"""The per-task mesh-world cache of the expert (``planning.world_models.MESH_WORLD_CACHE``): the
 same worlds, and so the same demos, as building every world from scratch."""
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def _same(a, b) -> bool:
 
 def _first_train_task(monkeypatch):
     """train/0000, its base and objects' poses (base frame), and a fresh process cache."""
-    from fetchbench_ms.solutions import worlds
+    from fetchbench_ms.planning import world_models as worlds
     from fetchbench_ms.tasks.suite import load_suite
 
     suite = load_suite("train")
@@ -42,7 +42,7 @@ def _first_train_task(monkeypatch):
 
 def test_cached_worlds_are_the_rebuilt_ones(monkeypatch):
     from fetchbench_ms.planning.world import pose_matrix
-    from fetchbench_ms.solutions import worlds
+    from fetchbench_ms.planning import world_models as worlds
     from fetchbench_ms.tasks.suite import load_suite
 
     task, T_base_world, T_objects, cache = _first_train_task(monkeypatch)
@@ -82,7 +82,7 @@ def test_pose_tolerance_reuses_sets_of_objects_that_barely_moved(monkeypatch):
     within the tolerance their sets are reused; the moved target is built anew. Without a
     tolerance (the evaluation's worlds) the noise rebuilds, as before."""
     from fetchbench_ms.planning.world import pose_matrix
-    from fetchbench_ms.solutions import worlds
+    from fetchbench_ms.planning import world_models as worlds
 
     task, T_base_world, T_objects, cache = _first_train_task(monkeypatch)
     monkeypatch.setenv("FETCHBENCH_MESH_WORLD_CACHE", "1")

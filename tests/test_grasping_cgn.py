@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from fetchbench_ms.grasping import pointops
+from fetchbench_ms.geometry import pointops
 
 from script_modules import load_script
 
@@ -68,7 +68,7 @@ def test_a_failing_gpu_sampler_falls_back_to_the_torch_loop(monkeypatch):
     def broken(points, n):
         raise RuntimeError("out of resources")
 
-    monkeypatch.setitem(sys.modules, "fetchbench_ms.grasping.fps_triton",
+    monkeypatch.setitem(sys.modules, "fetchbench_ms.geometry.fps_triton",
                         types.SimpleNamespace(farthest_point_sample_triton=broken))
     monkeypatch.setattr(pointops, "_FPS_BACKENDS", {"cpu": "triton"})
     monkeypatch.setattr(pointops, "fps_backend", lambda device: pointops._FPS_BACKENDS[str(device)])
@@ -203,8 +203,8 @@ def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smok
     from fetchbench_ms.grasping import predict_from_clouds
     from fetchbench_ms.planning.checker import CollisionChecker
     from fetchbench_ms.planning.robot import panda
-    from fetchbench_ms.solutions.grasp_source import tcp_from_hand
-    from fetchbench_ms.solutions.worlds import mesh_world
+    from fetchbench_ms.grasps.candidates import tcp_from_hand
+    from fetchbench_ms.planning.world_models import mesh_world
 
     obs, _ = smoke_table_env.reset(options={"task_id": "smoke/0003"})
     clouds = fetch_clouds(obs)
@@ -402,7 +402,7 @@ def test_fine_tuning_keeps_the_batchnorm_running_statistics():
 
 
 def test_validation_objects_are_held_out_train_split_objects():
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
 
     train = load_trainer()
     fit, val = train.train_val_objects(0.05)

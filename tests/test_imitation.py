@@ -205,7 +205,7 @@ def test_training_reports_its_rate_and_eta_from_the_first_steps(sample_data, tmp
 def test_export_goes_under_the_run_and_ships_only_by_the_separate_step(sample_data, tmp_path, monkeypatch, capsys):
     """``--export`` without ``--export-path`` writes ``<run>/export/imit_<kind>.pt`` + .json and
     leaves the package's checkpoints as they are; an ``--export-path`` in their folder is one
-    line and exit 2 before anything is written. ``ship_imitation.py --hold RUN`` is the step
+    line and exit 2 before anything is written. ``ship_imitation.py --run RUN`` is the step
     that makes a run's export the shipped checkpoint."""
     from fetchbench_ms.policies.deploy import default_checkpoint
 
@@ -233,7 +233,7 @@ def test_export_goes_under_the_run_and_ships_only_by_the_separate_step(sample_da
     target = tmp_path / "assets" / "imit_mlp.pt"
     target.parent.mkdir()
     monkeypatch.setattr(ship, "default_checkpoint", lambda kind: target.with_name(f"imit_{kind}.pt"))
-    assert ship.main(["--hold", str(run), "--kinds", "mlp", "--retrain", "python baselines/imitation/train_mlp.py"]) == 0
+    assert ship.main(["--run", str(run), "--kinds", "mlp", "--retrain", "python baselines/imitation/train_mlp.py"]) == 0
     shipped_meta = json.loads(target.with_suffix(".json").read_text())
     assert shipped_meta["checkpoint_sha256"] == ship.sha256_file(run / "export" / "imit_mlp.pt")
     assert shipped_meta["data_manifest"]["totals"] == json.loads((sample_data / "manifest.json").read_text())["totals"]

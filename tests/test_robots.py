@@ -175,7 +175,7 @@ def test_a_planned_motion_is_collision_free_in_physics(uid):
     in front of the furniture; executed with pd_joint_pos, no link touches the furniture
     or the robot table (contact force) and no object moves."""
     from fetchbench_ms.solutions.sense_plan_act import EpisodeState, Executor, SolveConfig
-    from fetchbench_ms.solutions.worlds import mesh_world
+    from fetchbench_ms.planning.world_models import mesh_world
 
     env = gym.make("FetchBench-v0", robot_uids=uid, obs_mode="none", control_mode="pd_joint_pos",
                    task_suite="smoke", reward_mode="dense")

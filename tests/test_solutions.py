@@ -57,7 +57,7 @@ def test_robot_points_are_removed_from_the_scene_cloud():
     import torch
 
     from fetchbench_ms.planning.robot import Q_DEFAULT, panda
-    from fetchbench_ms.solutions.worlds import remove_robot_points
+    from fetchbench_ms.planning.world_models import remove_robot_points
 
     robot = panda()
     q_full = np.r_[Q_DEFAULT, 0.04]

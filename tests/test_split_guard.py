@@ -425,10 +425,10 @@ def test_bench_cgn_quality_refuses_test_unless_report_only(tmp_path, capsys):
 def test_objects_in_the_catalog(monkeypatch):
     """The train split as the catalog would list it if a test-split object slipped in."""
     import fetchbench_ms.grasps
-    import fetchbench_ms.tasks.objects
+    import fetchbench_ms.objects.loading
 
     ids = [*_train_objects(), _a_test_object()]
-    monkeypatch.setattr(fetchbench_ms.tasks.objects, "object_ids", lambda split="test": ids)
+    monkeypatch.setattr(fetchbench_ms.objects.loading, "object_ids", lambda split="test": ids)
     monkeypatch.setattr(fetchbench_ms.grasps, "objects_with_grasps", lambda: ids)
 
 

@@ -163,7 +163,7 @@ def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
     # Every task comes from a finished scene of the plan, from test-split objects.
     scene_seeds = {(p.scene_type, p.scene_seed) for p in made}
     assert {(t.scene_type, t.scene_seed) for t in test_suite.tasks.values()} <= scene_seeds
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
 
     test_ids = set(object_ids("test"))
     assert all(o.object_id in test_ids for t in test_suite.tasks.values() for o in t.objects)
@@ -190,7 +190,7 @@ def test_shipped_test_suite_meets_its_plan_or_says_it_is_partial(test_suite):
 def test_learning_suites_hold_no_test_split_object(name):
     """Every object of every arrangement (targets and clutter) of the suites that methods
     train and tune on is a train-split object; none is of the test split."""
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
 
     suite = load_suite(name)
     used = {o.object_id for t in suite.tasks.values() for o in t.objects}

@@ -82,7 +82,7 @@ def test_a_target_buried_in_the_floor_is_unreachable(filter_env):
     # would not do: boards are 2-3 cm thick and dense labels include grasps of the part
     # that sticks out.) The first smoke task whose target fits inside the slab.
     from fetchbench_ms.objects.catalog import get_object
-    from fetchbench_ms.solutions.worlds import FLOOR_THICKNESS
+    from fetchbench_ms.planning.world_models import FLOOR_THICKNESS
 
     smoke = load_suite("smoke")
     small = [t for t in map(smoke.get, smoke.ids())

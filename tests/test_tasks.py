@@ -9,7 +9,7 @@ import trimesh
 
 from fetchbench_ms.scenes import SCENE_TYPES
 from fetchbench_ms.tasks import CATEGORY_LABELS, SamplerConfig, TaskSpec, sample_task
-from fetchbench_ms.tasks.objects import collision_vertices, load_object
+from fetchbench_ms.objects.loading import collision_vertices, load_object
 from fetchbench_ms.tasks.suite import TaskSuite, load_suite
 
 
@@ -286,7 +286,7 @@ def test_fitting_placement_skips_objects_that_cannot_fit():
 
 
 def test_in_a_walled_basket_objects_reaching_over_the_wall_are_preferred():
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
     from fetchbench_ms.tasks.sampler import _BoxWorld, _place_fitting
     from fetchbench_ms.tasks.spec import pose_matrix
 
@@ -310,7 +310,7 @@ def test_fit_labels_put_more_objects_into_baskets_and_inside_them():
     """The suite's RoundTable case: one small basket. With fitting placement more of the
     same arrangements' objects land in it, and every one lies inside its floor polygon."""
     from fetchbench_ms.tasks import suite_build
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
     from fetchbench_ms.tasks.sampler import _sample_in_scene
 
     r = suite_build.recipe("test")

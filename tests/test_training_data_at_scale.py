@@ -80,7 +80,7 @@ def test_a_view_is_the_evaluation_crop_and_no_label_is_a_colliding_grasp(views_m
     import fetchbench_ms  # noqa: F401
     from fetchbench_ms.grasping.predict import T_CGN_HAND
     from fetchbench_ms.grasps import load_grasps
-    from fetchbench_ms.solutions.worlds import mesh_world, object_poses_base
+    from fetchbench_ms.planning.world_models import mesh_world, object_poses_base
 
     train = views_module._trainer()
     env = gym.make("FetchBench-v0", obs_mode="pointcloud", task_suite="train", control_mode="pd_joint_pos")

@@ -10,7 +10,7 @@ sees); further views (``--views-per-task``) crop about the other objects seen, l
 Labels are scene-consistent, as the original's: every task object's physics-verified grasps
 (``fetchbench_ms.grasps``; at most ``--max-grasps`` per object, drawn with the task's seed)
 are placed at the object's pose, and a grasp whose open hand comes into the scene (the oracle
-mesh world of ``solutions.worlds.mesh_world``: furniture, robot table, floor, the other
+mesh world of ``planning.world_models.mesh_world``: furniture, robot table, floor, the other
 objects; more than 1 mm deep) is dropped. Each kept grasp's two finger contacts carry it in
 CGN's frame (``train.finger_contacts``). A cloud point's object comes from the segmentation
 (target, or another object: then the one whose convex parts are within 5 mm); a point within
@@ -165,7 +165,7 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
     from fetchbench_ms.envs import fetch_clouds
     from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, _np
     from fetchbench_ms.grasping.predict import region_index
-    from fetchbench_ms.solutions.worlds import mesh_world, object_poses_base
+    from fetchbench_ms.planning.world_models import mesh_world, object_poses_base
 
     seed = task_seed(task_id, args.seed)
     rng = np.random.default_rng(seed)

@@ -76,7 +76,7 @@ import torch
 import tyro
 
 from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
-from fetchbench_ms.grasping.pointops import farthest_point_sample, fps_backend, gather
+from fetchbench_ms.geometry.pointops import farthest_point_sample, fps_backend, gather
 from fetchbench_ms.utils.workers import one_thread_per_spawned_worker
 
 DATA_VERSION = 3  # bump when make_scene / render_view change what a seed produces
@@ -162,7 +162,7 @@ def train_val_objects(fraction: float) -> tuple[list[str], list[str]]:
     """(training, validation) ids: train-split objects with verified grasps, split by ``holdout``.
     A test-split object among them is refused (``tasks.splits.TestSplitRefused``)."""
     from fetchbench_ms.grasps import objects_with_grasps
-    from fetchbench_ms.tasks.objects import object_ids
+    from fetchbench_ms.objects.loading import object_ids
     from fetchbench_ms.tasks.splits import refuse_test_objects
 
     kept = set(objects_with_grasps())
@@ -269,7 +269,7 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
 
     from fetchbench_ms.grasps import load_grasps
     from fetchbench_ms.grasps.sampler import ConvexUnion
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
 
     clouds, owners, contacts, labels, widths, hands = [], [], [], [], [], []
     placed, poses, parts = [], [], []

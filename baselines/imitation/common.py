@@ -139,7 +139,7 @@ def check_export_path(args: TrainArgs, kind: str) -> None:
     if args.export and export_path(args, kind).resolve().parent == shipped.resolve():
         print(f"error: --export-path {args.export_path} is in the package's checkpoint folder {shipped}; export under "
               f"the run (the default, {export_path(dataclasses.replace(args, export_path=''), kind)}) and evaluate it "
-              "with `fetchbench eval --policy-checkpoint PATH`; scripts/maint/ship_imitation.py --hold RUN makes "
+              "with `fetchbench eval --policy-checkpoint PATH`; scripts/maint/ship_imitation.py --run RUN makes "
               "it the shipped one", file=sys.stderr, flush=True)
         raise SystemExit(2)
 

@@ -11,7 +11,7 @@ scenes are for ``scripts/bench/bench_collision_net.py`` only), one file ``<out>/
   inside the furniture; and near the collision boundary, by bisecting between free and
   colliding queries and jittering the result);
 - the labels: every sphere's exact clearance to the scene's true geometry (the oracle
-  mesh world of ``solutions.worlds.mesh_world``: furniture primitives, robot table, floor,
+  mesh world of ``planning.world_models.mesh_world``: furniture primitives, robot table, floor,
   every object's convex parts) with the formulas of the planners' exact checker
   (``planning.distance.TorchWorld`` with all convex planes: the checker's
   ``CollisionWorld.distance`` to float precision), in mm (int8, clipped to -50..100); and
@@ -184,9 +184,9 @@ def label_task(env, task_id: str, args: Args) -> dict:
     from fetchbench_ms.planning.collision_net import grid_to_uint8, scene_grid
     from fetchbench_ms.planning.ik import solve_ik
     from fetchbench_ms.planning.robot import panda
-    from fetchbench_ms.solutions.grasp_source import object_grasps, retreat, tcp_from_hand
-    from fetchbench_ms.solutions.worlds import mesh_world, object_poses_base, remove_robot_points
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.grasps.candidates import object_grasps, retreat, tcp_from_hand
+    from fetchbench_ms.objects.loading import load_object
+    from fetchbench_ms.planning.world_models import mesh_world, object_poses_base, remove_robot_points
 
     t0 = time.perf_counter()
     seed = task_seed(task_id, args.seed)

@@ -57,7 +57,7 @@ def robot_link_points(link_meshes: list, n: int, seed: int = ROBOT_POINTS_SEED) 
     take each other's points."""
     import trimesh
 
-    from ..grasping.pointops import farthest_point_sample
+    from ..geometry.pointops import farthest_point_sample
 
     areas = np.array([0.0 if m is None else float(m.area) for m in link_meshes])
     if areas.sum() <= 0:

@@ -144,7 +144,7 @@ class _TaskBox:
 def _apply_cached(curriculum: Curriculum, task_hash: str, box: _TaskBox) -> TaskSpec:
     """The curriculum's task for the task of content hash ``task_hash``: from the disk
     cache, else made and stored there (written atomically: parallel workers may race)."""
-    from ..tasks.objects import object_source
+    from ..objects.loading import object_source
     from ..utils.io import atomic_write_text, sha256_bytes
     from ..utils.mesh_cache import cache_dir
 
@@ -193,7 +193,7 @@ def _arm_clear(task: TaskSpec, q7) -> bool:
     """The arm at ``q7`` (fingers open) is clear of the task's world, target included."""
     from ..planning.checker import CollisionChecker
     from ..planning.robot import panda
-    from ..solutions.worlds import task_mesh_world
+    from ..planning.world_models import task_mesh_world
 
     T_base_world = np.linalg.inv(task.T_world_base())
     world = task_mesh_world(task, T_base_world, [T_base_world @ o.transform() for o in task.objects])
@@ -225,11 +225,11 @@ def _advance_base(task: TaskSpec, advance: float) -> tuple[TaskSpec, float]:
 def _pregrasp_qpos(task: TaskSpec, distance: float) -> Optional[np.ndarray]:
     """A collision-free arm configuration (7,) with the TCP ``distance`` back from one of
     the target's annotated grasps, closest to the task's start configuration; None if none."""
+    from ..grasps.candidates import object_grasps, retreat, tcp_from_hand
     from ..planning.checker import CollisionChecker
     from ..planning.ik import solve_ik
     from ..planning.robot import panda
-    from ..solutions.grasp_source import object_grasps, retreat, tcp_from_hand
-    from ..solutions.worlds import task_mesh_world
+    from ..planning.world_models import task_mesh_world
 
     T_base_world = np.linalg.inv(task.T_world_base())
     T_base_objects = [T_base_world @ o.transform() for o in task.objects]
@@ -251,11 +251,11 @@ def curriculum_pool(env_id: str, curriculum, task_suite: Optional[str] = None) -
     """The suite tasks an env ``env_id`` with this curriculum serves (before the curriculum
     is applied to them)."""
     from . import ENV_KWARGS
-    from .fetchbench import _resolve_task_source
+    from .task_source import resolve_task_source
 
     fixed = ENV_KWARGS[env_id]
-    _, suite, pool = _resolve_task_source("suite", task_suite, "train", fixed.get("scene_type"),
-                                          fixed.get("category"), resolve_curriculum(curriculum))
+    _, suite, pool = resolve_task_source("suite", task_suite, "train", fixed.get("scene_type"),
+                                         fixed.get("category"), resolve_curriculum(curriculum))
     return [suite.get(i) for i in pool]
 
 

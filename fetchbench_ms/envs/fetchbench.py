@@ -5,11 +5,9 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
-import functools
 import gc
 import inspect
 import math
-import warnings
 from typing import Any, Optional
 
 import gymnasium as gym
@@ -26,21 +24,23 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
+from ..objects.loading import check_object_source
 from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
 from ..robots import agents as _robot_agents  # noqa: F401  (registers the other robots' ManiSkill agents)
 from ..scenes import SCENE_TYPES
+from ..sim.bodies import default_sim_config
 from ..tasks.camera_views import paper_camera_pair
-from ..tasks.objects import check_object_source
-from ..tasks.sampler import SamplerConfig, look_at_quat, sample_task
+from ..tasks.sampler import SamplerConfig, look_at_quat
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
-from ..utils.io import canonical_json
 from . import composed, pointcloud
 from .composed import ComposedCloud
-from .bodies import default_sim_config
 from .curriculum import resolve_curriculum
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
+from .task_source import (  # noqa: F401  (DEFAULT_TASK_SUITE: docs/envs.md names it here too)
+    DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, OBJECT_SPLITS, TASK_SOURCES, resolve_task_source, sample_task_cached,
+    scene_of)
 
 #: Success thresholds on the target's centre of mass in the robot-base frame, and on the
 #: largest displacement of any other object. "paper": strict inequalities as in the paper;
@@ -73,17 +73,6 @@ DISTURB_PENALTY = 0.5
 CONTACT_PENALTY = 0.25
 CONTACT_FORCE = 1.0  # N: a robot link pushing furniture or the robot table harder than this is in contact
 FULL_GC_EVERY = 16  # CPU reconfigures between full garbage collections (see FetchBenchEnv._clear)
-#: Where seed-sampled tasks take their objects from. "train" by default, so an env made
-#: for learning never shows a policy a test object; evaluation asks for "test" explicitly
-#: (the eval runner does) or loads suite tasks, which carry their own objects.
-OBJECT_SPLITS = ("train", "test")
-DEFAULT_OBJECT_SPLIT = "train"
-#: Where a seed's task comes from: "suite", a task of a filtered task suite (every one
-#: passes the stable, visible and reachable filters), picked by the seed; "sampled", a
-#: task sampled procedurally from the seed (unlimited, unfiltered).
-TASK_SOURCES = ("suite", "sampled")
-#: The suite seed resets draw from by default: the filtered train-split tasks.
-DEFAULT_TASK_SUITE = "train"
 #: Observation modes that need no renderer (no camera data); every other mode renders.
 NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
 #: ManiSkill's named obs modes; any "+"-joined combination of camera textures
@@ -227,75 +216,6 @@ def _check_id_fixes(id_fixes: Optional[dict], **given) -> None:
                 + f"FetchBench-v0 with {key}={given.get(key)!r}")
 
 
-def _resolve_task_source(task_source: Optional[str], task_suite, object_split: str, scene_type: Optional[str],
-                         category: Optional[str], curriculum=None):
-    """(task source, loaded suite or None, ids of the suite tasks a seed may pick) for the
-    env's kwargs; ValueErrors naming what is valid for contradictions and empty subsets.
-    A ``curriculum`` (``envs.curriculum``) narrows the pool to its target labels and its
-    first ``max_tasks``."""
-    from ..tasks.suite import load_suite, shipped_suite_file, suites_dir
-
-    defaulted = task_source is None and task_suite is None  # nothing asked for: the default suite
-    if task_source is None:
-        if task_suite is not None:
-            task_source = "suite"
-        elif object_split != DEFAULT_OBJECT_SPLIT:
-            # Test objects: the default suite holds train objects only (evaluation on
-            # test objects samples them, or names the test suite).
-            task_source = "sampled"
-        elif shipped_suite_file(DEFAULT_TASK_SUITE) is None:
-            warnings.warn(f"the default task suite {DEFAULT_TASK_SUITE!r} is not shipped with this install "
-                          f"({suites_dir()}); seed resets sample raw, unfiltered tasks (task_source='sampled'). "
-                          "Give task_suite=NAME_OR_PATH for filtered tasks.", stacklevel=3)
-            task_source = "sampled"
-        else:
-            task_source = "suite"
-    if task_source == "sampled":
-        if curriculum is not None and curriculum.max_tasks is not None:
-            raise ValueError("curriculum max_tasks cuts a suite's task pool, but task_source='sampled'; valid: "
-                             "task_source='suite', or leave max_tasks out")
-        return task_source, (load_suite(task_suite) if task_suite is not None else None), None
-    if task_suite is None:
-        if object_split != DEFAULT_OBJECT_SPLIT:
-            raise ValueError(f"object_split={object_split!r} with task_source='suite': the default suite "
-                             f"{DEFAULT_TASK_SUITE!r} has {DEFAULT_OBJECT_SPLIT} objects only; valid: "
-                             "task_suite='test' (filtered test tasks) or task_source='sampled'")
-        task_suite = DEFAULT_TASK_SUITE
-        if shipped_suite_file(DEFAULT_TASK_SUITE) is None:
-            from ..tasks.suite import shipped_suites
-
-            raise ValueError(f"task_source='suite' draws from the default task suite {DEFAULT_TASK_SUITE!r}, which is "
-                             f"not shipped with this install ({suites_dir()}); valid: task_suite=one of "
-                             f"{', '.join(shipped_suites()) or '(none shipped)'} or a suite file's path, "
-                             "or task_source='sampled'")
-    suite = load_suite(task_suite)
-    labels = {CATEGORY_LABELS[category]} if category is not None else None
-    if curriculum is not None and curriculum.target_labels is not None:
-        labels = set(curriculum.target_labels) & labels if labels is not None else set(curriculum.target_labels)
-    pool = [i for i, t in suite.tasks.items()
-            if (scene_type is None or t.scene_type == scene_type) and (labels is None or t.target_label in labels)]
-    if curriculum is not None and curriculum.max_tasks is not None:
-        pool = pool[: curriculum.max_tasks]
-    if not pool and defaulted and not suite.info.get("complete"):
-        # A partial default suite (docs/suite.md, "State"): an id it does not cover yet
-        # samples, as it would without the suite, and says so. A complete suite without the
-        # subset raises below: no task of it exists.
-        warnings.warn(f"the default task suite {suite.name!r} has no task yet for "
-                      f"{scene_type or 'any scene type'}/{category or 'any category'} (it is partial: "
-                      f"{suite.info.get('complete_scenes')} of {suite.info.get('planned_scenes')} scenes); seed resets "
-                      "sample raw, unfiltered tasks (task_source='sampled')", stacklevel=3)
-        return "sampled", None, None
-    if not pool:
-        curriculum_labels = sorted(labels or ()) if curriculum is not None and curriculum.target_labels else None
-        what = " and ".join(f"{k} {v!r}" for k, v in (("scene type", scene_type), ("category", category),
-                                                        ("target labels", curriculum_labels)) if v)
-        types = sorted({t.scene_type for t in suite.tasks.values() if labels is None or t.target_label in labels})
-        raise ValueError(f"task suite {suite.name!r} has no task for {what}; its tasks cover scene types "
-                         f"{', '.join(types) or '(none)'}" + (f" for category {category!r}" if category else "")
-                         + "; valid: another env id / suite, or task_source='sampled'")
-    return task_source, suite, pool
-
-
 class FetchBenchEnv(BaseEnv):
     """
     **Task Description:**
@@ -340,7 +260,7 @@ class FetchBenchEnv(BaseEnv):
     ``fetchbench_ms.envs.pointcloud``.
 
     **Rates:** physics 120 Hz (``sim_freq=60``: the original's 60 Hz), control 20 Hz
-    (see ``fetchbench_ms.envs.bodies`` and ``fetchbench_ms.envs.options``).
+    (see ``fetchbench_ms.sim.bodies`` and ``fetchbench_ms.envs.options``).
     """
 
     SUPPORTED_ROBOTS = list(ROBOT_UIDS)
@@ -414,7 +334,7 @@ class FetchBenchEnv(BaseEnv):
         self.task_source_kwarg = task_source
         self._sample_category = self._curriculum_category(category)
         self.sampler_config = SamplerConfig(num_objects=num_objects, object_split=object_split)
-        self.task_source, self.task_suite, self._suite_pool = _resolve_task_source(
+        self.task_source, self.task_suite, self._suite_pool = resolve_task_source(
             task_source, task_suite, object_split, scene_type, category, self.curriculum)
         self._task_ids: Optional[list[Optional[str]]] = None
         self.robot_init_qpos_noise = robot_init_qpos_noise
@@ -570,7 +490,7 @@ class FetchBenchEnv(BaseEnv):
 
     def _sample_task(self, seed: int) -> TaskSpec:
         # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
-        return copy.deepcopy(_sample_task_cached(seed, self.scene_type, self._sample_category, self.sampler_config))
+        return copy.deepcopy(sample_task_cached(seed, self.scene_type, self._sample_category, self.sampler_config))
 
     def _tasks_from_options(self, options: dict) -> Optional[list[TaskSpec]]:
         given = [k for k in ("task", "tasks", "task_id") if k in options]
@@ -656,7 +576,7 @@ class FetchBenchEnv(BaseEnv):
         self._tasks = self._pending_tasks
         self._task_ids = self._pending_ids
         self._task_filtered = torch.tensor([i is not None for i in self._task_ids], device=self.device)
-        self._scene_specs = [_scene_of(t) for t in self._tasks]
+        self._scene_specs = [scene_of(t) for t in self._tasks]
         # Render meshes only where something can show them: a camera obs mode or a render
         # mode (with state obs and no render_mode, skipping them saves ~0.1 s a new task).
         with_visual = obs_mode_needs_renderer(self.obs_mode) or self.render_mode is not None
@@ -1064,16 +984,6 @@ def paper_camera_poses(task: TaskSpec, scene, aspect: float = 4.0 / 3.0) -> tupl
     return left, right
 
 
-@functools.lru_cache(maxsize=64)
-def _sample_task_cached(seed: int, scene_type: Optional[str], category: Optional[str],
-                        config: SamplerConfig) -> TaskSpec:
-    """``sample_task``, remembered: a seeded reset samples the task only to compare it with
-    the loaded one, ``gym.make`` samples ManiSkill's start seed (2022) every time, and
-    sampling (scene, placement, camera ray casts, settling) takes 0.1-4 s. The same
-    arguments give the same task."""
-    return sample_task(seed, scene_type=scene_type, category=category, config=config)
-
-
 #: Observation entries made fresh by every render (large): not copied by ``_own_arrays``.
 RENDERED_OBS_KEYS = ("sensor_data", "pointcloud")
 
@@ -1088,24 +998,6 @@ def _own_arrays(obs):
     if isinstance(obs, dict):
         return {k: v if k in RENDERED_OBS_KEYS else _own_arrays(v) for k, v in obs.items()}
     return obs
-
-
-_SCENES: dict = {}  # (type, seed, params, hash) -> SceneSpec, the furniture of recently loaded tasks
-_SCENES_KEPT = 64
-
-
-def _scene_of(task: TaskSpec):
-    """``task.scene()``, remembered: the tasks of a suite share scenes, and regenerating
-    one takes 10-100 ms. The key is everything ``task.scene()`` reads and checks (the
-    generator's inputs and the stored content hash), so a cached scene was checked."""
-    key = (task.scene_type, task.scene_seed, canonical_json(task.scene_params), task.scene_hash)
-    spec = _SCENES.get(key)
-    if spec is None:
-        spec = task.scene()
-        if len(_SCENES) >= _SCENES_KEPT:
-            del _SCENES[next(iter(_SCENES))]
-        _SCENES[key] = spec
-    return spec
 
 
 def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from .bodies import SIM_FREQ
+from ..sim.bodies import SIM_FREQ
 
 #: Physics rates the env runs at (Hz); the first is the default (``bodies.SIM_FREQ``).
 SIM_FREQS = (SIM_FREQ, 60)

@@ -319,7 +319,7 @@ def policy_cloud(points_base: torch.Tensor, labels: torch.Tensor, seeds: torch.T
     draw), repeated cyclically when fewer; then n of them by farthest-point sampling from the
     smallest key. A segment with no point is zeros labelled ``LABEL_NONE``. Runs on the tensors'
     device (the render device on a GPU machine), batched over the sub-scenes."""
-    from ..grasping.pointops import farthest_point_sample
+    from ..geometry.pointops import farthest_point_sample
 
     sizes = POLICY_CLOUD_SIZES if sizes is None else sizes
     unknown = sorted(set(sizes) - set(_SEGMENT_LABELS))

@@ -29,8 +29,8 @@ from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 
 from ..scenes.sapien_build import add_scene_parts
+from ..sim.bodies import add_object_shapes, box_half_size
 from ..tasks.spec import TaskSpec
-from .bodies import add_object_shapes, box_half_size
 
 PLACEHOLDER_HALF_SIZE = 0.01  # m
 #: Points sampled on the target's collision surface, for the reward's TCP-to-surface

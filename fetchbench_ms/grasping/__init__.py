@@ -1,7 +1,7 @@
 """Grasp prediction: Contact-GraspNet in plain PyTorch (docs/grasping.md).
 
-- ``network.ContactGraspNet``: the network (batched, CPU or CUDA, no compiled extension);
-- ``pointops``: farthest-point sampling, ball query, kNN interpolation in torch;
+- ``network.ContactGraspNet``: the network (batched, CPU or CUDA, no compiled extension; its
+  point operations are ``fetchbench_ms.geometry.pointops``);
 - ``predict``: weight sets (``pretrained`` from the ``cgn-pytorch`` package, ``ours``),
   pre-processing of a FetchBench observation and grasps in the project's hand frame.
 """

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from .pointops import ball_query, farthest_point_sample, gather, knn_interpolate
+from ..geometry.pointops import ball_query, farthest_point_sample, gather, knn_interpolate
 
 GRIPPER_DEPTH = 0.1034  # m, hand origin to the TCP along the approach (= fetchbench_ms.grasps.TCP_OFFSET)
 MAX_WIDTH = 0.08  # m, the Franka hand's largest opening

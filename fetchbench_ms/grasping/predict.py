@@ -125,7 +125,7 @@ def predict_batch(model: ContactGraspNet, points: np.ndarray, device: str = "cpu
     x = torch.as_tensor(np.asarray(points, np.float32), device=device)
     mean = x.mean(1, keepdim=True)
     x = x - mean
-    from .pointops import farthest_point_sample
+    from ..geometry.pointops import farthest_point_sample
 
     index = farthest_point_sample(x, min(NUM_CONTACTS, x.shape[1]))
     out = model(x, index)

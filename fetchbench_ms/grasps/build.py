@@ -17,17 +17,16 @@ import json
 import multiprocessing
 import os
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable
 
 import numpy as np
 
-from ..utils.io import canonical_json, sha256_bytes
+from ..utils.io import sha256_bytes
 from . import physics
-from .sampler import SamplerConfig, sample_candidates
+from .sampler import sample_candidates
+from .settings import LabelSettings
 from .store import (
-    GRASPS_VERSION,
     ObjectTrials,
     encode_trials,
     legacy_shard_name,
@@ -40,34 +39,6 @@ from .store import (
     write_manifest,
     write_shard,
 )
-
-
-@dataclass(frozen=True)
-class LabelSettings:
-    """Everything that decides the labels; recorded in every shard and in the manifest."""
-
-    seed: int = 0
-    candidates_per_round: int = 32
-    max_rounds: int = 6
-    #: Stop drawing more rounds once an object has this many verified successes. 96, not
-    #: the first build's 24: a target in a drawer or on a crowded shelf is reachable only
-    #: through the few grasps whose hand clears the walls and its neighbours, and with 24
-    #: most such targets had none (87% of sampled targets, the suite's main rejection).
-    target_successes: int = 96
-    slots: int = 16
-    density: float = physics.DENSITY
-    object_friction: float = physics.OBJECT_FRICTION
-    sampler: SamplerConfig = field(default_factory=SamplerConfig)
-    trial: physics.TrialConfig = field(default_factory=physics.TrialConfig)
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["sampler"]["depth_range"] = list(d["sampler"]["depth_range"])
-        d["version"] = GRASPS_VERSION
-        return d
-
-    def digest(self) -> str:
-        return sha256_bytes(canonical_json(self.as_dict()).encode())[:16]
 
 
 def object_rng(seed: int, object_id: str) -> np.random.Generator:

@@ -111,7 +111,12 @@ def cmd_stats(args) -> int:
     return 0
 
 
-def add_commands(subparsers) -> None:
+def add_commands(subparsers):
+    """``fetchbench grasps ...``; returns its sub-commands (``predict`` is added by
+    ``grasping.cli``), and adds the grasp counts to ``fetchbench objects stats``."""
+    from ..objects import register_stats_extension
+
+    register_stats_extension(_load_grasp_stats)
     parser = subparsers.add_parser("grasps", help="physics-verified Franka grasp labels")
     sub = parser.add_subparsers(dest="grasps_command", required=True, metavar="ACTION")
     common = {"default": None, "help": "grasp directory (default: assets/grasps or $FETCHBENCH_GRASPS_DIR)"}
@@ -152,11 +157,14 @@ def add_commands(subparsers) -> None:
     p.add_argument("--failures", action="store_true", help="also draw failed trials (red)")
     p.set_defaults(func=cmd_show)
 
-    from ..grasping.show import add_predict_command
-
-    add_predict_command(sub)
-
     p = sub.add_parser("stats", help="grasp counts and success rates")
     p.add_argument("--dir", **common)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_stats)
+    return sub
+
+
+def _load_grasp_stats(out: dict) -> None:
+    """Loads ``store``, which registers ``store.add_grasp_stats`` (``catalog.stats`` calls it
+    next): the grasp counts in ``fetchbench objects stats``, the store read only then."""
+    from . import store  # noqa: F401

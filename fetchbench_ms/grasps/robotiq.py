@@ -31,7 +31,7 @@ from ..utils.io import atomic_write_text, sha256_bytes
 from ..utils.mesh_cache import cache_dir
 from . import hand as franka
 from . import physics
-from .build import LabelSettings
+from .settings import LabelSettings
 
 HAND = "robotiq_2f_85"
 DRIVEN_JOINTS = ("left_outer_knuckle_joint", "right_outer_knuckle_joint")

@@ -399,7 +399,7 @@ def catalog_grasp_stats(records, directory: str | os.PathLike | None = None) -> 
 
 
 def add_grasp_stats(out: dict) -> None:
-    """Extension of ``fetchbench objects stats`` (``catalog.register_stats_extension``)."""
+    """Extension of ``fetchbench objects stats`` (``objects.register_stats_extension``)."""
     from ..objects import catalog
 
     try:
@@ -414,10 +414,10 @@ def add_grasp_stats(out: dict) -> None:
 
 
 def _register_with_catalog() -> None:
-    from ..objects import catalog
+    from ..objects import register_stats_extension
 
     # `fetchbench objects stats` (and catalog.stats()) report grasp counts once this module is loaded.
-    catalog.register_stats_extension(add_grasp_stats)
+    register_stats_extension(add_grasp_stats)
 
 
 _register_with_catalog()

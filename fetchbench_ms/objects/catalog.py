@@ -35,7 +35,7 @@ from ..utils.canonical import canonical_fraction, canonical_lengths, canonical_l
 from ..utils.io import sha256_bytes, sha256_file
 from ..utils.packed import unxz_bytes
 from ..utils.paths import assets_root
-from . import blobs, geometry as g, procedural, ycb
+from . import STATS_EXTENSIONS, blobs, geometry as g, procedural, ycb
 from .asset import SOURCES, SPLITS, ObjectAsset, ObjectRecord
 
 #: Version of the index / manifest layout; bump on any change of their fields.
@@ -411,19 +411,10 @@ def index_entry(asset: ObjectAsset) -> dict:
     }
 
 
-#: Functions ``f(stats_dict) -> None`` that add their own keys to ``stats()`` (e.g. the
-#: grasp module's counts and success rates), called in registration order.
-STATS_EXTENSIONS: list = []
-
-
-def register_stats_extension(function) -> None:
-    if function not in STATS_EXTENSIONS:
-        STATS_EXTENSIONS.append(function)
-
-
 def stats() -> dict:
     """Counts per source, category and split (and drops per source), then whatever the
-    registered extensions add. A plain JSON-able dict."""
+    registered extensions add (``fetchbench_ms.objects.register_stats_extension``). A plain
+    JSON-able dict."""
     index = load_index()
     records = _records_cached(str(asset_dir()))
     out: dict = {"total": len(records), "by_split": {}, "by_source": {}, "by_category": {}, "dropped": {}}
@@ -440,6 +431,6 @@ def stats() -> dict:
     for oid in index["dropped"]:
         source = oid.split("/")[0]
         out["dropped"][source] = out["dropped"].get(source, 0) + 1
-    for extension in STATS_EXTENSIONS:
+    for extension in STATS_EXTENSIONS:  # a list grows under iteration: later ones are called too
         extension(out)
     return out

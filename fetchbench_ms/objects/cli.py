@@ -24,7 +24,6 @@ def _verify(args) -> int:
 
 
 def _stats(args) -> int:
-    from ..grasps import store  # noqa: F401  (adds the grasp counts to the statistics)
     from .catalog import stats
 
     data = stats()

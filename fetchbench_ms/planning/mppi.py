@@ -108,7 +108,7 @@ def _cloud_fields(checker: CollisionChecker) -> list[PointCloudField]:
     fields = [s for g, sets in checker.world.groups.items() if g not in checker.exclude for s in sets]
     if not fields or not all(isinstance(s, PointCloudField) for s in fields):
         raise ValueError("the network cost reads an observed point cloud: plan in a point-cloud world "
-                         "(solutions.worlds.pointcloud_world), or use cost='distance'")
+                         "(planning.world_models.pointcloud_world), or use cost='distance'")
     return fields
 
 

@@ -42,7 +42,7 @@ import torch
 
 from ..envs.pointcloud import (COMPACT_OBS_MODE, COMPACT_SIZES, LABEL_FURNITURE, LABEL_OBJECT, LABEL_ROBOT,
                                LABEL_TARGET, POINTS_OBS_MODES, POLICY_CLOUD_SIZES, compact_pointcloud_obs, compact_seed)
-from ..grasping.pointops import farthest_point_sample
+from ..geometry.pointops import farthest_point_sample
 
 #: Points per segment the policies read (scene, target, robot), farthest-point sampled
 #: from the compact cloud's blocks.

@@ -54,10 +54,11 @@ from ..planning.ik import solve_ik
 from ..planning.robot import robot_for_env
 from ..planning.rrt import plan_rrtconnect
 from ..planning.timing import time_parametrize
+from ..grasping.candidates import predicted_grasps
+from ..grasps.candidates import choose_grasps, object_grasps, retreat, tcp_from_hand
 from ..planning.world import pose_matrix
+from ..planning.world_models import T_world_base, mesh_world, object_poses_base, pointcloud_world
 from ..utils.io import sha256_bytes
-from .grasp_source import choose_grasps, object_grasps, predicted_grasps, retreat, tcp_from_hand
-from .worlds import T_world_base, mesh_world, object_poses_base, pointcloud_world
 
 METHODS = {
     "ga-mesh-rrt": dict(world="mesh", grasps="oracle", planner="rrt"),
@@ -393,7 +394,7 @@ def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_
 
 def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | None:
     """One try; returns the failure class, or None when the target was carried out."""
-    from ..tasks.objects import load_object
+    from ..objects.loading import load_object
 
     cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
     ex = Executor(env, state)
@@ -599,7 +600,7 @@ def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng) -> Candi
 def _object_attachment(object_id: str) -> Attachment:
     """An object's carried balls in its own frame (``SolveConfig.attachment_per_object``), from
     a seed of its id: the same balls for every grasp of it, in any process."""
-    from ..tasks.objects import load_object
+    from ..objects.loading import load_object
 
     seed = int(sha256_bytes(object_id.encode())[:8], 16) % 2**31
     return Attachment.from_convex_parts(load_object(object_id).convex_parts, seed=seed)

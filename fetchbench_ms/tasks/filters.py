@@ -100,8 +100,8 @@ class FilterEnv:
         from ..planning.checker import CollisionChecker
         from ..planning.ik import solve_ik
         from ..planning.robot import robot_for_env
-        from ..solutions.grasp_source import object_grasps, tcp_from_hand
-        from ..solutions.worlds import mesh_world, object_poses_base
+        from ..grasps.candidates import object_grasps, tcp_from_hand
+        from ..planning.world_models import mesh_world, object_poses_base
 
         u = self.env.unwrapped
         task = u.tasks[0]

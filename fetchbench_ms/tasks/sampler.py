@@ -25,7 +25,7 @@
    looking at the camera target region's centre plus an offset; of 32 candidate pairs
    the one that sees most of the support surfaces past the furniture and the robot
    (ray casts, ``camera_views``; labels weighted by ``camera_label_weights``) is kept.
-6. Settle: the placed objects are simulated until at rest (``envs.settle``); objects
+6. Settle: the placed objects are simulated until at rest (``sim.settle``); objects
    that fall off their support or do not come to rest are dropped. The settled poses
    are stored, so an episode starts at rest.
 Every draw comes from one ``numpy.random.Generator`` seeded by ``seed``.
@@ -42,10 +42,10 @@ import trimesh
 from scipy.spatial import ConvexHull
 from shapely.geometry import Point, Polygon
 
+from ..objects.loading import collision_vertices, load_object, object_ids, object_source
 from ..scenes import SCENE_TYPES, generate, get_scene_type
 from ..utils.canonical import canonical_lengths, canonical_quat
 from .camera_views import Occluders, camera_axes, sample_camera_pair
-from .objects import collision_vertices, load_object, object_ids, object_source
 from .spec import CATEGORY_LABELS, DEFAULT_QPOS, CameraPose, ObjectPlacement, TaskSpec, category_name, matrix_to_pose
 
 SAMPLER_VERSION = "4"  # 4: poses on the grids of utils.canonical (machine-independent); 3: on `fit_labels` objects that fit, turned, reaching over walls; camera label weights
@@ -186,7 +186,7 @@ def _sample_in_scene(rng, scene_type, scene_seed, target_label, ids, config) -> 
     extra = {"sampler_version": SAMPLER_VERSION, "placed_objects": len(placements),
              "camera_view_score": round(view_score, 6), "cameras_cover_supports": covered}
     if config.settle:
-        from ..envs.settle import settle_placements  # the one simulator step of sampling
+        from ..sim.settle import settle_placements  # the one simulator step of sampling
 
         placements, report = settle_placements(scene, placements, table_center, table_size)
         extra.update(report)

@@ -165,7 +165,7 @@ class TaskSpec:
     camera_left: CameraPose
     camera_right: CameraPose
     robot_init_qpos: tuple[float, ...] = DEFAULT_QPOS
-    object_source: str = ""  # tasks.objects.object_source() when sampled; checked on load
+    object_source: str = ""  # objects.loading.object_source() when sampled; checked on load
     seed: int | None = None  # the sampler seed that produced this task (None if hand-made)
     version: str = TASK_SPEC_VERSION
     extra: dict = field(default_factory=dict)  # free-form, JSON-safe (e.g. sampler statistics)

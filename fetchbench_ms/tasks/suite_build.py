@@ -243,7 +243,7 @@ def sample_arrangement(r: SuiteRecipe, scene: ScenePlan, k: int, need: dict | No
     """Arrangement ``k`` of a scene: a settled task (target 0 for now), or None if none fits.
     ``need``: the categories' missing task counts, which lean the placement (None: the
     scene's whole quota)."""
-    from .objects import object_ids
+    from ..objects.loading import object_ids
     from .sampler import SamplerConfig, _sample_in_scene
 
     seed = _arrangement_seed(r, scene, k)

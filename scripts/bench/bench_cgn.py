@@ -89,7 +89,7 @@ def cmd_speed(args) -> dict:
 
     import torch
 
-    from fetchbench_ms.grasping.pointops import fps_backend
+    from fetchbench_ms.geometry.pointops import fps_backend
     from fetchbench_ms.grasping.predict import predict_batch
 
     torch.set_num_threads(args.threads)
@@ -143,8 +143,8 @@ def cmd_quality(args) -> dict:
     from fetchbench_ms.grasping.metrics import grasp_coverage
     from fetchbench_ms.grasps import load_grasps
     from fetchbench_ms.grasps.physics import GraspLabeller
-    from fetchbench_ms.solutions.worlds import object_poses_base
-    from fetchbench_ms.tasks.objects import load_object
+    from fetchbench_ms.objects.loading import load_object
+    from fetchbench_ms.planning.world_models import object_poses_base
 
     torch.set_num_threads(args.threads)
     suite, _, _ = open_suite(args.suite)

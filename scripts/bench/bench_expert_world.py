@@ -1,5 +1,5 @@
 """The expert demo generator with and without the per-task mesh-world cache
-(``solutions.worlds.MESH_WORLD_CACHE``): seconds a task, and the trajectories compared.
+(``planning.world_models.MESH_WORLD_CACHE``): seconds a task, and the trajectories compared.
 
 Runs ``demos.generate.run_task`` (the generator's worker: up to --per-task successful
 trajectories from up to 8 tries) on the suite's tasks --start .. --start + --tasks - 1, once
@@ -45,7 +45,7 @@ def same_part(a: Path, b: Path) -> bool:
 def run_mode(args) -> None:
     """One mode in this process (the parent's subprocess): a warm-up task, then the tasks."""
     from fetchbench_ms.demos.generate import DemoJob, run_task, suite_task_ids
-    from fetchbench_ms.solutions import worlds
+    from fetchbench_ms.planning import world_models as worlds
 
     os.environ["FETCHBENCH_MESH_WORLD_CACHE"] = "0" if args.mode == "rebuilt" else "1"
     # The reference expert: the fast one reuses sets at nearby poses, which a rebuilt world cannot.

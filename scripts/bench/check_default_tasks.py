@@ -18,7 +18,7 @@ import time
 
 import fetchbench_ms  # noqa: F401  (FetchBench-*-v0)
 from fetchbench_ms.envs import ENV_KWARGS
-from fetchbench_ms.envs.fetchbench import DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, _resolve_task_source
+from fetchbench_ms.envs.task_source import DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, resolve_task_source
 
 
 def draws(suite: str, seeds: int) -> dict[str, list[str]]:
@@ -28,8 +28,8 @@ def draws(suite: str, seeds: int) -> dict[str, list[str]]:
     out = {}
     for env_id, kwargs in ENV_KWARGS.items():
         try:
-            _, _, pool = _resolve_task_source(None, suite, DEFAULT_OBJECT_SPLIT, kwargs.get("scene_type"),
-                                              kwargs.get("category"))
+            _, _, pool = resolve_task_source(None, suite, DEFAULT_OBJECT_SPLIT, kwargs.get("scene_type"),
+                                             kwargs.get("category"))
         except ValueError as error:
             print(f"{env_id}: {error}")
             continue

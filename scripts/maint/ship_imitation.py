@@ -1,20 +1,20 @@
-"""Ship the imitation policies a GPU-machine hold trained (scripts/imitation_shard.sh) as the
-package's checkpoints: ``assets/checkpoints/imit_<kind>.pt.planes.xz`` (the trainer's fp16 export,
+"""Ship the imitation policies a training run trained (scripts/imitation_shard.sh, or one
+trainer's run folder) as the package's checkpoints: ``assets/checkpoints/imit_<kind>.pt.planes.xz`` (the trainer's fp16 export,
 packed losslessly: ``fetchbench_ms.utils.packed``), ``imit_<kind>.json`` beside it (the trainer's export JSON plus the one command that
 retrains it, the converted data's manifest and the success on ``val`` tasks) and ``.log``
 (the training log).
 
-    python scripts/maint/ship_imitation.py --hold build/h3 --retrain "STEPS_MLP=16000 ... bash scripts/imitation_shard.sh ..." \\
+    python scripts/maint/ship_imitation.py --run build/h3 --retrain "STEPS_MLP=16000 ... bash scripts/imitation_shard.sh ..." \\
         --val-runs build/h4/evals/val-cgn-imit-mlp-0 build/h4/evals/val-e2e-mlp-0 ...
 
-``--hold`` is the hold's root as it came back: ``export/imit_<kind>.{pt,json}``,
+``--run`` is the folder of the training run: ``export/imit_<kind>.{pt,json}``,
 ``logs/train_<kind>.log``, ``data/manifest.json``; or one trainer's run folder
 (``baselines/imitation/train_<kind>.py --run RUN --export``: ``RUN/export/imit_<kind>.{pt,json}``,
 its ``log.txt``, and the manifest of the data its export JSON names); an export chosen by
 ``scripts/select_checkpoint.py`` keeps its ``selection`` record (every candidate's val
 figures). A val run is an eval folder (``fetchbench eval --suite val``) of one method; the
 checkpoint its records name must be the shipped one (by sha256), else it is refused; a run
-of test tasks is refused (exit 2). Without ``--hold`` the val runs are added to the
+of test tasks is refused (exit 2). Without ``--run`` the val runs are added to the
 checkpoints already shipped (a run of the same method and folder name is replaced):
 
     python scripts/maint/ship_imitation.py --val-runs build/h5/runs/e2e-mlp-val16-k3 ...
@@ -88,7 +88,7 @@ def add_val_runs(runs: list[Path]) -> int:
         meta = json.loads(path.read_text())
         if meta.get("checkpoint_sha256") != shipped[kind]:
             raise SystemExit(f"{path} describes checkpoint {str(meta.get('checkpoint_sha256'))[:12]}, not the shipped "
-                             f"bytes ({shipped[kind][:12]}): ship the hold again with --hold")
+                             f"bytes ({shipped[kind][:12]}): ship the run again with --run")
         new = {(v["method"], v["run"]) for v in val[kind]}
         meta["validation_success"] = [v for v in meta.get("validation_success", [])
                                       if (v["method"], v["run"]) not in new] + val[kind]
@@ -97,14 +97,14 @@ def add_val_runs(runs: list[Path]) -> int:
     return 0
 
 
-def _manifest(hold: Path, export_meta: dict, cache: dict) -> dict:
-    """The training data's manifest: the hold's ``data/manifest.json``, or (a run folder) the
-    one in the data folder its export JSON names."""
-    path = hold / "data" / "manifest.json"
+def _manifest(run: Path, export_meta: dict, cache: dict) -> dict:
+    """The training data's manifest: the run's ``data/manifest.json``, or (a trainer's run
+    folder) the one in the data folder its export JSON names."""
+    path = run / "data" / "manifest.json"
     if not path.is_file():
         path = Path(export_meta.get("args", {}).get("data", "")) / "manifest.json"
     if not path.is_file():
-        raise SystemExit(f"{hold}: no data/manifest.json, and its export names no data folder holding one ({path})")
+        raise SystemExit(f"{run}: no data/manifest.json, and its export names no data folder holding one ({path})")
     if path not in cache:
         cache[path] = json.loads(path.read_text())
     return cache[path]
@@ -112,37 +112,37 @@ def _manifest(hold: Path, export_meta: dict, cache: dict) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--run", "--hold", dest="hold", metavar="RUN", help="the hold's folder: export/, logs/, data/manifest.json (without it: add --val-runs "
-                                  "to the shipped checkpoints)")
-    p.add_argument("--retrain", help="the one command that retrains them (into the JSON; with --hold)")
+    p.add_argument("--run", metavar="RUN", help="the training run's folder: export/, logs/, data/manifest.json (without it: "
+                                                 "add --val-runs to the shipped checkpoints)")
+    p.add_argument("--retrain", help="the one command that retrains them (into the JSON; with --run)")
     p.add_argument("--kinds", default="mlp,transformer,diffusion",
-                   help=f"the hold's kinds to ship, comma-separated (default mlp,transformer,diffusion; of {', '.join(KINDS)})")
+                   help=f"the run's kinds to ship, comma-separated (default mlp,transformer,diffusion; of {', '.join(KINDS)})")
     p.add_argument("--val-runs", nargs="*", default=[], help="eval folders of val runs with these checkpoints")
     p.add_argument("--note", default="", help="a line on what limits these checkpoints (into the JSON)")
     args = p.parse_args(argv)
-    if args.hold is None:
+    if args.run is None:
         if not args.val_runs:
-            p.error("give --hold (ship a hold's checkpoints) or --val-runs (add val runs to the shipped ones)")
+            p.error("give --run (ship a run's checkpoints) or --val-runs (add val runs to the shipped ones)")
         return add_val_runs([Path(r) for r in args.val_runs])
     if not args.retrain:
-        p.error("--hold needs --retrain (the one command that retrains them)")
+        p.error("--run needs --retrain (the one command that retrains them)")
     kinds = [k for k in args.kinds.split(",") if k]
     bad = sorted(set(kinds) - set(KINDS))
     if bad or not kinds:
         p.error(f"--kinds {args.kinds!r}: unknown {', '.join(bad) or '(none given)'}; valid: {', '.join(KINDS)}")
-    hold = Path(args.hold)
-    missing = [k for k in kinds if not (hold / "export" / f"imit_{k}.pt").is_file()]
+    run = Path(args.run)
+    missing = [k for k in kinds if not (run / "export" / f"imit_{k}.pt").is_file()]
     if missing:
-        raise SystemExit(f"{hold}: no export/imit_<kind>.pt for {', '.join(missing)} (--kinds {args.kinds})")
+        raise SystemExit(f"{run}: no export/imit_<kind>.pt for {', '.join(missing)} (--kinds {args.kinds})")
     manifests = {}
-    exported = {k: sha256_file(hold / "export" / f"imit_{k}.pt") for k in kinds}
+    exported = {k: sha256_file(run / "export" / f"imit_{k}.pt") for k in kinds}
     val = val_figures([Path(r) for r in args.val_runs], exported)
     for kind in kinds:
-        meta = json.loads((hold / "export" / f"imit_{kind}.json").read_text())
-        manifest = _manifest(hold, meta, manifests)
+        meta = json.loads((run / "export" / f"imit_{kind}.json").read_text())
+        manifest = _manifest(run, meta, manifests)
         target = default_checkpoint(kind)
         atomic_write_bytes(target.with_name(target.name + PLANES_SUFFIX),
-                           pack_planes((hold / "export" / f"imit_{kind}.pt").read_bytes()))
+                           pack_planes((run / "export" / f"imit_{kind}.pt").read_bytes()))
         target.unlink(missing_ok=True)  # a plain copy would be read instead of the packed one
         meta.update({
             "checkpoint_sha256": exported[kind],
@@ -153,8 +153,8 @@ def main(argv=None) -> int:
             "note": args.note,
         })
         atomic_write_text(target.with_suffix(".json"), json.dumps(meta, indent=1))
-        log = hold / "logs" / f"train_{kind}.log"
-        shutil.copyfile(log if log.is_file() else hold / "log.txt", target.with_suffix(".log"))
+        log = run / "logs" / f"train_{kind}.log"
+        shutil.copyfile(log if log.is_file() else run / "log.txt", target.with_suffix(".log"))
         chosen = meta.get("selection")  # scripts/select_checkpoint.py's record, kept as it is
         print(f"{target}: step {meta['step']}, {manifest['totals']['demos']} demos, sha256 {exported[kind][:12]}, "
               f"val {[(v['method'], v['successes'], v['tasks']) for v in val[kind]]}"

@@ -72,7 +72,7 @@ def object_files(object_id: str) -> ObjectFiles:
     mesh files, under the catalog's version), so building a task's objects into a scene
     neither rebuilds the catalog's geometry (20-60 ms an object) nor re-hashes meshes.
     A record whose files have gone (cache cleared) is rebuilt."""
-    from ..tasks.objects import load_object, object_source
+    from ..objects.loading import load_object, object_source
 
     key = sha256_bytes(f"{object_source()}|{object_id}".encode())[:32]
     path = cache_dir() / "object_files" / f"{key}.json"

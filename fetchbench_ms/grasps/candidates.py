@@ -1,12 +1,12 @@
 """Grasp candidates for the target: the annotated (physics-verified) grasps of the
 object from the grasp store, or, for an object without labels there, antipodal
 candidates computed from its convex parts as a stand-in (unverified; the episode
-records which source it used); or, for the CGN methods, Contact-GraspNet's predictions
-on the observed clouds (``predicted_grasps``).
+records which source it used). Contact-GraspNet's predictions on the observed clouds
+come as the same ``GraspCandidates`` (``grasping.candidates.predicted_grasps``).
 
-Both are per-object assets computed ahead of time (the stand-in once per object and
-process, from a seed derived from the object id), so an episode's grasp "inference"
-is a lookup, as it is for FetchBench's annotated-grasp baselines.
+Both the annotated grasps and the stand-in are per-object assets computed ahead of time
+(the stand-in once per object and process, from a seed derived from the object id), so an
+episode's grasp "inference" is a lookup, as it is for FetchBench's annotated-grasp baselines.
 """
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..grasps.hand import TCP_OFFSET
 from ..utils.io import sha256_bytes
+from .hand import TCP_OFFSET
 
 STANDIN_CANDIDATES = 128
 
@@ -24,7 +24,7 @@ STANDIN_CANDIDATES = 128
 @dataclass(frozen=True)
 class GraspCandidates:
     T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame
-    source: str  # "annotated" or "antipodal-standin"
+    source: str  # "annotated", "antipodal-standin" or "cgn-<model>" (grasping.candidates)
     index: np.ndarray | None = None  # (N,) positions in the object's full grasp list
 
 
@@ -32,13 +32,13 @@ class GraspCandidates:
 def object_grasps(object_id: str, directory: str | None = None) -> GraspCandidates:
     """All grasps of an object (cached per process); ``directory``: another grasp store
     than the shipped Franka-hand labels (e.g. the Robotiq's, docs/robots.md)."""
-    from ..grasps import load_grasps
+    from .store import load_grasps
 
     try:
         return GraspCandidates(load_grasps(object_id, directory).successful.T_object_hand, "annotated")
     except (KeyError, FileNotFoundError):  # no store, or no labels for this object (stale/corrupt stores raise)
-        from ..grasps.sampler import sample_candidates
-        from ..tasks.objects import load_object
+        from ..objects.loading import load_object
+        from .sampler import sample_candidates
 
         seed = int(sha256_bytes(object_id.encode())[:8], 16)
         candidates = sample_candidates(load_object(object_id), STANDIN_CANDIDATES, np.random.default_rng(seed))
@@ -49,26 +49,6 @@ def choose_grasps(grasps: GraspCandidates, rng: np.random.Generator, max_grasps:
     """A seeded random order (no grasp is better than another among verified ones), at most ``max_grasps``."""
     order = rng.permutation(len(grasps.T_object_hand))[:max_grasps]
     return GraspCandidates(grasps.T_object_hand[order], grasps.source, order)
-
-
-def predicted_grasps(clouds, T_base_object: np.ndarray, model: str, max_grasps: int, rng: np.random.Generator,
-                     first_index: int = 0) -> GraspCandidates:
-    """The ``max_grasps`` best Contact-GraspNet grasps on the observed target (``clouds``:
-    ``fetchbench_ms.envs.FetchClouds``), expressed in the object frame like the annotated
-    ones (``T_base_object`` only changes the frame: the prediction sees the clouds alone).
-    Ids count from ``first_index``."""
-    import os
-
-    import torch
-
-    from ..grasping import predict_from_clouds
-
-    # As the trajopt planner: the GPU when there is one (the network's inference dominates
-    # a CGN method's compute time on CPU), overridable for timing comparisons.
-    device = os.environ.get("FETCHBENCH_CGN_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
-    predicted = predict_from_clouds(clouds, model, rng, device=device)
-    T_object_hand = np.linalg.inv(T_base_object)[None] @ predicted.T_base_hand[:max_grasps]
-    return GraspCandidates(T_object_hand, f"cgn-{model}", first_index + np.arange(len(T_object_hand)))
 
 
 def tcp_from_hand(T_hand: np.ndarray) -> np.ndarray:

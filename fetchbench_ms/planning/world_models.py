@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..planning.world import CollisionWorld, PointCloudField, box_set, convex_set_from_parts, obstacle_sets_from_parts
-from ..planning.world import pose_matrix
+from .world import (CollisionWorld, PointCloudField, box_set, convex_set_from_parts, obstacle_sets_from_parts,
+                    pose_matrix)
 
 FLOOR_THICKNESS = 0.1  # m: a slab under z = 0 stands for the floor
 
@@ -71,7 +71,7 @@ class MeshWorldCache:
 
     def sets(self, task, T_base_world: np.ndarray, T_base_objects: list[np.ndarray],
              pose_tolerance: float = 0.0) -> tuple[list, list]:
-        from ..tasks.objects import load_object
+        from ..objects.loading import load_object
 
         T_base_world = np.asarray(T_base_world, dtype=float)
         key = (task.to_json(), T_base_world.tobytes())
@@ -124,7 +124,7 @@ def task_mesh_world(task, T_base_world: np.ndarray, T_base_objects: list[np.ndar
     ``MeshWorldCache.sets`` (with the cache on)."""
     import os
 
-    from ..tasks.objects import load_object
+    from ..objects.loading import load_object
 
     if os.environ.get("FETCHBENCH_MESH_WORLD_CACHE", "1") != "0":
         scene, objects = MESH_WORLD_CACHE.sets(task, T_base_world, T_base_objects, pose_tolerance)
@@ -145,7 +145,7 @@ def remove_robot_points(points_base: np.ndarray, q_full: np.ndarray, clearance: 
     (7 arm joints + finger opening). Segmentation already labels the robot, but pixels on
     its silhouette can carry a neighbour's label; left in, they put the robot's own start
     configuration in collision."""
-    from ..planning.robot import panda
+    from .robot import panda
 
     robot = panda() if robot is None else robot
     centers = robot.sphere_centers(np.asarray(q_full[:7])[None], finger=float(q_full[7]))[0].numpy()

@@ -1,4 +1,4 @@
-"""The objects tasks are made of: the object catalog (``fetchbench_ms.objects.catalog``).
+"""Loading the objects tasks are made of, from the object catalog (``objects.catalog``), cached.
 
 Which catalog version a task was sampled with is stored in the task
 (``TaskSpec.object_source``) and checked when the task is loaded, so a task never gets
@@ -10,9 +10,9 @@ import functools
 
 import numpy as np
 
-from ..objects import catalog
-from ..objects.asset import ObjectAsset
 from ..utils.io import canonical_json
+from . import catalog
+from .asset import ObjectAsset
 
 
 def object_ids(split: str = "test") -> list[str]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import sys
 
-from ..method_spec import PIPELINES
+from ..method_spec import PIPELINES, POLICY_KINDS
 from .runner import BACKENDS
 
 
@@ -75,8 +75,9 @@ def add_commands(subparsers) -> None:
     # before a flag is read; an unknown name is answered with the full list.)
     p.add_argument("--method", default="ga-mesh-rrt",
                    help="a built-in method: sense-plan-act ga-{mesh,ptd}-{rrt,trajopt}, cgn-{mesh,ptd}-{rrt,trajopt}, "
-                        "cgn-ptd-mppi, ...; imitation e2e-KIND, twostage-KIND, cgn-imit-KIND (KIND: mlp, transformer, "
-                        "diffusion, act); idle (an unknown name lists them all); or an importable module:function")
+                        f"cgn-ptd-mppi, ...; imitation e2e-KIND, twostage-KIND, cgn-imit-KIND (KIND: "
+                        f"{', '.join(POLICY_KINDS)}); idle (an unknown name lists them all); or an importable "
+                        "module:function")
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
                    help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
                         "ours: assets/checkpoints/cgn_ours.pt)")

@@ -26,13 +26,12 @@ def cmd_eval(args) -> int:
     from ..solutions.planner_options import check_planner_options, parse_planner_options
     from .metrics import format_table, summarize
     from .methods import resolve_method, resolve_run
-    from .runner import check_run_numbers, evaluate_run
+    from .runner import evaluate_run
 
     if args.suite is not None and args.env is not None:
         raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
     if args.tasks is not None and args.suite is None:
         raise ValueError("--tasks selects tasks of a --suite")
-    check_run_numbers(args.workers, args.retries, args.task_timeout, args.policy_stride)
     method = resolve_method(args.method)
     # a bad planner option is answered here, before the envs, torch and the planners load
     planner_options = check_planner_options(method, parse_planner_options(args.planner_option or []))

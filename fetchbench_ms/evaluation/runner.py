@@ -86,8 +86,7 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     ``robot``: the hardware setup (``fetchbench_ms.robots``; recorded unless the Panda);
     ``grasp_labels``: the annotated grasps' store (None: the shipped Franka-hand labels);
     ``planner_options``: planner parameters of the ablation
-    (``fetchbench_ms.solutions.planner_options.parse_planner_options``)."""
-    check_run_numbers(workers, retries, task_timeout, policy_stride)  # before anything is written
+    (``fetchbench_ms.solutions.planner_options``). Resolved once (``methods.resolve_run``)."""
     run = resolve_run(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels,
                       planner_options, env_options, robot)
     return evaluate_run(run, out_dir, suite=suite, tasks=tasks, env_id=env_id, episodes=episodes, seed=seed,
@@ -103,7 +102,7 @@ def evaluate_run(run: RunSpec, out_dir, *, suite: Optional[str] = None, tasks: O
     (``method_options``, ``method_spec``: its parts) and every worker receives it."""
     from .metrics import summarize
 
-    check_run_numbers(workers, run.retries, task_timeout, run.policy_stride)
+    check_run_numbers(workers, run.retries, task_timeout, run.policy_stride)  # before anything is written
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:

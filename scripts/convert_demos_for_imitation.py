@@ -411,7 +411,7 @@ def convert_at_expert_states(args, source: Path, meta: dict, todo: list, out: Pa
 
 
 if __name__ == "__main__":
-    # A stop (SIGTERM: `device_jobs.py stop`, a shell's kill) runs main's `finally`, which
+    # A stop (SIGTERM: a shell's kill, a job scheduler) runs main's `finally`, which
     # stops the replays: they run in process groups of their own, which the signal misses.
     signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     sys.exit(main())

@@ -148,7 +148,8 @@ def main(argv=None, evaluate: Callable[[dict, Path, dict], list[dict]] = run_fet
     cli_guard(refuse_test, args.suite, "checkpoint selection")  # exit 2 before anything runs
 
     from fetchbench_ms.evaluation.runner import parse_range
-    from fetchbench_ms.policies.deploy import POLICY_METHODS, default_checkpoint
+    from fetchbench_ms.method_spec import registry
+    from fetchbench_ms.policies.deploy import default_checkpoint
     from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256, suite_path
 
     try:
@@ -169,9 +170,9 @@ def main(argv=None, evaluate: Callable[[dict, Path, dict], list[dict]] = run_fet
     candidates = find_candidates(args.candidates)
     kind = candidates[0]["kind"]
     method = args.method or f"e2e-{kind}"
-    if POLICY_METHODS.get(method) != kind:
-        p.error(f"--method {method!r} does not run a {kind} policy; valid: "
-                f"{', '.join(m for m, k in POLICY_METHODS.items() if k == kind)}")
+    runs_kind = [m.name for m in registry().values() if m.policy is not None and m.policy.name == kind]
+    if method not in runs_kind:
+        p.error(f"--method {method!r} does not run a {kind} policy; valid: {', '.join(runs_kind)}")
     strides = {c["frame_stride"] for c in candidates}
     if args.policy_stride is None and len(strides) > 1:
         p.error(f"the candidates were trained at frame strides {sorted(strides)}: give --policy-stride")

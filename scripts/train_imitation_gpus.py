@@ -4,8 +4,9 @@
         [--kinds act,diffusion,transformer,mlp] [--steps 30000] [--save-every 6000] [--time-limit 1500] \
         [--trainer-args "--eval-every 0"] [--kind-args act="--chunk 16"]
 
-Starts ``baselines/imitation/train_<kind>.py --data DATA --run RUNS/<kind> --device cuda`` for
-each kind with ``CUDA_VISIBLE_DEVICES`` set to its GPU (kinds and GPUs paired in order), logs
+Starts each kind's trainer (its ``method_spec.POLICY_KINDS`` row names it:
+``baselines/imitation/train_<kind>.py``) with ``--data DATA --run RUNS/<kind> --device cuda``, each
+with ``CUDA_VISIBLE_DEVICES`` set to its GPU (kinds and GPUs paired in order), logs
 each to ``RUNS/<kind>.log``, waits for all and exits non-zero, naming them, if any failed. Each
 trainer resumes its run folder, so the same command goes on after an interruption; with
 ``--save-every`` each writes a candidate export every N steps (``RUNS/<kind>/candidates/``), to
@@ -24,8 +25,10 @@ import sys
 import time
 from pathlib import Path
 
+from fetchbench_ms.method_spec import POLICY_KINDS
+
 ROOT = Path(__file__).resolve().parents[1]
-KINDS = ("act", "diffusion", "transformer", "mlp")
+KINDS = ("act", "diffusion", "transformer", "mlp")  # the default: the shipped kinds, the slowest first
 
 
 def main(argv=None) -> int:
@@ -33,7 +36,7 @@ def main(argv=None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", required=True, help="the training files' folder (scripts/build_imitation_data.py)")
     p.add_argument("--runs", required=True, help="RUNS/<kind>: each trainer's run folder")
-    p.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated, of {', '.join(KINDS)}")
+    p.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated, of {', '.join(POLICY_KINDS)}")
     p.add_argument("--gpus", default="0,1,2,3", help="one GPU index per kind, in order; or 'cpu'")
     p.add_argument("--steps", type=int, default=None, help="each trainer's --steps (default: its own)")
     p.add_argument("--save-every", type=int, default=None, help="each trainer's --save-every")
@@ -43,9 +46,9 @@ def main(argv=None) -> int:
                    help="more flags for one kind's trainer (repeatable)")
     args = p.parse_args(argv)
     kinds = [k for k in args.kinds.split(",") if k]
-    unknown = [k for k in kinds if k not in KINDS]
+    unknown = [k for k in kinds if k not in POLICY_KINDS]
     if unknown or not kinds or len(set(kinds)) != len(kinds):
-        p.error(f"--kinds {args.kinds!r}: give distinct kinds of {', '.join(KINDS)}")
+        p.error(f"--kinds {args.kinds!r}: give distinct kinds of {', '.join(POLICY_KINDS)}")
     gpus = None if args.gpus == "cpu" else [g for g in args.gpus.split(",") if g]
     if gpus is not None and (len(gpus) != len(kinds) or not all(g.isdigit() for g in gpus)):
         p.error(f"--gpus {args.gpus!r}: one GPU index per kind ({len(kinds)}: {', '.join(kinds)}), or 'cpu'")
@@ -68,7 +71,7 @@ def main(argv=None) -> int:
         env = dict(os.environ)
         if gpus is not None:
             env["CUDA_VISIBLE_DEVICES"] = gpus[i]
-        command = [sys.executable, str(ROOT / f"baselines/imitation/train_{kind}.py"), "--data", args.data,
+        command = [sys.executable, str(ROOT / POLICY_KINDS[kind].trainer), "--data", args.data,
                    "--run", str(runs / kind), "--device", "cpu" if gpus is None else "cuda",
                    *common, *per_kind.get(kind, [])]
         log = open(runs / f"{kind}.log", "a")

@@ -148,14 +148,14 @@ def test_ray_backend_gives_the_same_records(tiny_suite, idle_reference, tmp_path
 def test_seed_mode_runs_env_seeds(monkeypatch):
     """``--env ID --episodes N --seed S``: the env samples the task from each seed (run here
     in-process, as a worker runs it)."""
-    from fetchbench_ms.evaluation.methods import TaskRunner
+    from fetchbench_ms.evaluation.methods import TaskRunner, resolve_run
     from fetchbench_ms.evaluation.runner import seed_items
     from fetchbench_ms.objects.loading import object_ids
 
     monkeypatch.setenv("FETCHBENCH_TEST_FAULTS", "{}")
     items = seed_items("FetchBench-Shelf-v0", 2, 7)
     assert [i.task_id for i in items] == ["FetchBench-Shelf-v0/seed-7", "FetchBench-Shelf-v0/seed-8"]
-    runner = TaskRunner("evaluation_faults:numpy_record")
+    runner = TaskRunner(resolve_run("evaluation_faults:numpy_record"))
     try:
         record = runner(items[1])
         task = runner.envs[("FetchBench-Shelf-v0", "none")].unwrapped.tasks[0]
@@ -178,6 +178,7 @@ def test_planner_options_are_recorded_and_reach_the_solver(tmp_path, monkeypatch
     without one records no key. The solver and the worker pool are stand-ins here: the runner
     runs in this process, and ``solve`` returns the goal region it was given."""
     from fetchbench_ms.evaluation import local
+    from fetchbench_ms.evaluation.methods import TaskRunner
     from fetchbench_ms.solutions import sense_plan_act
 
     def solve(env, seed, method, config, **kwargs):
@@ -185,7 +186,7 @@ def test_planner_options_are_recorded_and_reach_the_solver(tmp_path, monkeypatch
                 "cspace_length": 0.0, "phases": {}, "solver_goal_region": config.mppi_goal_region}
 
     def run_local(spec, todo, on_record, **kwargs):
-        runner = spec.make()
+        runner = TaskRunner(spec)
         try:
             for item in todo:
                 on_record(runner(item))
@@ -209,7 +210,7 @@ def test_planner_options_are_recorded_and_reach_the_solver(tmp_path, monkeypatch
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["eval", "--method", "cgn-rrt", "--suite", "smoke"], "valid: ga-mesh-rrt, ga-ptd-rrt, ga-mesh-trajopt, ga-ptd-trajopt, cgn-ptd-rrt, cgn-mesh-rrt, cgn-ptd-trajopt, cgn-mesh-trajopt, cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, e2e-mlp, e2e-transformer, e2e-diffusion, e2e-act, twostage-mlp, twostage-transformer, twostage-diffusion, twostage-act, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, cgn-imit-act, idle"),
+    (["eval", "--method", "cgn-rrt", "--suite", "smoke"], "valid: ga-mesh-rrt, ga-ptd-rrt, cgn-ptd-rrt, cgn-mesh-rrt, ga-mesh-trajopt, ga-ptd-trajopt, cgn-ptd-trajopt, cgn-mesh-trajopt, cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, e2e-mlp, e2e-transformer, e2e-diffusion, e2e-act, twostage-mlp, twostage-transformer, twostage-diffusion, twostage-act, cgn-imit-mlp, cgn-imit-transformer, cgn-imit-diffusion, cgn-imit-act, idle"),
     (["eval", "--method", "idle", "--suite", "no-such-suite"], "unknown task suite 'no-such-suite'; valid:"),
     (["eval", "--method", "idle", "--suite", "SUITE", "--tasks", "3-9"], "--tasks takes START:END"),
     (["eval", "--method", "idle", "--suite", "SUITE", "--tasks", "2:99"], "need 0 <= START < END <= 4"),
@@ -267,10 +268,10 @@ def test_videos_of_failed_tasks(tmp_path):
     steps of the method, the end; the env's own stepping is restored afterwards."""
     from PIL import Image
 
-    from fetchbench_ms.evaluation.methods import VIDEO_EVERY, RunnerSpec
+    from fetchbench_ms.evaluation.methods import VIDEO_EVERY, TaskRunner, resolve_run
     from fetchbench_ms.evaluation.runner import seed_items
 
-    runner = RunnerSpec("evaluation_faults:wiggle", video_dir=str(tmp_path)).make()
+    runner = TaskRunner(resolve_run("evaluation_faults:wiggle", video_dir=str(tmp_path)))
     try:
         record = runner(seed_items("FetchBench-Table-v0", 1, 4)[0])
         env = runner.envs[("FetchBench-Table-v0", "none")].unwrapped

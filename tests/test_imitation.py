@@ -665,7 +665,8 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
     import gymnasium as gym
 
     import fetchbench_ms  # noqa: F401
-    from fetchbench_ms.evaluation.methods import resolve_method
+    from fetchbench_ms.evaluation.methods import resolve_run
+    from fetchbench_ms.method_spec import RunSpec, method_spec
     from fetchbench_ms.policies import deploy
 
     paths = {}
@@ -674,16 +675,16 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
         paths[kind] = tmp_path / f"{kind}.pt"
         module.main(module.Args(data=str(sample_data), run=str(tmp_path / kind), steps=2, export=True,
                                 export_path=str(paths[kind]), **TINY, **TRAINER_KW[kind]))
-    method = resolve_method("e2e-mlp", policy_checkpoint=str(paths["mlp"]))
-    assert method.obs_mode == "compact_pointcloud"
-    assert resolve_method("cgn-imit-diffusion", policy_checkpoint=str(paths["diffusion"])).obs_mode == "pointcloud"
-    assert resolve_method("twostage-mlp", policy_checkpoint=str(paths["mlp"])).obs_mode == "compact_pointcloud"
-    assert resolve_method("e2e-act", policy_checkpoint=str(paths["act"])).obs_mode == "compact_pointcloud"
-    assert resolve_method("cgn-imit-act", policy_checkpoint=str(paths["act"])).obs_mode == "pointcloud"
+    run = resolve_run("e2e-mlp", policy_checkpoint=str(paths["mlp"]))
+    assert run.obs_mode == "compact_pointcloud"
+    assert resolve_run("cgn-imit-diffusion", policy_checkpoint=str(paths["diffusion"])).obs_mode == "pointcloud"
+    assert resolve_run("twostage-mlp", policy_checkpoint=str(paths["mlp"])).obs_mode == "compact_pointcloud"
+    assert resolve_run("e2e-act", policy_checkpoint=str(paths["act"])).obs_mode == "compact_pointcloud"
+    assert resolve_run("cgn-imit-act", policy_checkpoint=str(paths["act"])).obs_mode == "pointcloud"
     with pytest.raises(FileNotFoundError, match="train_transformer.py"):
-        resolve_method("e2e-transformer", policy_checkpoint=str(tmp_path / "missing.pt"))
-    with pytest.raises(ValueError, match="needs a mlp checkpoint"):
-        deploy.load_policy("e2e-mlp", str(paths["diffusion"]), device="cpu")
+        resolve_run("e2e-transformer", policy_checkpoint=str(tmp_path / "missing.pt"))
+    with pytest.raises(ValueError, match="e2e-mlp needs a mlp checkpoint"):
+        deploy.load_policy(method_spec("e2e-mlp"), str(paths["diffusion"]), device="cpu")
 
     env = gym.make("FetchBench-v0", obs_mode="compact_pointcloud", control_mode="pd_joint_pos", task_suite="smoke")
     try:
@@ -691,7 +692,8 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
         u = env.unwrapped
         obs = u.get_obs(unflattened=True)
         for method in ("e2e-diffusion", "e2e-act"):  # ACT: a chunk each step, ensembled
-            policy = deploy.load_policy(method, str(paths[deploy.POLICY_METHODS[method]]), device="cpu")
+            spec = method_spec(method)
+            policy = deploy.load_policy(spec, str(paths[spec.policy.name]), device="cpu")
             policy.reset(episode_seed=0)
             for _ in range(2):
                 action = policy.get_action(obs)
@@ -701,7 +703,7 @@ def test_checkpoints_act_in_the_env(sample_data, tmp_path):
                 assert np.allclose(target[0, :7], qpos[:7] + 0.1 * action[0, :7], atol=1e-6)
                 obs, *_ = env.step(target)
         assert policy.model.kind == "act" and len(policy.ensemble.chunks) == 2
-        record = deploy.run_e2e(env, 0, "e2e-mlp", str(paths["mlp"]), max_steps=3)
+        record = deploy.run_e2e(env, 0, RunSpec(method_spec("e2e-mlp"), policy_checkpoint=str(paths["mlp"])), max_steps=3)
         assert record["policy_steps"] == 3 and isinstance(record["success"], bool)
         assert record["cspace_length"] > 0 and record["checkpoint"] == str(paths["mlp"])
     finally:
@@ -857,14 +859,14 @@ def test_open_loop_chunk_trained_on_strided_frames_repeats_each_action(kind, mon
 
 
 def test_invalid_stride_and_misused_steps_are_named(monkeypatch):
-    from fetchbench_ms.evaluation.methods import resolve_method
+    from fetchbench_ms.evaluation.methods import resolve_run
 
     model = _tiny_model("mlp")
     for stride in (0, -2, 1.5, "2", True, None):
         with pytest.raises(ValueError, match="integer >= 1"):
             ImitationPolicy(model, stride=stride)
     with pytest.raises(ValueError, match="integer >= 1"):  # before any task runs
-        resolve_method("e2e-mlp", policy_stride=0)
+        resolve_run("e2e-mlp", policy_stride=0)
     _scripted_network(monkeypatch)
     policy = ImitationPolicy(model, stride=np.int64(2))
     assert policy.stride == 2
@@ -884,16 +886,16 @@ def test_invalid_stride_and_misused_steps_are_named(monkeypatch):
 def test_policy_stride_reaches_the_episode(monkeypatch):
     """--policy-stride K: the CLI, the runner's spec and the method hand K to the episode."""
     from fetchbench_ms.cli import build_parser
-    from fetchbench_ms.evaluation.methods import RunnerSpec
+    from fetchbench_ms.evaluation.methods import TaskRunner, resolve_run
     from fetchbench_ms.policies import deploy
 
     assert build_parser().parse_args(["eval", "--method", "e2e-mlp", "--policy-stride", "3"]).policy_stride == 3
     assert build_parser().parse_args(["eval"]).policy_stride == 1
     seen = {}
-    monkeypatch.setattr(deploy, "run_e2e", lambda env, seed, name, checkpoint, regrasp, stride: seen.update(e2e=stride))
-    monkeypatch.setattr(deploy, "run_hybrid", lambda *args: seen.update(hybrid=args[6]))  # (..., stride, improvements)
-    RunnerSpec("e2e-mlp", policy_stride=3).make().method.run(None, 0)
-    RunnerSpec("cgn-imit-mlp", policy_stride=4).make().method.run(None, 0)
+    monkeypatch.setattr(deploy, "run_e2e", lambda env, seed, run: seen.update(e2e=run.policy_stride))
+    monkeypatch.setattr(deploy, "run_hybrid", lambda env, seed, run: seen.update(hybrid=run.policy_stride))
+    TaskRunner(resolve_run("e2e-mlp", policy_stride=3)).method.run(None, 0)
+    TaskRunner(resolve_run("cgn-imit-mlp", policy_stride=4)).method.run(None, 0)
     assert seen == {"e2e": 3, "hybrid": 4}
 
 
@@ -904,6 +906,7 @@ def test_strided_episode_renders_fewer_observations(tmp_path):
     import gymnasium as gym
 
     import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.method_spec import RunSpec, method_spec
     from fetchbench_ms.policies import deploy
 
     model = _tiny_model("mlp")
@@ -921,7 +924,8 @@ def test_strided_episode_renders_fewer_observations(tmp_path):
         for stride in (1, 2):
             env.reset(seed=0)
             rendered.clear()
-            records[stride] = deploy.run_e2e(env, 0, "e2e-mlp", str(path), max_steps=7, stride=stride)
+            run = RunSpec(method_spec("e2e-mlp"), policy_checkpoint=str(path), policy_stride=stride)
+            records[stride] = deploy.run_e2e(env, 0, run, max_steps=7)
             assert records[stride]["observations"] == len(rendered)
             assert int(u.elapsed_steps[0]) == 7 and records[stride]["policy_steps"] == 7
             assert records[stride]["policy_stride"] == stride and records[stride]["phase_log"] == []

@@ -19,7 +19,8 @@ def _burn(stop):
 
 
 def test_pipelines_and_improvements_are_named_and_checked():
-    from fetchbench_ms.solutions.sense_plan_act import (IMPROVEMENTS, SolveConfig, pipeline_improvements,
+    from fetchbench_ms.method_spec import IMPROVEMENTS, pipeline_improvements
+    from fetchbench_ms.solutions.sense_plan_act import (SolveConfig,
                                                         pipeline_label)
 
     assert pipeline_improvements("paper") == ()
@@ -62,6 +63,8 @@ def test_planner_options_reach_the_mppi_config(monkeypatch):
 
     from fetchbench_ms.planning import mppi
     from fetchbench_ms.solutions.planner_options import parse_planner_options
+    from fetchbench_ms.method_spec import method_spec
+    from fetchbench_ms.solutions.planner_options import check_planner_options
     from fetchbench_ms.solutions.sense_plan_act import EpisodeState, SolveConfig, _plan_and_move
 
     configs = []
@@ -72,8 +75,9 @@ def test_planner_options_reach_the_mppi_config(monkeypatch):
 
     monkeypatch.setattr(mppi, "plan_mppi", plan_mppi)
     for options in ([], ["mppi_goal_region=0", "mppi_cost=distance"], ["mppi_goal_region=0.25"]):
-        config = SolveConfig(**parse_planner_options(options, "cgn-ptd-mppi"))
-        _plan_and_move(EpisodeState(config), None, np.random.default_rng(0), None, None, None, "cgn-ptd-mppi")
+        spec = method_spec("cgn-ptd-mppi")
+        config = SolveConfig(**check_planner_options(spec, parse_planner_options(options)))
+        _plan_and_move(EpisodeState(config), None, np.random.default_rng(0), None, None, None, spec)
     assert [(c.goal_region, c.cost) for c in configs] == [(mppi.MppiConfig.goal_region, "network"),
                                                           (0, "distance"), (0.25, "network")]
 
@@ -160,10 +164,11 @@ def test_cgn_with_an_unseen_target_has_no_grasp_candidate():
     import numpy as np
 
     from fetchbench_ms.envs.pointcloud import FetchClouds
+    from fetchbench_ms.method_spec import method_spec
     from fetchbench_ms.solutions.sense_plan_act import EpisodeState, SolveConfig, _grasp_candidates
 
     state = EpisodeState(SolveConfig())
     clouds = FetchClouds(scene=np.zeros((10, 3)), target=np.zeros((0, 3)), robot=np.zeros((0, 3)),
                          scene_labels=np.zeros(10, int), target_segmentation_id=0)
-    assert _grasp_candidates(None, "cgn-ptd-rrt", state, np.random.default_rng(0), set(), np.eye(4), clouds) is None
+    assert _grasp_candidates(None, method_spec("cgn-ptd-rrt"), state, np.random.default_rng(0), set(), np.eye(4), clouds) is None
     assert state.notes == ["target not seen by the cameras"]

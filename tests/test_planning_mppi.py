@@ -196,12 +196,12 @@ def test_mppi_reaches_goals_a_cautious_cost_model_calls_in_contact(robot, shelf,
 
 
 def test_missing_checkpoint_is_a_clear_error(robot, tmp_path, monkeypatch):
-    from fetchbench_ms.evaluation.methods import resolve_method
+    from fetchbench_ms.evaluation.methods import resolve_run
 
     monkeypatch.setattr(collision_net, "checkpoint_path", lambda: tmp_path / "none.pt")
     collision_net.load_collision_net.cache_clear()
     with pytest.raises(FileNotFoundError, match="baselines/mppi_collision"):
-        resolve_method("ga-ptd-mppi")
+        resolve_run("ga-ptd-mppi")
     with pytest.raises(FileNotFoundError, match="cost='distance'"):
         plan_mppi(CollisionChecker(robot, CollisionWorld().add("scene", PointCloudField(np.zeros((1, 3))))),
                   Q_DEFAULT, Q_DEFAULT + 0.1, config=MppiConfig(cost="network", device="cpu"))

@@ -57,6 +57,7 @@ def test_four_trainers_from_one_launcher_and_the_policy_deploys(policy_data, tmp
     import numpy as np
 
     import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.method_spec import RunSpec, method_spec
     from fetchbench_ms.policies import deploy
     from fetchbench_ms.policies.agent import ImitationPolicy, checkpoint_obs_mode
 
@@ -72,15 +73,15 @@ def test_four_trainers_from_one_launcher_and_the_policy_deploys(policy_data, tmp
         assert checkpoint_obs_mode(export) == POLICY_OBS_MODE, kind
         assert json.loads(export.with_suffix(".json").read_text())["step"] == 3
     export = runs / "mlp" / "export.pt"
-    assert deploy.policy_obs_mode("e2e-mlp", str(export)) == POLICY_OBS_MODE
+    assert deploy.policy_obs_mode(method_spec("e2e-mlp"), str(export)) == POLICY_OBS_MODE
     with pytest.raises(ValueError, match="end-to-end"):
-        deploy.policy_obs_mode("cgn-imit-mlp", str(export))
+        deploy.policy_obs_mode(method_spec("cgn-imit-mlp"), str(export))
     # The shipped checkpoints keep theirs.
-    assert deploy.policy_obs_mode("e2e-act") == "compact_pointcloud"
+    assert deploy.policy_obs_mode(method_spec("e2e-act")) == "compact_pointcloud"
     env = gym.make("FetchBench-v0", obs_mode=POLICY_OBS_MODE, control_mode="pd_joint_pos", task_suite="val")
     try:
         env.reset(seed=0)
-        record = deploy.run_e2e(env, 0, "e2e-mlp", str(export), max_steps=2)
+        record = deploy.run_e2e(env, 0, RunSpec(method_spec("e2e-mlp"), policy_checkpoint=str(export)), max_steps=2)
         assert record["policy_steps"] == 2 and record["observations"] >= 1
         # A compact cloud is not what this policy was trained on.
         policy = ImitationPolicy.load(export)

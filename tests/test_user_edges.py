@@ -366,13 +366,13 @@ def test_grasps_predict_writes_the_grasps_and_the_inference_time(tmp_path, capsy
 # ----------------------------------------------------------------------------- long silences
 def test_a_long_evaluation_task_reports_its_control_steps():
     from fetchbench_ms.evaluation.local import PROGRESS_AFTER, run_local
-    from fetchbench_ms.evaluation.methods import RunnerSpec
+    from fetchbench_ms.evaluation.methods import resolve_run
     from fetchbench_ms.evaluation.runner import open_suite, suite_items
 
     suite, _, _ = open_suite("smoke")
     items = suite_items(suite, range(1))
     records, news = [], []
-    run_local(RunnerSpec("evaluation_faults:slow_steps"), items, records.append, workers=1, task_timeout=300,
+    run_local(resolve_run("evaluation_faults:slow_steps"), items, records.append, workers=1, task_timeout=300,
               on_progress=lambda task_id, steps, seconds: news.append((task_id, steps, seconds)))
     assert len(records) == 1 and not records[0].get("error"), records
     assert news and all(t == items[0].task_id and s >= PROGRESS_AFTER for t, _, s in news)
@@ -429,13 +429,6 @@ def test_bad_flags_are_answered_before_torch_and_the_simulator_load():
     assert out.stdout.strip() == "[2, 2, 2, 2, 2] []", out.stdout
 
 
-def test_eval_pipeline_flag_spells_the_planners_pipelines():
-    from fetchbench_ms.evaluation.cli import PIPELINE_NAMES
-    from fetchbench_ms.solutions.sense_plan_act import PIPELINES
-
-    assert PIPELINE_NAMES == tuple(PIPELINES)
-
-
 PLANNER_OPTION_ERRORS = textwrap.dedent("""
     import contextlib, io, json, sys
     from fetchbench_ms.cli import main
@@ -475,10 +468,11 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     import dataclasses
 
     from fetchbench_ms.planning.mppi import COSTS
-    from fetchbench_ms.solutions.planner_options import MPPI_COSTS, MPPI_METHODS, PLANNER_OPTIONS
-    from fetchbench_ms.solutions.sense_plan_act import METHODS, SolveConfig
+    from fetchbench_ms.method_spec import PLANNERS
+    from fetchbench_ms.solutions.planner_options import MPPI_COSTS, PLANNER_OPTIONS
+    from fetchbench_ms.solutions.sense_plan_act import SolveConfig
 
-    assert MPPI_METHODS == tuple(m for m, parts in METHODS.items() if parts["planner"] == "mppi")
+    assert {o for p in PLANNERS.values() for o in p.options} <= set(PLANNER_OPTIONS)
     assert MPPI_COSTS == tuple(COSTS)
     assert set(PLANNER_OPTIONS) <= {f.name for f in dataclasses.fields(SolveConfig)}
 

@@ -26,15 +26,15 @@ import numpy as np
 import torch
 
 from fetchbench_ms.envs.pointcloud import COMPACT_OBS_MODE
+from fetchbench_ms.method_spec import POLICY_KINDS
 from fetchbench_ms.policies.agent import load_model, save_checkpoint
 from fetchbench_ms.policies.data import POLICY_SIZES, POLICY_STAGES, load_training_files
-from fetchbench_ms.policies.deploy import E2E_METHODS
 from fetchbench_ms.policies.networks import EncoderConfig, config_to_dict
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_task_ids
 from fetchbench_ms.utils.io import atomic_write_text, sha256_bytes, sha256_file
 from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
 
-EVAL_METHOD = {kind: method for method, kind in E2E_METHODS.items()}  # the val-success method of each kind
+EVAL_METHOD = {kind: f"e2e-{kind}" for kind in POLICY_KINDS}  # the val-success method of each kind
 EVAL_SUITE = "val"  # success is measured on val tasks, never test
 EARLY_LOG_STEPS = (1, 2, 5, 10, 20, 50)  # logged before the first --log-every: the rate and ETA show at once
 

@@ -4,49 +4,49 @@ from __future__ import annotations
 import os
 import sys
 
+from ..method_spec import PIPELINES, POLICY_KINDS
 from .runner import BACKENDS
 
-#: ``sense_plan_act.PIPELINES``' names, spelled out so reading the flags does not load the
-#: planners (tests/test_user_edges.py keeps the two the same).
-PIPELINE_NAMES = ("paper", "ours")
+
+def default_out(run, labels_arg=None) -> str:
+    """``out/eval/<method>[-<weights>][-<pipeline>][-<option>=<value>...][-robot=R][-labels=DIR]``."""
+    name = run.name.replace(":", "_") + (f"-{run.grasp_model}" if run.method.grasps == "cgn" else "")
+    if run.method.has_pipeline:
+        name += f"-{run.pipeline_fields()['pipeline']}"
+    name += "".join(f"-{k}={v}" for k, v in [*run.env_options, *run.planner_options])
+    if run.robot != "panda":
+        name += f"-robot={run.robot}"
+    if labels_arg is not None:
+        name += f"-labels={os.path.basename(os.path.normpath(labels_arg))}"
+    return os.path.join("out", "eval", name)
 
 
 def cmd_eval(args) -> int:
+    from ..method_spec import pipeline_improvements
+    from ..solutions.planner_options import check_planner_options, parse_planner_options
     from .metrics import format_table, summarize
-    from .runner import evaluate
+    from .methods import resolve_method, resolve_run
+    from .runner import evaluate_run
 
     if args.suite is not None and args.env is not None:
         raise ValueError("give --suite (suite tasks) or --env with --episodes/--seed (sampled tasks), not both")
     if args.tasks is not None and args.suite is None:
         raise ValueError("--tasks selects tasks of a --suite")
-    from ..solutions.planner_options import parse_planner_options
-
-    planner_options = parse_planner_options(args.planner_option or [], args.method)  # a bad one: before torch loads
-    from ..envs import parse_env_options
-    from ..solutions.sense_plan_act import pipeline_improvements, pipeline_label
-    from .methods import has_pipeline
-
+    method = resolve_method(args.method)
+    # a bad planner option is answered here, before the envs, torch and the planners load
+    planner_options = check_planner_options(method, parse_planner_options(args.planner_option or []))
     without = [w.strip() for w in (args.without or "").split(",") if w.strip()]
-    improvements = pipeline_improvements(args.pipeline, without) if has_pipeline(args.method) else ()
-    if not has_pipeline(args.method) and (args.pipeline != "paper" or without):
-        raise ValueError(f"{args.method} runs no sense-plan-act pipeline: --pipeline / --without do not apply")
-    env_options = parse_env_options(args.env_option or [])
-    default_out = args.method.replace(":", "_") + (f"-{args.grasp_model}" if args.method.startswith("cgn-") else "")
-    if has_pipeline(args.method):
-        default_out += f"-{pipeline_label(improvements)}"
-    default_out += "".join(f"-{k}={v}" for k, v in [*sorted(env_options.items()), *sorted(planner_options.items())])
-    if args.robot != "panda":
-        default_out += f"-robot={args.robot}"
-    if args.grasp_labels is not None:
-        default_out += f"-labels={os.path.basename(os.path.normpath(args.grasp_labels))}"
-    out = args.out or os.path.join("out", "eval", default_out)
-    records = evaluate(args.method, out, suite=args.suite, tasks=args.tasks, env_id=args.env,
-                       episodes=args.episodes, seed=args.seed, workers=args.workers, backend=args.backend,
-                       address=args.address, task_timeout=args.task_timeout, retries=args.retries,
-                       retry_errors=args.retry_errors, videos=args.videos, grasp_model=args.grasp_model,
-                       policy_checkpoint=args.policy_checkpoint, policy_stride=args.policy_stride,
-                       improvements=improvements, env_options=env_options, robot=args.robot,
-                       grasp_labels=args.grasp_labels, planner_options=planner_options)
+    if not method.has_pipeline and (args.pipeline != "paper" or without):
+        raise ValueError(f"{method.name} runs no sense-plan-act pipeline: --pipeline / --without do not apply")
+    from ..envs import parse_env_options
+
+    run = resolve_run(method, args.retries, args.grasp_model, args.policy_checkpoint, args.policy_stride,
+                      pipeline_improvements(args.pipeline, without), args.grasp_labels, planner_options,
+                      parse_env_options(args.env_option or []), args.robot)
+    out = args.out or default_out(run, args.grasp_labels)
+    records = evaluate_run(run, out, suite=args.suite, tasks=args.tasks, env_id=args.env, episodes=args.episodes,
+                           seed=args.seed, workers=args.workers, backend=args.backend, address=args.address,
+                           task_timeout=args.task_timeout, retry_errors=args.retry_errors, videos=args.videos)
     for r in records:
         if r.get("error"):
             print(f"{r['task_id']}: {r['error']['kind']}: {r['error']['message']}")
@@ -74,8 +74,9 @@ def add_commands(subparsers) -> None:
     # before a flag is read; an unknown name is answered with the full list.)
     p.add_argument("--method", default="ga-mesh-rrt",
                    help="a built-in method: sense-plan-act ga-{mesh,ptd}-{rrt,trajopt}, cgn-{mesh,ptd}-{rrt,trajopt}, "
-                        "cgn-ptd-mppi, ...; imitation e2e-KIND, twostage-KIND, cgn-imit-KIND (KIND: mlp, transformer, "
-                        "diffusion, act); idle (an unknown name lists them all); or an importable module:function")
+                        f"cgn-ptd-mppi, ...; imitation e2e-KIND, twostage-KIND, cgn-imit-KIND (KIND: "
+                        f"{', '.join(POLICY_KINDS)}); idle (an unknown name lists them all); or an importable "
+                        "module:function")
     p.add_argument("--grasp-model", default="pretrained", choices=("pretrained", "ours"),
                    help="cgn-* methods: Contact-GraspNet weights (pretrained: from the cgn-pytorch package; "
                         "ours: assets/checkpoints/cgn_ours.pt)")
@@ -86,7 +87,7 @@ def add_commands(subparsers) -> None:
                         "steps, repeating its arm action in between (1: every step, as trained; an ACT policy "
                         "ensembles a chunk from each observation; a diffusion policy runs its action chunks and "
                         "checks termination every K steps)")
-    p.add_argument("--pipeline", default="paper", choices=PIPELINE_NAMES,
+    p.add_argument("--pipeline", default="paper", choices=tuple(PIPELINES),
                    help="sense-plan-act methods and hybrids: 'paper' runs the original's step list (the rows "
                         "named after the paper's methods); 'ours' adds our improvements "
                         "(retreat, extra_lifts, start_escape, cgn_filter), recorded in run.json and every record")

@@ -16,7 +16,8 @@ import time
 from multiprocessing.connection import wait
 from typing import Callable, Iterable
 
-from .methods import RunnerSpec, WorkItem, error_record, setup_limit, timeout_message
+from ..method_spec import RunSpec
+from .methods import TaskRunner, WorkItem, error_record, setup_limit, timeout_message
 
 READY = "ready"
 STARTED = "started"  # ("started", task id): the task's env is made and reset, its method runs (its limit starts)
@@ -37,7 +38,7 @@ def _die_with_parent() -> None:
         pass
 
 
-def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
+def worker_main(conn, spec: RunSpec, parent_pid: int) -> None:
     _die_with_parent()
     if os.getppid() != parent_pid:  # the parent died before the death signal was armed
         return
@@ -48,7 +49,7 @@ def worker_main(conn, spec: RunnerSpec, parent_pid: int) -> None:
     import torch
 
     torch.set_num_threads(1)
-    runner = spec.make()
+    runner = TaskRunner(spec)
     send_lock, running = threading.Lock(), {}
 
     def method_started(item: WorkItem) -> None:
@@ -96,7 +97,7 @@ def _report_progress(conn, send_lock, runner, running: dict) -> None:
 
 
 class _Worker:
-    def __init__(self, ctx, spec: RunnerSpec):
+    def __init__(self, ctx, spec: RunSpec):
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=worker_main, args=(child, spec, os.getpid()), daemon=True)
         self.proc.start()
@@ -124,7 +125,7 @@ def _deadline(worker: _Worker, task_timeout: float) -> float:
     return worker.started + setup_limit(task_timeout)
 
 
-def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
+def run_local(spec: RunSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
               task_timeout: float = 600.0, on_progress: Callable[[str, int, float], None] | None = None) -> None:
     """Run every item; ``on_record`` gets each task's record (in the parent) as it finishes,
     ``on_progress`` (task id, control steps, seconds) the news of a task that runs long."""
@@ -184,7 +185,7 @@ def run_local(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[
                         w.proc.join(5)  # its pipe closes a moment before it can be reaped
                         record = error_record(w.item, "crash", f"the worker process died "
                                                                 f"(exit code {w.proc.exitcode})")
-                    record.update(method=spec.method, wall_time=round(time.monotonic() - w.started, 2))
+                    record.update(method=spec.name, wall_time=round(time.monotonic() - w.started, 2))
                     on_record(record)
                 else:
                     failed_starts += 1

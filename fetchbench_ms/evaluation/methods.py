@@ -1,17 +1,18 @@
-"""Methods the runner can evaluate, and how one task is run in a worker.
+"""How a run's method is resolved, and how one task is run in a worker.
 
-A method is a function ``run(env, seed) -> dict`` on an env already reset to the task,
-plus the env's observation mode. Built in: the sense-plan-act baselines of
-``fetchbench_ms.solutions`` and ``idle`` (the arm holds its start configuration through
-the episode and the env judges: a lower bound, and a cheap deterministic method for
-testing the runner). Any importable ``module:function`` with that signature is a method
-too (its ``obs_mode`` attribute, default ``"none"``), so a new solution is evaluated
-without touching this file.
+``resolve_run`` turns a method's name and the run's options into a ``method_spec.RunSpec``,
+once, at the edge (``fetchbench eval``, ``evaluate``), and checks everything that can be
+checked before a task runs (options that do not apply, missing weights or checkpoints, a
+robot the method was not trained for). Workers receive that spec (``TaskRunner``) and run
+``run(env, seed) -> dict`` on an env already reset to the task: the sense-plan-act
+pipeline, a policy, a hybrid, ``idle`` (the arm holds its start configuration through the
+episode and the env judges: a lower bound, and a cheap deterministic method for testing the
+runner), or any importable ``module:function`` with that signature (its ``obs_mode``
+attribute, default ``"none"``), so a new solution is evaluated without touching this file.
 """
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import re
 import time
@@ -20,7 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
-IDLE = "idle"
+from ..method_spec import IMPROVEMENTS, PANDA_ONLY, MethodSpec, RunSpec, load, method_spec, registry
+
 #: Objects of the tasks an env id samples from seeds (``--env ID --episodes N``): those
 #: runs are evaluations, so test objects, as the suites use. The envs' own default is the
 #: train split (safe for learning); suite tasks carry their objects and ignore this.
@@ -42,13 +44,6 @@ def timeout_message(method_started: bool, task_timeout: float) -> str:
     if method_started:
         return f"ran past the task time limit of {task_timeout:g} s"
     return f"took longer than {setup_limit(task_timeout):g} s to make and reset its env"
-
-
-def builtin_methods() -> tuple[str, ...]:
-    from ..policies.deploy import POLICY_METHODS
-    from ..solutions.sense_plan_act import METHODS
-
-    return (*METHODS, *POLICY_METHODS, IDLE)
 
 
 @dataclass(frozen=True)
@@ -82,121 +77,118 @@ class Method:
     run: Callable  # run(env, seed) -> record dict
 
 
-def has_pipeline(name: str) -> bool:
-    """Whether the method runs the sense-plan-act pipeline (whole, or its approach: the hybrids),
-    so ``--pipeline`` and its improvements apply to it."""
-    from ..policies import deploy
-    from ..solutions.sense_plan_act import METHODS
-
-    return name in METHODS or name in deploy.HYBRID_METHODS
-
-
-def pipeline_fields(name: str, improvements=()) -> dict:
-    """``{"pipeline": "paper" | "ours" | "ours-minus-...", "improvements": [...]}`` for a method
-    with the sense-plan-act pipeline; ``{"pipeline": "none"}`` for the others (a run of the
-    count-budgeted evaluation all the same: records without the key predate it)."""
-    from ..solutions.sense_plan_act import IMPROVEMENTS, pipeline_label
-
-    if not has_pipeline(name):
-        return {"pipeline": "none"}
-    return {"pipeline": pipeline_label(improvements), "improvements": [i for i in IMPROVEMENTS if i in improvements]}
+def resolve_method(name: str) -> MethodSpec:
+    """The method a name stands for: a built-in one (``method_spec.registry()``), or an
+    importable ``module:function`` (Panda only; the env of its ``obs_mode`` attribute)."""
+    if ":" not in name:
+        return method_spec(name)
+    try:
+        fn = load(name)
+    except (ImportError, AttributeError, ValueError) as error:
+        module, _, attr = name.partition(":")
+        raise ValueError(f"method {name!r}: cannot import {attr!r} from {module!r} ({error})") from error
+    return MethodSpec(name, robots=PANDA_ONLY, obs_mode=getattr(fn, "obs_mode", "none"), entry=name)
 
 
-def check_robot(name: str, robot: str) -> str:
-    """``robot`` (a ``fetchbench_ms.robots`` uid) if method ``name`` can run on it; ValueError
+def check_robot(method: MethodSpec, robot: str) -> str:
+    """``robot`` (a ``fetchbench_ms.robots`` uid) if ``method`` runs on it; ValueError
     otherwise. Every sense-plan-act method plans for any robot; the learned policies and the
     learned scene-collision network were trained on the Panda only."""
     from ..robots import check_robot_uid
-    from ..solutions.sense_plan_act import METHODS
 
     robot = check_robot_uid(robot)
-    if robot == "panda" or name == IDLE:
+    if method.robots is None or robot in method.robots:
         return robot
-    spa = [m for m, parts in METHODS.items() if parts.get("collision") != "network"]
-    if name not in spa:
-        why = ("its network was trained on the Panda" if name in METHODS or "-" in name and ":" not in name
-               else "other robots run the sense-plan-act methods only")
-        raise ValueError(f"{name} runs on the Panda only ({why}); on robot {robot!r} valid methods: {', '.join(spa)}")
-    return robot
+    why = ("other robots run the sense-plan-act methods only" if method.family == "custom"
+           else "its network was trained on the Panda")
+    valid = [m.name for m in registry().values() if m.family == "sense_plan_act" and m.robots is None]
+    raise ValueError(f"{method.name} runs on the Panda only ({why}); on robot {robot!r} valid methods: "
+                     f"{', '.join(valid)}")
 
 
-def resolve_method(name: str, retries: int = 1, grasp_model: str = "pretrained",
-                   policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
-                   grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None) -> Method:
-    """``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
+def resolve_run(method: MethodSpec | str, retries: int = 1, grasp_model: str = "pretrained",
+                policy_checkpoint: Optional[str] = None, policy_stride: int = 1, improvements=(),
+                grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None,
+                env_options: Optional[dict] = None, robot: str = "panda",
+                video_dir: Optional[str] = None) -> RunSpec:
+    """The run of ``method`` (its spec, or a name for ``resolve_method``) with these options,
+    checked: ``grasp_model``: the Contact-GraspNet weight set of the ``cgn-*`` methods;
     ``policy_checkpoint``: the imitation methods' checkpoint (default: the shipped one);
     ``policy_stride``: their control steps per observation (``ImitationPolicy``);
-    ``improvements``: the sense-plan-act pipeline's (``sense_plan_act.IMPROVEMENTS``; none:
-    the paper's pipeline); ``planner_options``: planner parameters of the ablation
-    (``solutions.planner_options``)."""
-    from ..policies import deploy
-    from ..policies.agent import check_stride
+    ``improvements``: the sense-plan-act pipeline's (``method_spec.IMPROVEMENTS``; none: the
+    paper's pipeline); ``grasp_labels``: the annotated grasps' store (None: the shipped
+    labels); ``planner_options``: planner parameters of the ablation
+    (``solutions.planner_options``); ``env_options``: env kwargs of the ablation
+    (``fetchbench_ms.envs.parse_env_options``); ``robot``: the hardware setup. Options that
+    do not apply, unknown values, missing weights or checkpoints: a clear error here, before
+    any task runs (the cheap checks first: no torch loads for a bad option)."""
     from ..solutions.planner_options import check_planner_options
-    from ..solutions.sense_plan_act import METHODS, SolveConfig, needs_pointcloud, solve
 
+    spec = method if isinstance(method, MethodSpec) else resolve_method(method)
     improvements = tuple(improvements)
-    planner_options = check_planner_options(name, planner_options or {})
-    # unknown improvements, bad planner options: a clear error here, before any model loads
-    config = SolveConfig(improvements=improvements, grasp_labels=grasp_labels, **planner_options)
+    unknown = [i for i in improvements if i not in IMPROVEMENTS]
+    if unknown:
+        raise ValueError(f"unknown improvement {unknown[0]!r}; valid: {', '.join(IMPROVEMENTS)}")
+    if improvements and not spec.has_pipeline:
+        pipelines = [m.name for m in registry().values() if m.family == "sense_plan_act"]
+        raise ValueError(f"{spec.name} runs no sense-plan-act pipeline: --pipeline ours applies to "
+                         f"{', '.join(pipelines)} and the cgn-imit-* hybrids")
+    planner_options = check_planner_options(spec, planner_options or {})
+    robot = check_robot(spec, robot)
     if grasp_labels is not None:
-        if name not in METHODS or METHODS[name]["grasps"] != "oracle":
-            raise ValueError(f"--grasp-labels applies to the annotated-grasp methods "
-                             f"({', '.join(m for m, p in METHODS.items() if p['grasps'] == 'oracle')}), not {name}")
+        if spec.family != "sense_plan_act" or spec.grasps != "oracle":
+            annotated = [m.name for m in registry().values() if m.family == "sense_plan_act" and m.grasps == "oracle"]
+            raise ValueError(f"--grasp-labels applies to the annotated-grasp methods ({', '.join(annotated)}), "
+                             f"not {spec.name}")
         from ..grasps.store import GraspStore
 
+        grasp_labels = str(Path(grasp_labels).resolve())
         GraspStore(grasp_labels)  # no manifest there: a clear error before any task runs
-    if improvements and not has_pipeline(name):
-        raise ValueError(f"{name} runs no sense-plan-act pipeline: --pipeline ours applies to "
-                         f"{', '.join(METHODS)} and the cgn-imit-* hybrids")
-    if name in METHODS:
-        obs_mode = "pointcloud" if needs_pointcloud(name) else "none"
-        if METHODS[name]["grasps"] == "cgn":
-            from ..grasping import load_model
+    if spec.grasps == "cgn":
+        from ..grasping import load_model
 
-            load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
-        if METHODS[name]["planner"] == "mppi" and (config.mppi_cost or METHODS[name]["collision"]) == "network":
-            if METHODS[name]["world"] != "pointcloud":
-                raise ValueError(f"{name} plans in the meshes, and the network cost reads an observed point "
-                                 f"cloud: valid mppi_cost there: distance")
-            from ..planning.collision_net import load_collision_net
+        load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
+    if (planner_options.get("mppi_cost") or spec.collision) == "network":
+        if spec.world != "pointcloud":
+            raise ValueError(f"{spec.name} plans in the meshes, and the network cost reads an observed point "
+                             f"cloud: valid mppi_cost there: distance")
+        from ..planning.collision_net import load_collision_net
 
-            load_collision_net()  # no trained scene-collision network: a clear error before any task runs
+        load_collision_net()  # no trained scene-collision network: a clear error before any task runs
+    obs_mode = spec.obs_mode
+    if spec.policy is not None:
+        from ..policies import deploy
+        from ..policies.agent import check_stride
 
-        def run(env, seed):
-            return solve(env, seed=seed, method=name, retries=retries, reset=False, grasp_model=grasp_model,
-                         config=config)
-
-        return Method(name, obs_mode, run)
-    if name in deploy.POLICY_METHODS:
         # missing: the error says how to train one; unreadable or of another kind: a usage
         # error here, before any task runs (not one error record per task)
-        deploy.check_checkpoint(name, policy_checkpoint)
-        check_stride(policy_stride)  # invalid: an error before any task runs
-        if name in deploy.HYBRID_METHODS:
-            from ..grasping import load_model
+        deploy.check_checkpoint(spec, policy_checkpoint)
+        check_stride(policy_stride)
+        obs_mode = deploy.policy_obs_mode(spec, policy_checkpoint)
+    return RunSpec(spec, obs_mode, retries, grasp_model,
+                   str(Path(policy_checkpoint).resolve()) if policy_checkpoint is not None else None,
+                   policy_stride, improvements, grasp_labels, tuple(sorted(planner_options.items())),
+                   tuple(sorted((env_options or {}).items())), robot, video_dir)
 
-            load_model(grasp_model)
 
-            def run(env, seed):
-                return deploy.run_hybrid(env, seed, name, policy_checkpoint, retries, grasp_model, policy_stride,
-                                         improvements)
-        else:
-            def run(env, seed):
-                return deploy.run_e2e(env, seed, name, policy_checkpoint, regrasp=name not in deploy.TWO_STAGE_METHODS,
-                                      stride=policy_stride)
+def method_runner(run: RunSpec) -> Callable:
+    """``run(env, seed) -> record`` of a resolved run: what its spec says runs, no look-up."""
+    family = run.method.family
+    if family == "sense_plan_act":
+        from ..solutions import sense_plan_act
 
-        return Method(name, deploy.policy_obs_mode(name, policy_checkpoint), run)
-    if name == IDLE:
-        return Method(name, "none", run_idle)
-    if ":" in name:
-        module, _, attr = name.partition(":")
-        try:
-            fn = getattr(importlib.import_module(module), attr)
-        except (ImportError, AttributeError) as error:
-            raise ValueError(f"method {name!r}: cannot import {attr!r} from {module!r} ({error})") from error
-        return Method(name, getattr(fn, "obs_mode", "none"), fn)
-    raise ValueError(f"unknown method {name!r}; valid: {', '.join(builtin_methods())} "
-                     f"or an importable module:function")
+        config = sense_plan_act.SolveConfig.for_run(run)
+        return lambda env, seed: sense_plan_act.solve(env, seed=seed, method=run.method, retries=run.retries,
+                                                      reset=False, config=config)
+    if family in ("policy", "hybrid"):
+        from ..policies import deploy
+
+        if family == "hybrid":
+            return lambda env, seed: deploy.run_hybrid(env, seed, run)
+        return lambda env, seed: deploy.run_e2e(env, seed, run)
+    if family == "custom":
+        return load(run.method.entry)
+    return run_idle
 
 
 def run_idle(env, seed) -> dict:
@@ -216,28 +208,6 @@ def run_idle(env, seed) -> dict:
     }
 
 
-@dataclass(frozen=True)
-class RunnerSpec:
-    """What a worker needs to build its ``TaskRunner`` (picklable, sent to every worker)."""
-
-    method: str
-    retries: int = 1
-    video_dir: Optional[str] = None  # record a GIF of every failed task here
-    grasp_model: str = "pretrained"  # cgn-* methods: Contact-GraspNet weight set
-    policy_checkpoint: Optional[str] = None  # imitation methods: checkpoint (default: the shipped one)
-    policy_stride: int = 1  # imitation methods: control steps per observation
-    improvements: tuple = ()  # sense-plan-act pipelines: our improvements that are on (none: the paper's)
-    env_options: tuple = ()  # (name, value) pairs given to the env (fetchbench_ms.envs.parse_env_options)
-    robot: str = "panda"  # the env's robot_uids (fetchbench_ms.robots)
-    grasp_labels: Optional[str] = None  # the annotated grasps' store (None: the shipped labels)
-    planner_options: tuple = ()  # (name, value) pairs of SolveConfig (fetchbench_ms.solutions.planner_options)
-
-    def make(self) -> "TaskRunner":
-        return TaskRunner(self.method, self.retries, self.video_dir, self.grasp_model, self.policy_checkpoint,
-                          self.policy_stride, self.improvements, dict(self.env_options), self.robot,
-                          self.grasp_labels, dict(self.planner_options))
-
-
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)
 VIDEO_SIZE = 256  # px, square
 
@@ -245,19 +215,12 @@ VIDEO_SIZE = 256  # px, square
 class TaskRunner:
     """Runs work items of one method in this process, keeping one env per (env id, obs mode)."""
 
-    def __init__(self, method_name: str, retries: int = 1, video_dir: Optional[str] = None,
-                 grasp_model: str = "pretrained", policy_checkpoint: Optional[str] = None, policy_stride: int = 1,
-                 improvements=(), env_options: Optional[dict] = None, robot: str = "panda",
-                 grasp_labels: Optional[str] = None, planner_options: Optional[dict] = None):
-        self.robot = check_robot(method_name, robot)
-        self.grasp_labels = grasp_labels
-        self.method = resolve_method(method_name, retries, grasp_model, policy_checkpoint, policy_stride,
-                                     improvements, grasp_labels, planner_options)
-        self.video_dir = video_dir
-        self.env_options = dict(env_options or {})
-        self.planner_options = dict(planner_options or {})
-        # Every record of a pipeline method names its variant (error records too).
-        self.pipeline_fields = pipeline_fields(method_name, improvements)
+    def __init__(self, run: RunSpec):
+        self.run = run
+        self.method = Method(run.name, run.obs_mode, method_runner(run))
+        self.video_dir = run.video_dir
+        self.robot = run.robot
+        self.env_options = dict(run.env_options)
         self.envs: dict = {}
         # time.monotonic() when the current task's method started (its env made and reset),
         # None between methods; ``on_method_start(item)`` is told at that moment. The task
@@ -325,16 +288,10 @@ class TaskRunner:
         self.method_started = self.current_item = None
         record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
                       wall_time=round(time.perf_counter() - t, 2))
-        for key, value in self.pipeline_fields.items():
+        # Every record names the run's pipeline variant and options (error records too).
+        for key, value in self.run.pipeline_fields().items():
             record.setdefault(key, value)
-        if self.env_options:
-            record["env_options"] = self.env_options
-        if self.planner_options:
-            record["planner_options"] = self.planner_options
-        if self.robot != "panda":  # no key: the Panda (records from before robots were an option)
-            record["robot"] = self.robot
-        if self.grasp_labels is not None:
-            record["grasp_labels"] = self.grasp_labels
+        record.update(self.run.record_options())
         return record
 
 

@@ -17,7 +17,8 @@ import sys
 import time
 from typing import Callable, Iterable
 
-from .methods import RunnerSpec, WorkItem, error_record, setup_limit, timeout_message
+from ..method_spec import RunSpec
+from .methods import TaskRunner, WorkItem, error_record, setup_limit, timeout_message
 
 
 #: How long an actor may take to start before its first task's clock runs anyway, s.
@@ -30,12 +31,12 @@ def _actor_class(ray):
     # Two threads: ``method_elapsed`` answers while ``run`` works.
     @ray.remote(num_cpus=1, max_restarts=0, max_concurrency=2)
     class TaskActor:
-        def __init__(self, spec: RunnerSpec):
+        def __init__(self, spec: RunSpec):
             os.environ.setdefault("OMP_NUM_THREADS", "1")
             import torch
 
             torch.set_num_threads(1)
-            self.runner = spec.make()
+            self.runner = TaskRunner(spec)
 
         def ready(self) -> bool:
             return True
@@ -51,7 +52,7 @@ def _actor_class(ray):
     return TaskActor
 
 
-def run_ray(spec: RunnerSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
+def run_ray(spec: RunSpec, items: Iterable[WorkItem], on_record: Callable[[dict], None], workers: int = 1,
             task_timeout: float = 600.0, address: str | None = None) -> None:
     try:
         import ray
@@ -117,7 +118,7 @@ def _run(ray, TaskActor, spec, items, on_record, workers, task_timeout) -> None:
             submit(i)
 
     def failed(item: WorkItem, start: float, kind: str, message: str, trace: str = "") -> dict:
-        return {**error_record(item, kind, message, trace), "method": spec.method,
+        return {**error_record(item, kind, message, trace), "method": spec.name,
                 "wall_time": round(time.monotonic() - start, 2)}
 
     def learn_method_starts() -> None:

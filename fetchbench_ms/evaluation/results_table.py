@@ -21,6 +21,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..method_spec import registry
 from ..utils.io import atomic_write_bytes, atomic_write_text, canonical_json, current_umask
 from ..utils.packed import unxz_bytes, xz_bytes
 from .metrics import CATEGORIES, summarize
@@ -30,39 +31,6 @@ BEGIN = "<!-- results-table:begin -->"
 END = "<!-- results-table:end -->"
 NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9._-]*")
 
-#: The paper's success rates (FetchBench, main table, ablation table and the appendix's imitation
-#: table), by our method name.
-PAPER = {
-    "ga-mesh-trajopt": 0.671,  # GA-Mesh-CuRobo
-    "ga-mesh-rrt": 0.529,  # GA-Mesh-RRTConnect
-    "ga-ptd-trajopt": 0.190,  # GA-Ptd-CuRobo
-    "ga-ptd-rrt": 0.306,  # GA-Ptd-RRTConnect
-    "cgn-mesh-trajopt": 0.336,  # CGN-Mesh-CuRobo
-    "cgn-mesh-rrt": 0.275,  # CGN-Mesh-RRTConnect
-    "cgn-ptd-trajopt": 0.094,  # CGN-CuRobo
-    "cgn-ptd-rrt": 0.131,  # CGN-RRTConnect
-    "cgn-ptd-mppi": 0.121,  # CGN-Cabinet
-    "cgn-imit-mlp": 0.200,  # CGN-CuRobo-Imit-MLP
-    "cgn-imit-transformer": 0.203,  # CGN-CuRobo-Imit-Transformer
-    "e2e-mlp": 0.082,  # E2EImit-MLP
-    "e2e-transformer": 0.099,  # E2EImit-Transformer
-    "e2e-act": 0.093,  # E2EImit-ACT (appendix, "different models and more training data", 1x data)
-}
-#: The ablation table's funnel: approach plan, approach execution, retrieval plan (None: not given).
-PAPER_FUNNEL = {
-    "ga-mesh-trajopt": (0.865, 0.861, 0.776),
-    "ga-mesh-rrt": (0.947, 0.903, 0.681),
-    "ga-ptd-trajopt": (0.792, 0.705, 0.321),
-    "ga-ptd-rrt": (0.949, 0.678, 0.502),
-    "cgn-mesh-trajopt": (0.611, 0.602, 0.546),
-    "cgn-mesh-rrt": (0.607, None, 0.478),
-}
-#: The paper's "Other Manipulators" table (appendix): the Kinova Gen3 with each hand, by our
-#: robot uid and method name (the Panda's figures are PAPER's).
-PAPER_ROBOTS = {
-    "kinova_gen3_panda_hand": {"ga-mesh-trajopt": 0.629, "ga-ptd-trajopt": 0.173, "cgn-ptd-trajopt": 0.088},
-    "kinova_gen3_robotiq": {"ga-mesh-trajopt": 0.471, "ga-ptd-trajopt": 0.108, "cgn-ptd-trajopt": 0.017},
-}
 #: The paper's funnel stages: the record's phase that stands for each (the last is the verdict).
 FUNNEL = (("approach plan", "pregrasp_plan"), ("approach exec", "approach_reached"),
           ("retrieval plan", "retrieval_plan"), ("final", "success"))
@@ -224,14 +192,22 @@ def robot(manifest: dict) -> str:
     return options(manifest).get("robot") or "panda"
 
 
+def method_spec_of(manifest: dict):
+    """The registered method a run names (``method_spec.registry()``); None for another
+    (an importable ``module:function``)."""
+    return registry().get(manifest["method"])
+
+
 def paper_reference(manifest: dict) -> tuple[float, tuple | None] | None:
     """The paper's success rate and funnel (approach plan, approach execution, retrieval plan;
-    None where not given) for the method on the run's robot; None where the paper has none."""
-    method = manifest["method"]
-    if robot(manifest) != "panda":
-        rate = PAPER_ROBOTS.get(robot(manifest), {}).get(method)
-        return None if rate is None else (rate, None)
-    return (PAPER[method], PAPER_FUNNEL.get(method)) if method in PAPER else None
+    None where not given) for the method on the run's robot (its ``PaperRow``); None where the
+    paper has none."""
+    spec = method_spec_of(manifest)
+    row = spec.paper if spec is not None else None
+    rate = row.on_robot(robot(manifest)) if row is not None else None
+    if rate is None:
+        return None
+    return rate, row.funnel if robot(manifest) == "panda" else None
 
 
 def method_label(manifest: dict) -> str:
@@ -241,7 +217,8 @@ def method_label(manifest: dict) -> str:
     label = f"`{method}`"
     if robot(manifest) != "panda":
         label += f" on `{robot(manifest)}`"
-    if method.startswith("cgn-") and o.get("grasp_model"):
+    spec = method_spec_of(manifest)
+    if spec is not None and spec.grasps == "cgn" and o.get("grasp_model"):
         label += f" {o['grasp_model']}"
     if (o.get("retries") or 1) > 1:
         label += f" x{o['retries']}"

@@ -1,12 +1,13 @@
 """``evaluate``: run a method on suite tasks (or env seeds) into a resumable results store."""
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from typing import Optional
 
-from .methods import (SAMPLED_TASK_SPLIT, RunnerSpec, WorkItem, check_robot, pipeline_fields, resolve_method,
-                      task_seed)
+from ..method_spec import RunSpec
+from .methods import SAMPLED_TASK_SPLIT, WorkItem, resolve_run, task_seed
 from .store import VIDEO_DIR, ResultsStore
 
 BACKENDS = ("local", "ray")
@@ -85,19 +86,23 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
     ``robot``: the hardware setup (``fetchbench_ms.robots``; recorded unless the Panda);
     ``grasp_labels``: the annotated grasps' store (None: the shipped Franka-hand labels);
     ``planner_options``: planner parameters of the ablation
-    (``fetchbench_ms.solutions.planner_options.parse_planner_options``)."""
-    from ..solutions.planner_options import check_planner_options
+    (``fetchbench_ms.solutions.planner_options``). Resolved once (``methods.resolve_run``)."""
+    run = resolve_run(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels,
+                      planner_options, env_options, robot)
+    return evaluate_run(run, out_dir, suite=suite, tasks=tasks, env_id=env_id, episodes=episodes, seed=seed,
+                        workers=workers, backend=backend, address=address, task_timeout=task_timeout,
+                        retry_errors=retry_errors, videos=videos, progress=progress)
+
+
+def evaluate_run(run: RunSpec, out_dir, *, suite: Optional[str] = None, tasks: Optional[str] = None,
+                 env_id: Optional[str] = None, episodes: int = 10, seed: int = 0, workers: int = 1,
+                 backend: str = "local", address: Optional[str] = None, task_timeout: float = 600.0,
+                 retry_errors: bool = False, videos: bool = False, progress: bool = True) -> list[dict]:
+    """``evaluate`` for a resolved run (``methods.resolve_run``): ``run.json`` records it
+    (``method_options``, ``method_spec``: its parts) and every worker receives it."""
     from .metrics import summarize
 
-    improvements = tuple(improvements)
-    env_options = dict(env_options or {})
-    # unknown method or options, numbers out of range: fail before anything is written
-    check_run_numbers(workers, retries, task_timeout, policy_stride)
-    planner_options = check_planner_options(method, planner_options or {})
-    grasp_labels = str(Path(grasp_labels).resolve()) if grasp_labels is not None else None
-    resolve_method(method, retries, grasp_model, policy_checkpoint, policy_stride, improvements, grasp_labels,
-                   planner_options)
-    robot = check_robot(method, robot)
+    check_run_numbers(workers, run.retries, task_timeout, run.policy_stride)  # before anything is written
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     if suite is not None:
@@ -111,27 +116,12 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         source, source_sha = f"env:{env_id}", None
         selection = {"env_id": env_id, "episodes": episodes, "seed": seed, "object_split": SAMPLED_TASK_SPLIT}
     store = ResultsStore(Path(out_dir))
-    options = {"retries": retries}
-    if method.startswith("cgn-"):  # (other methods' stores keep their options as they were)
-        options["grasp_model"] = grasp_model
-    if policy_checkpoint is not None:
-        options["policy_checkpoint"] = str(Path(policy_checkpoint).resolve())
-    if policy_stride != 1:  # (stride-1 stores keep their options as they were)
-        options["policy_stride"] = policy_stride
-    options.update(pipeline_fields(method, improvements))
-    if env_options:
-        options["env_options"] = env_options
-    if planner_options:
-        options["planner_options"] = planner_options
-    if robot != "panda":  # (the Panda's stores keep their options as they were)
-        options["robot"] = robot
-    if grasp_labels is not None:
-        options["grasp_labels"] = grasp_labels
-    store.open_run({"method": method, "source": source, "source_sha256": source_sha,
-                    "method_options": options, "selection": selection})
+    store.open_run({"method": run.name, "source": source, "source_sha256": source_sha,
+                    "method_options": run.method_options(), "method_spec": run.method.to_json(),
+                    "selection": selection})
     done = {r["task_id"]: r for r in store.records()}
     todo = [it for it in items if it.task_id not in done or (retry_errors and done[it.task_id].get("error"))]
-    bar = _progress(len(items), len(items) - len(todo), method, progress)
+    bar = _progress(len(items), len(items) - len(todo), run.name, progress)
 
     todo_ids = {t.task_id for t in todo}
     kept = [done[i.task_id] for i in items if i.task_id in done and i.task_id not in todo_ids]
@@ -156,14 +146,11 @@ def evaluate(method: str, out_dir, *, suite: Optional[str] = None, tasks: Option
         bar.set_postfix_str(f"success {successes}/{finished}"
                             + "".join(f"; {t}: {news}" for t, news in sorted(running.items())))
 
-    spec = RunnerSpec(method, retries, str((store.root / VIDEO_DIR).resolve()) if videos else None, grasp_model,
-                      str(Path(policy_checkpoint).resolve()) if policy_checkpoint else None, policy_stride,
-                      improvements, tuple(sorted(env_options.items())), robot, grasp_labels,
-                      tuple(sorted(planner_options.items())))
-    if todo and robot != "panda":
+    spec = dataclasses.replace(run, video_dir=str((store.root / VIDEO_DIR).resolve()) if videos else None)
+    if todo and run.robot != "panda":
         from ..planning.robot import robot_model
 
-        robot_model(robot)  # fit and cache its collision spheres once here, not in every worker at once
+        robot_model(run.robot)  # fit and cache its collision spheres once here, not in every worker at once
     if todo:
         if backend == "local":
             from .local import run_local

@@ -49,7 +49,7 @@ import torch
 
 from .checker import CollisionChecker
 from .distance import TorchRobot, TorchWorld, collision_cost
-from .rrt import PlanResult, densify
+from .rrt import PlanRequest, PlanResult, densify
 from .world import PointCloudField
 
 COSTS = ("network", "distance")
@@ -378,3 +378,14 @@ def plan_mppi(checker: CollisionChecker, q_start, q_goals, execute: Callable[[np
 
 
 __all__ = ["COSTS", "MppiConfig", "SceneClearance", "default_device", "plan_mppi"]
+
+
+def plan(request: PlanRequest) -> PlanResult:
+    """MPPI for the pipeline: moves the robot while it plans (``request.execute``); its
+    collision cost is the method's (``request.collision``) unless the run's ``mppi_cost``
+    says otherwise, its goal region ``mppi_goal_region`` (None: ``MppiConfig``'s)."""
+    region = request.options.get("mppi_goal_region")
+    config = MppiConfig(cost=request.options.get("mppi_cost") or request.collision,
+                        goal_region=MppiConfig.goal_region if region is None else region,
+                        speed_scale=request.speed_scale, seed=request.seed)
+    return plan_mppi(request.checker, request.q_start, request.q_goals, request.execute, config)

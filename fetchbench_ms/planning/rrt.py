@@ -26,7 +26,8 @@ callers report as such. ``seed=None`` gives the old wall-clock search (restarts 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Callable, Optional
 
 import numpy as np
 
@@ -52,6 +53,39 @@ class PlanResult:
     def success(self) -> bool:
         # An executing planner (MPPI) returns the path it moved along even when it fell short.
         return self.path is not None and (not self.executed or self.status == "solved")
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """What the sense-plan-act pipeline asks every planner (``method_spec.PlannerSpec.entry``:
+    ``plan(request) -> PlanResult``): a path from ``q_start`` to any of ``q_goals`` ((K, 7),
+    best first) free in ``checker``. ``seed`` makes it repeatable; ``max_checks`` is what it
+    may spend of the episode's collision checks (``checks_per_try``: a call's share at most);
+    ``time_limit`` (s) is a safety net (status ``timeout``); ``start_tolerance``: how deep an
+    invalid start may be escaped (0: it fails). An executing planner moves the robot along
+    joint waypoints with ``execute(path) -> measured q`` at ``speed_scale`` of the velocity
+    limits. ``collision``: the method's collision model; ``options``: the planner options it
+    takes (``PlannerSpec.options``) as the run set them (None: its default)."""
+
+    checker: CollisionChecker
+    q_start: np.ndarray
+    q_goals: np.ndarray
+    seed: int
+    max_checks: int
+    checks_per_try: int
+    time_limit: float
+    start_tolerance: float = 0.0
+    speed_scale: float = 0.4
+    collision: str = "spheres"
+    options: dict = field(default_factory=dict)
+    execute: Optional[Callable[[np.ndarray], np.ndarray]] = None
+
+
+def plan(request: PlanRequest) -> PlanResult:
+    """RRTConnect for the pipeline: restarts every half try's checks (at most what is left)."""
+    return plan_rrtconnect(request.checker, request.q_start, request.q_goals, request.time_limit,
+                           start_tolerance=request.start_tolerance, seed=request.seed, max_checks=request.max_checks,
+                           restart_checks=max(1, min(request.max_checks, request.checks_per_try // 2)))
 
 
 def _to_np(state, dim: int = 7) -> np.ndarray:

@@ -42,7 +42,7 @@ import torch
 
 from .checker import CollisionChecker
 from .distance import TorchRobot, TorchWorld, collision_cost
-from .rrt import PlanResult, escape_start, path_valid, plan_rrtconnect
+from .rrt import PlanRequest, PlanResult, escape_start, path_valid, plan_rrtconnect
 
 
 def default_device() -> str:
@@ -375,6 +375,12 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
     """One problem; the signature of ``plan_rrtconnect``'s first arguments."""
     return plan_trajopt_batch([(checker, q_start, q_goals)], time_limit, config, start_tolerance, seed,
                               max_checks)[0]
+
+
+def plan(request: PlanRequest) -> PlanResult:
+    """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``)."""
+    return plan_trajopt(request.checker, request.q_start, request.q_goals, request.time_limit,
+                        start_tolerance=request.start_tolerance, seed=request.seed, max_checks=request.max_checks)
 
 
 def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 300.0,

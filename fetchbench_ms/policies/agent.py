@@ -40,6 +40,7 @@ import numpy as np
 import torch
 
 from ..envs.pointcloud import COMPACT_OBS_MODE, POINTS_OBS_MODES
+from ..method_spec import PolicyKind
 from .data import ARM_DOF, STAGE_APPROACH, STAGE_RETRIEVE, PolicyInput, _numpy, observation_input
 from .networks import build_policy, config_from_dict, config_to_dict
 
@@ -189,9 +190,16 @@ def save_checkpoint(path: str | Path, model: torch.nn.Module, meta: dict, fp16: 
     return len(buffer.getvalue())
 
 
-def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, dict]:
+class CheckpointKindError(ValueError):
+    """The checkpoint holds another kind's policy than the one asked for."""
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu",
+               kind: PolicyKind | None = None) -> tuple[torch.nn.Module, dict]:
     """A policy checkpoint's network (eval mode) and meta; ``path`` is a ``.pt`` file or its
-    packed copy (``utils.packed``: ``X.pt`` reads ``X.pt.planes.xz`` when only that exists)."""
+    packed copy (``utils.packed``: ``X.pt`` reads ``X.pt.planes.xz`` when only that exists).
+    ``kind``: the policy kind it must hold (its row: its network needs no look-up); None:
+    the registered kind the checkpoint names."""
     from ..utils.packed import packed_or_plain, torch_load
 
     path = packed_or_plain(path)
@@ -207,7 +215,10 @@ def load_model(path: str | Path, device: str | torch.device = "cpu") -> tuple[to
         raise ValueError(f"{path} is not a FetchBench policy checkpoint (no kind/config/state_dict)")
     if payload.get("version") != CHECKPOINT_VERSION:
         raise ValueError(f"{path}: checkpoint version {payload.get('version')}, this code reads {CHECKPOINT_VERSION}")
-    model = build_policy(payload["kind"], config_from_dict(payload["kind"], payload["config"]))
+    if kind is not None and payload["kind"] != kind.name:
+        raise CheckpointKindError(f"needs a {kind.name} checkpoint; {path} holds a {payload['kind']} policy")
+    kind = kind or payload["kind"]
+    model = build_policy(kind, config_from_dict(kind, payload["config"]))
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in payload["state_dict"].items()})
     return model.to(device).eval(), payload.get("meta", {})
 

@@ -9,7 +9,8 @@
   target, the point-cloud world, the planner to the pre-grasp, the straight approach, the
   gripper closing) and then the policy retrieves (``SolveConfig.retrieval``).
 
-Each loads its checkpoint from ``assets/checkpoints/imit_<kind>.pt`` (``default_checkpoint``; shipped
+The methods and their policy kinds are ``method_spec``'s (one row of ``POLICY_KINDS`` each);
+the runners here read a resolved ``RunSpec`` and look no name up. Each loads its checkpoint from ``assets/checkpoints/imit_<kind>.pt`` (``default_checkpoint``; shipped
 packed as ``imit_<kind>.pt.planes.xz``, ``utils.packed``, which is read when no plain ``.pt`` is there)
 or from the one given (``fetchbench eval --policy-checkpoint PATH``); its policy observes every
 control step, or every K-th with ``--policy-stride K`` (``ImitationPolicy``). Policies speak
@@ -27,19 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from ..envs.pointcloud import COMPACT_OBS_MODE, COMPOSED_OBS_MODE
+from ..method_spec import MethodSpec, RunSpec
 from ..utils.paths import assets_root
 from .agent import RETRIEVE, ImitationPolicy, ReGraspConfig
 from .data import ARM_DELTA_SCALE, ARM_DOF
-from .networks import POLICIES
 
-POLICY_KINDS = tuple(POLICIES)  # mlp, transformer, diffusion, act: the networks the package has
-E2E_METHODS = {f"e2e-{kind}": kind for kind in POLICY_KINDS}
-#: The paper's TwoStageImit: the same policies without re-grasping (approach, then retrieve).
-TWO_STAGE_METHODS = {f"twostage-{kind}": kind for kind in POLICY_KINDS}
-HYBRID_METHODS = {f"cgn-imit-{kind}": kind for kind in POLICY_KINDS}
-POLICY_METHODS = {**E2E_METHODS, **TWO_STAGE_METHODS, **HYBRID_METHODS}
-#: Trainers per policy kind (named in the error when a checkpoint is missing).
-TRAINERS = {kind: f"baselines/imitation/train_{kind}.py" for kind in POLICY_KINDS}
 MAX_POLICY_STEPS = 600  # 30 s at 20 Hz: a demo takes ~200, re-grasps take more
 MAX_RETRIEVE_STEPS = 300
 
@@ -48,15 +41,7 @@ def default_checkpoint(kind: str) -> Path:
     return assets_root() / "checkpoints" / f"imit_{kind}.pt"
 
 
-def hybrid_approach_method() -> str:
-    """The sense-plan-act method the hybrids approach with: CGN grasps in the point-cloud world
-    with the trajectory optimiser where that method exists (the paper's CuRobo), else RRTConnect."""
-    from ..solutions.sense_plan_act import METHODS
-
-    return "cgn-ptd-trajopt" if "cgn-ptd-trajopt" in METHODS else "cgn-ptd-rrt"
-
-
-def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
+def policy_obs_mode(method: MethodSpec, checkpoint: str | None = None) -> str:
     """The env obs mode of a policy method: the one its checkpoint was trained on for the
     end-to-end methods (``compact_pointcloud``, ``policy_pointcloud`` or ``composed_pointcloud``); for the hybrids, the raw
     cloud CGN needs (made compact per step for a ``compact_pointcloud`` policy; a
@@ -64,41 +49,47 @@ def policy_obs_mode(method: str, checkpoint: str | None = None) -> str:
     from .agent import checkpoint_obs_mode
 
     trained_on = checkpoint_obs_mode(resolve_checkpoint(method, checkpoint))
-    if method in HYBRID_METHODS:
+    if method.family == "hybrid":
         if trained_on not in (COMPACT_OBS_MODE, COMPOSED_OBS_MODE):
-            raise ValueError(f"{method} reads the 320x240 point cloud CGN grasps on and makes it compact for the "
+            raise ValueError(f"{method.name} reads the 320x240 point cloud CGN grasps on and makes it compact for the "
                              f"policy; its checkpoint was trained on {trained_on} observations: use an "
                              f"end-to-end method, or a {COMPACT_OBS_MODE} or {COMPOSED_OBS_MODE} checkpoint")
         return "pointcloud"
     return trained_on
 
 
-def resolve_checkpoint(method: str, checkpoint: str | None = None) -> Path:
+def resolve_checkpoint(method: MethodSpec, checkpoint: str | None = None) -> Path:
     """The checkpoint file a policy method loads (``X.pt``, or its packed copy
     ``X.pt.planes.xz`` when only that exists); a clear error naming the trainer when absent."""
     from ..utils.packed import packed_or_plain
 
-    if method not in POLICY_METHODS:
-        raise ValueError(f"unknown imitation method {method!r}; valid: {', '.join(POLICY_METHODS)}")
-    kind = POLICY_METHODS[method]
-    path = packed_or_plain(Path(checkpoint) if checkpoint else default_checkpoint(kind))
+    kind = method.policy
+    if kind is None:
+        raise ValueError(f"{method.name} runs no learned policy")
+    path = packed_or_plain(Path(checkpoint) if checkpoint else default_checkpoint(kind.name))
     if not path.is_file():
         raise FileNotFoundError(
-            f"{method}: no policy checkpoint at {path}. Train one with `python {TRAINERS[kind]} --data CONVERTED_DIR "
-            f"--run RUN --export` (docs/imitation.md) and pass --policy-checkpoint RUN/export/imit_{kind}.pt")
+            f"{method.name}: no policy checkpoint at {path}. Train one with `python {kind.trainer} --data "
+            f"CONVERTED_DIR --run RUN --export` (docs/imitation.md) and pass --policy-checkpoint "
+            f"RUN/export/imit_{kind.name}.pt")
     return path
 
 
-def check_checkpoint(method: str, checkpoint: str | None = None) -> Path:
-    """``resolve_checkpoint``, and the file loads as a policy of the method's kind (ValueError
-    otherwise: a truncated copy, another file, another kind's policy)."""
-    from .agent import load_model
+def _load_model(method: MethodSpec, path: Path, device: str = "cpu"):
+    """The checkpoint's network, built as the method's policy kind, and its meta (ValueError:
+    a truncated copy, another file, another kind's policy)."""
+    from .agent import CheckpointKindError, load_model
 
+    try:
+        return load_model(path, device, kind=method.policy)
+    except CheckpointKindError as error:
+        raise ValueError(f"{method.name} {error}") from None
+
+
+def check_checkpoint(method: MethodSpec, checkpoint: str | None = None) -> Path:
+    """``resolve_checkpoint``, and the file loads as a policy of the method's kind."""
     path = resolve_checkpoint(method, checkpoint)
-    model, _ = load_model(path)
-    expected = POLICY_METHODS[method]
-    if model.kind != expected:
-        raise ValueError(f"{method} needs a {expected} checkpoint; {path} holds a {model.kind} policy")
+    _load_model(method, path)
     return path
 
 
@@ -116,7 +107,7 @@ def _obs_mode(path: str) -> str:
     return checkpoint_obs_mode(path)
 
 
-def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
+def checkpoint_fields(method: MethodSpec, checkpoint: str | None = None) -> dict:
     """What a record says of the policy it ran: the checkpoint's path, the sha256 of its
     ``.pt`` bytes (unpacked: the shipped checkpoint's JSON names the val runs made with
     exactly these bytes) and the obs mode it reads."""
@@ -125,18 +116,15 @@ def checkpoint_fields(method: str, checkpoint: str | None = None) -> dict:
             "policy_obs_mode": _obs_mode(str(path.resolve()))}
 
 
-def load_policy(method: str, checkpoint: str | None = None, device: str | None = None, stride: int = 1,
+def load_policy(method: MethodSpec, checkpoint: str | None = None, device: str | None = None, stride: int = 1,
                 **kwargs) -> ImitationPolicy:
     """``stride``: control steps per observation (``ImitationPolicy``); ``kwargs``: its other options."""
     import torch
 
     path = resolve_checkpoint(method, checkpoint)
     device = device or os.environ.get("FETCHBENCH_POLICY_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
-    policy = ImitationPolicy.load(path, device, stride=stride, **kwargs)
-    expected = POLICY_METHODS[method]
-    if policy.model.kind != expected:
-        raise ValueError(f"{method} needs a {expected} checkpoint; {path} holds a {policy.model.kind} policy")
-    return policy
+    model, meta = _load_model(method, path, device)
+    return ImitationPolicy(model, meta, device, stride=stride, **kwargs)
 
 
 def env_action(env, action: np.ndarray) -> np.ndarray:
@@ -201,13 +189,15 @@ def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None, obser
             "final_phase": policy.machine.phase, "observations": observations}
 
 
-def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_steps: int = MAX_POLICY_STEPS,
-            regrasp: bool = True, stride: int = 1) -> dict:
-    """One end-to-end episode on an env already reset to its task; FetchBench's judge after."""
+def run_e2e(env, seed: int, run: RunSpec, max_steps: int = MAX_POLICY_STEPS) -> dict:
+    """One end-to-end episode on an env already reset to its task (the policy re-grasps if
+    its method does: ``e2e-*``, not ``twostage-*``); FetchBench's judge after."""
     from ..envs import settle_and_hold
     from ..solutions.sense_plan_act import final_failure
 
-    policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=regrasp))
+    method, checkpoint = run.method, run.policy_checkpoint
+    policy = load_policy(method, checkpoint, stride=run.policy_stride,
+                         regrasp=ReGraspConfig(regrasp=method.regrasp))
     policy.reset(episode_seed=seed)
     t = time.perf_counter()
     did = run_policy(env, policy, max_steps)
@@ -219,7 +209,7 @@ def run_e2e(env, seed: int, method: str, checkpoint: str | None = None, max_step
     if not success:
         failure = final_failure(None, held_at_end=held, others_undisturbed=bool(info["others_undisturbed"][0]))
     return {
-        "method": method,
+        "method": method.name,
         "success": success,
         "failure": failure,
         "computation_time": round(did["inference_time"], 4),
@@ -272,14 +262,13 @@ def retrieval_by_policy(policy: ImitationPolicy, seed: int, max_steps: int = MAX
     return retrieve
 
 
-def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retries: int = 1,
-               grasp_model: str = "pretrained", stride: int = 1, improvements=()) -> dict:
-    """CGN + planner approach (``hybrid_approach_method()``, with the pipeline's
-    ``improvements``), then the policy's retrieval."""
+def run_hybrid(env, seed: int, run: RunSpec) -> dict:
+    """The method's planned approach (its grasp source, world and planner, with the run's
+    pipeline), then the policy's retrieval."""
     from ..solutions.sense_plan_act import SolveConfig, solve
 
-    policy = load_policy(method, checkpoint, stride=stride, regrasp=ReGraspConfig(regrasp=False))
-    approach = hybrid_approach_method()
+    method, checkpoint = run.method, run.policy_checkpoint
+    policy = load_policy(method, checkpoint, stride=run.policy_stride, regrasp=ReGraspConfig(regrasp=False))
     tally = {"steps": 0, "observations": 0}
     observe = None
     if policy.model.cfg.encoder.obs_mode == COMPOSED_OBS_MODE:
@@ -287,9 +276,8 @@ def run_hybrid(env, seed: int, method: str, checkpoint: str | None = None, retri
         # the approach moves anything; the retrieval then composes without rendering.
         env.unwrapped.composed_pointcloud_obs()
         observe = composed_observation
-    record = solve(env, seed=seed, method=approach, retries=retries, reset=False, grasp_model=grasp_model,
-                   config=SolveConfig(improvements=tuple(improvements),
-                                      retrieval=retrieval_by_policy(policy, seed, tally=tally, observe=observe)))
-    record.update(method=method, approach_method=approach, **checkpoint_fields(method, checkpoint),
+    config = SolveConfig.for_run(run, retrieval=retrieval_by_policy(policy, seed, tally=tally, observe=observe))
+    record = solve(env, seed=seed, method=method, retries=run.retries, reset=False, config=config)
+    record.update(approach_method=method.approach_method, **checkpoint_fields(method, checkpoint),
                   policy_stride=policy.stride, policy_steps=tally["steps"], observations=tally["observations"])
     return record

@@ -30,6 +30,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from ..envs.pointcloud import COMPACT_OBS_MODE
+from ..method_spec import PolicyKind, load, policy_kind
 from .data import ARM_DOF, POINT_CLASSES, POLICY_SIZES, POLICY_STAGES, segment_slices
 
 PROPRIO_DIM = 18  # 9 joint positions + TCP position (3) + rotation 6-D (6)
@@ -501,25 +502,24 @@ def masked_l1(predicted, target, valid) -> torch.Tensor:
     return ((predicted - target).abs() * weight).sum() / (weight.sum() * target.shape[-1]).clamp(min=1.0)
 
 
-POLICIES = {"mlp": (MLPPolicy, MLPConfig), "transformer": (TransformerPolicy, TransformerConfig),
-            "diffusion": (DiffusionPolicy, DiffusionConfig), "act": (ACTPolicy, ACTConfig)}
+def policy_classes(kind: PolicyKind | str) -> tuple[type, type]:
+    """A policy kind's network and config classes (its row of ``method_spec.POLICY_KINDS``,
+    or the row itself)."""
+    row = kind if isinstance(kind, PolicyKind) else policy_kind(kind)
+    return load(row.network), load(row.config)
 
 
 def config_to_dict(cfg) -> dict:
     return asdict(cfg)
 
 
-def config_from_dict(kind: str, d: dict):
-    if kind not in POLICIES:
-        raise ValueError(f"unknown policy kind {kind!r}; valid: {', '.join(POLICIES)}")
-    _, Config = POLICIES[kind]
+def config_from_dict(kind: PolicyKind | str, d: dict):
+    _, Config = policy_classes(kind)
     d = dict(d)
     enc = EncoderConfig(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.pop("encoder").items()})
     return Config(encoder=enc, **{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()})
 
 
-def build_policy(kind: str, cfg=None) -> nn.Module:
-    if kind not in POLICIES:
-        raise ValueError(f"unknown policy kind {kind!r}; valid: {', '.join(POLICIES)}")
-    Policy, Config = POLICIES[kind]
+def build_policy(kind: PolicyKind | str, cfg=None) -> nn.Module:
+    Policy, Config = policy_classes(kind)
     return Policy(cfg if cfg is not None else Config())

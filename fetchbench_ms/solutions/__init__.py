@@ -1,7 +1,7 @@
 """Sense-plan-act baselines (FetchBench's GA-Mesh / GA-Ptd and CGN / CGN-Mesh with RRTConnect) as
 ManiSkill-style ``solve(env, seed)`` functions. Running them over many tasks is
 ``fetchbench_ms.evaluation`` (``fetchbench eval``)."""
-_NAMES = ("FAILURE_CLASSES", "METHODS", "PHASES", "SolveConfig", "solve")
+_NAMES = ("FAILURE_CLASSES", "PHASES", "SolveConfig", "solve")
 
 
 def __getattr__(name: str):
@@ -13,4 +13,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["FAILURE_CLASSES", "METHODS", "PHASES", "SolveConfig", "solve"]
+__all__ = ["FAILURE_CLASSES", "PHASES", "SolveConfig", "solve"]

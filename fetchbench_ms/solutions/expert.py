@@ -30,10 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .sense_plan_act import IMPROVEMENTS, METHODS, STAGES, EpisodeState, SolveConfig, _attempt
+from ..method_spec import MethodSpec, method_spec, registry
+from .sense_plan_act import IMPROVEMENTS, STAGES, EpisodeState, SolveConfig, _attempt
 
 #: The expert's planner set-up: the oracle mesh world and the best planner the project has
-#: (RRTConnect with path shortcutting); any METHODS entry with the mesh world and the
+#: (RRTConnect with path shortcutting); any sense-plan-act method with the mesh world and the
 #: annotated grasps drops in (``ga-mesh-trajopt``: the trajectory optimiser).
 EXPERT_METHOD = "ga-mesh-rrt"
 CONFIRM_STEPS = 5  # control steps (0.25 s at 20 Hz) the env's success must hold at the end
@@ -126,14 +127,14 @@ def stage_end_flags(stages: np.ndarray) -> np.ndarray:
 
 
 def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_options: dict | None = None,
-               tried: set | None = None, method: str = EXPERT_METHOD, config: SolveConfig | None = None,
+               tried: set | None = None, method: MethodSpec | str = EXPERT_METHOD, config: SolveConfig | None = None,
                confirm_steps: int = CONFIRM_STEPS) -> Demo:
     """One expert try; ``tried`` (grasp ids) is updated with the grasp it executed."""
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
-    oracle = [m for m, v in METHODS.items() if v["world"] == "mesh" and v["grasps"] == "oracle"]
-    if method not in oracle:
-        raise ValueError(f"the expert plans with the annotated grasps in the oracle mesh world; {method!r} "
+    spec = method if isinstance(method, MethodSpec) else method_spec(method)
+    oracle = [m.name for m in registry().values()
+              if m.family == "sense_plan_act" and m.world == "mesh" and m.grasps == "oracle"]
+    if spec.name not in oracle:
+        raise ValueError(f"the expert plans with the annotated grasps in the oracle mesh world; {spec.name!r} "
                          f"does not. Valid: {', '.join(oracle)}")
     torch.set_num_threads(1)
     if reset:
@@ -141,7 +142,7 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     config = config or expert_config()
     state = EpisodeState(config, checks_left=config.plan_checks_total, via_env_step=True)
     rng = np.random.default_rng(seed if seed is not None else 0)
-    failure = _attempt(env, method, state, rng, tried if tried is not None else set())
+    failure = _attempt(env, spec, state, rng, tried if tried is not None else set())
     if failure is None:
         failure = _confirm(env, state, confirm_steps)
     return Demo(

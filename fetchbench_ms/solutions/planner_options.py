@@ -6,17 +6,19 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
 - ``mppi_cost``: ``network`` or ``distance``, MPPI's scene-collision cost (by default the
   method's own).
 
-Both apply to the MPPI methods only. This module loads no torch (as ``envs.options``), so the
-command line answers a bad option before torch and the planners load.
+A planner takes the options its row names (``method_spec.PlannerSpec.options``): both are
+MPPI's. This module loads no torch (as ``envs.options``), so the command line answers a bad
+option before torch and the planners load.
 """
 from __future__ import annotations
 
 import math
 from typing import Iterable
 
-#: ``sense_plan_act.METHODS`` whose planner is MPPI and ``planning.mppi.COSTS``, spelled out
-#: because those modules load torch (tests/test_user_edges.py keeps them the same).
-MPPI_METHODS = ("cgn-ptd-mppi", "ga-ptd-mppi", "ga-mesh-mppi")
+from ..method_spec import MethodSpec, registry
+
+#: ``planning.mppi.COSTS``, spelled out because that module loads torch
+#: (tests/test_user_edges.py keeps them the same).
 MPPI_COSTS = ("network", "distance")
 
 
@@ -40,28 +42,29 @@ def check_mppi_cost(value) -> str:
 
 
 #: Option name (a ``SolveConfig`` field) -> (the function that checks and converts a value,
-#: its valid values in words, the methods it applies to).
+#: its valid values in words).
 PLANNER_OPTIONS = {
-    "mppi_goal_region": (check_goal_region, "RAD (>= 0; 0 switches the goal credit off)", MPPI_METHODS),
-    "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS), MPPI_METHODS),
+    "mppi_goal_region": (check_goal_region, "RAD (>= 0; 0 switches the goal credit off)"),
+    "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS)),
 }
 
 
 def _valid_options() -> str:
-    return "; ".join(f"{name}={values}" for name, (_, values, _) in PLANNER_OPTIONS.items())
+    return "; ".join(f"{name}={values}" for name, (_, values) in PLANNER_OPTIONS.items())
 
 
-def check_planner_options(method: str, options: dict) -> dict:
+def check_planner_options(method: MethodSpec, options: dict) -> dict:
     """``options`` (name -> value) checked and converted for ``method``: ``SolveConfig``
     kwargs. A ValueError of one line naming the valid options for an unknown name, a bad
-    value, or an option that does not apply to ``method`` (naming the methods it applies to)."""
+    value, or an option its planner does not take (naming the methods it applies to)."""
     checked = {}
     for name, value in options.items():
         if name not in PLANNER_OPTIONS:
             raise ValueError(f"unknown planner option {name!r}; valid: {_valid_options()}")
-        check, _, methods = PLANNER_OPTIONS[name]
-        if method not in methods:
-            raise ValueError(f"planner option {name!r} applies to {', '.join(methods)}, not {method}")
+        check, _ = PLANNER_OPTIONS[name]
+        if method.planner is None or name not in method.planner.options:
+            methods = [m.name for m in registry().values() if m.family == "sense_plan_act" and name in m.planner.options]
+            raise ValueError(f"planner option {name!r} applies to {', '.join(methods)}, not {method.name}")
         try:
             checked[name] = check(value)
         except (TypeError, ValueError):
@@ -69,10 +72,10 @@ def check_planner_options(method: str, options: dict) -> dict:
     return checked
 
 
-def parse_planner_options(options: Iterable[str], method: str) -> dict:
-    """``["mppi_goal_region=0"]`` -> ``{"mppi_goal_region": 0}`` for ``method``, as
-    ``check_planner_options``; also a ValueError of one line for a string without ``=`` and
-    an option given twice."""
+def parse_planner_options(options: Iterable[str]) -> dict:
+    """``["mppi_goal_region=0"]`` -> ``{"mppi_goal_region": "0"}``, to be checked for a method
+    by ``check_planner_options``; a ValueError of one line for a string without ``=`` and an
+    option given twice."""
     values: dict = {}
     for option in options:
         name, sep, value = str(option).partition("=")
@@ -82,4 +85,4 @@ def parse_planner_options(options: Iterable[str], method: str) -> dict:
         if name in values:
             raise ValueError(f"planner option {name!r} is given twice; give each once (valid: {_valid_options()})")
         values[name] = value.strip()
-    return check_planner_options(method, values)
+    return values

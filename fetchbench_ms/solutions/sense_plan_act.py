@@ -9,6 +9,7 @@ settle-and-hold judges the episode.
 
 Two pipelines (``SolveConfig.improvements``, ``fetchbench eval --pipeline paper|ours``): ``paper``
 runs exactly the step list above, CGN's top 10 unfiltered; ``ours`` adds ``IMPROVEMENTS``
+(``method_spec``)
 (a straight retreat before the retrieval plan, extra lifts, escaping a start the spheres call
 in collision, dropping colliding CGN candidates), each of which can be switched off alone
 (``--without``). Every record names its variant (``pipeline``, ``improvements``).
@@ -18,7 +19,8 @@ iterations; MPPI's replans), every plan seeded from the episode's rng, so a task
 does not depend on the machine's speed or load. Wall-clock limits are safety nets: a plan one
 stops ends the episode as ``timeout``.
 
-Variants (``METHODS``): ``ga-mesh-rrt`` plans in the oracle mesh world, ``ga-ptd-rrt``
+Variants (``method_spec.registry()``: one per grasp source, world model and planner, the
+planners' table ``method_spec.PLANNERS``): ``ga-mesh-rrt`` plans in the oracle mesh world, ``ga-ptd-rrt``
 in the segmented point clouds; both take the annotated grasps and, like the original
 release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-trajopt`` and
 ``ga-ptd-trajopt`` plan the same motions with the batched torch trajectory optimiser
@@ -49,10 +51,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..method_spec import IMPROVEMENTS, MethodSpec, RunSpec, load, method_spec, pipeline_label
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
 from ..planning.robot import robot_for_env
-from ..planning.rrt import plan_rrtconnect
+from ..planning.rrt import PlanRequest
 from ..planning.timing import time_parametrize
 from ..grasping.candidates import predicted_grasps
 from ..grasps.candidates import choose_grasps, object_grasps, retreat, tcp_from_hand
@@ -60,21 +63,6 @@ from ..planning.world import pose_matrix
 from ..planning.world_models import T_world_base, mesh_world, object_poses_base, pointcloud_world
 from ..utils.io import sha256_bytes
 
-METHODS = {
-    "ga-mesh-rrt": dict(world="mesh", grasps="oracle", planner="rrt"),
-    "ga-ptd-rrt": dict(world="pointcloud", grasps="oracle", planner="rrt"),
-    "ga-mesh-trajopt": dict(world="mesh", grasps="oracle", planner="trajopt"),
-    "ga-ptd-trajopt": dict(world="pointcloud", grasps="oracle", planner="trajopt"),
-    "cgn-ptd-rrt": dict(world="pointcloud", grasps="cgn", planner="rrt"),
-    "cgn-mesh-rrt": dict(world="mesh", grasps="cgn", planner="rrt"),
-    "cgn-ptd-trajopt": dict(world="pointcloud", grasps="cgn", planner="trajopt"),
-    "cgn-mesh-trajopt": dict(world="mesh", grasps="cgn", planner="trajopt"),
-    # MPPI (planning.mppi): scene collision from the learned network on the observed cloud, or
-    # (the mesh oracle) from the meshes' distance fields.
-    "cgn-ptd-mppi": dict(world="pointcloud", grasps="cgn", planner="mppi", collision="network"),
-    "ga-ptd-mppi": dict(world="pointcloud", grasps="oracle", planner="mppi", collision="network"),
-    "ga-mesh-mppi": dict(world="mesh", grasps="oracle", planner="mppi", collision="distance"),
-}
 #: Why a task failed. ``grasp_failure``: the gripper closed on nothing, or the target slipped out
 #: before or while it was carried; ``retrieval_failure``: the target is held at the end but was
 #: not carried out (the retrieval stopped short); ``timeout``: a wall-clock safety net stopped a
@@ -88,48 +76,6 @@ PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval
 #: approach, close the gripper, retrieve (lift, back out, carry to free space).
 STAGES = ("approach", "close", "retrieve")
 GRASP_ORDERS = ("random", "clearance")
-
-
-#: Our additions to the original's step list, each switched on by name in
-#: ``SolveConfig.improvements`` (``--pipeline ours [--without NAME,...]``):
-#: - ``retreat``: after the lift, back the held object out along the reverse approach (the
-#:   first of ``retreat_distances`` whose straight line is free) before planning the retrieval
-#:   (the grasp pose sits millimetres from the furniture, and a planner often fails to leave
-#:   such a pocket within its budget);
-#: - ``extra_lifts``: if the carried object still touches its support after the 2 cm lift
-#:   (its balls bulge past its faces, or it slipped), lift more (the first of ``extra_lifts``
-#:   that frees it);
-#: - ``start_escape``: a plan start the conservative spheres call in collision, up to
-#:   ``start_tolerance`` deep, is escaped first (``planning.rrt.escape_start``, MoveIt's start
-#:   repair), instead of failing the plan as ``start_invalid``;
-#: - ``cgn_filter``: CGN predictions whose open hand collides are dropped before the top
-#:   ``cgn_grasps`` go to IK (the original takes the top 10 by score, unfiltered).
-IMPROVEMENTS = ("retreat", "extra_lifts", "start_escape", "cgn_filter")
-#: ``paper``: the original's step list (pre-grasp, approach, close, lift 2 cm, retrieval plan);
-#: ``ours``: with every improvement.
-PIPELINES = {"paper": (), "ours": IMPROVEMENTS}
-
-
-def pipeline_improvements(pipeline: str = "paper", without=()) -> tuple[str, ...]:
-    """The improvements of a named pipeline, less ``without`` (names of ``IMPROVEMENTS``)."""
-    if pipeline not in PIPELINES:
-        raise ValueError(f"unknown pipeline {pipeline!r}; valid: {', '.join(PIPELINES)}")
-    without = tuple(without)
-    unknown = [w for w in without if w not in IMPROVEMENTS]
-    if unknown:
-        raise ValueError(f"unknown improvement {unknown[0]!r}; valid: {', '.join(IMPROVEMENTS)}")
-    if without and pipeline != "ours":
-        raise ValueError(f"--without switches off improvements of the 'ours' pipeline; '{pipeline}' has none")
-    return tuple(i for i in PIPELINES[pipeline] if i not in without)
-
-
-def pipeline_label(improvements) -> str:
-    """``paper``, ``ours`` or ``ours-minus-retreat+start_escape``: the variant's name in records."""
-    improvements = tuple(improvements)
-    for name, on in PIPELINES.items():
-        if set(improvements) == set(on):
-            return name
-    return "ours-minus-" + "+".join(i for i in IMPROVEMENTS if i not in improvements)
 
 
 @dataclass
@@ -158,7 +104,7 @@ class SolveConfig:
     # goal_set_size candidates is found, the next ones (the expert; the baselines plan once).
     pregrasp_goal_sets: int = 1
     # The mesh world after a grasp reuses an object's convex set while its pose is within this of
-    # the pose it was built at (solutions.worlds.MeshWorldCache; 0: only the exact pose).
+    # the pose it was built at (planning.world_models.MeshWorldCache; 0: only the exact pose).
     world_pose_tolerance: float = 0.0
     # The carried object's balls: fitted once per object in its own frame and moved to the hand
     # (True, the expert), or fitted in the hand frame at every grasp (False: the baselines).
@@ -189,7 +135,7 @@ class SolveConfig:
     # lift + planned retrieval. None: the planner retrieves.
     retrieval: object = None
     # MPPI methods: the scene-collision cost, "network" or "distance" (the ablation: the
-    # world's distance fields); None: the method's own (METHODS[...]["collision"]).
+    # world's distance fields); None: the method's own (``MethodSpec.collision``).
     mppi_cost: str | None = None
     # MPPI methods: the goal credit's region in rad (0: no credit); None: MppiConfig's default.
     # (These two are what `fetchbench eval --planner-option` may set: solutions.planner_options.)
@@ -200,6 +146,13 @@ class SolveConfig:
         if unknown:
             raise ValueError(f"unknown improvement {unknown[0]!r}; valid: {', '.join(IMPROVEMENTS)}")
         self.improvements = tuple(i for i in IMPROVEMENTS if i in self.improvements)
+
+    @classmethod
+    def for_run(cls, run: RunSpec, **fields) -> "SolveConfig":
+        """The config of a resolved run: its pipeline's improvements, grasp labels, CGN weight
+        set and planner options; ``fields``: any other of the config's."""
+        return cls(improvements=run.improvements, grasp_labels=run.grasp_labels, grasp_model=run.grasp_model,
+                   **dict(run.planner_options), **fields)
 
     @property
     def pipeline(self) -> str:
@@ -354,19 +307,14 @@ def _moved(env) -> tuple[float, float]:
     return float(info["target_moved"][0]), float(info["max_others_moved"][0])
 
 
-def needs_pointcloud(method: str) -> bool:
-    """Whether the method reads the cameras (the env must be made with obs_mode='pointcloud')."""
-    return METHODS[method]["world"] == "pointcloud" or METHODS[method]["grasps"] == "cgn"
-
-
 def _observe(env):
     from ..envs import fetch_clouds
 
     return fetch_clouds(env.unwrapped.get_obs(unflattened=True))  # one render per try
 
 
-def _world_model(env, method: str, state: EpisodeState):
-    if METHODS[method]["world"] == "mesh":
+def _world_model(env, spec: MethodSpec, state: EpisodeState):
+    if spec.world == "mesh":
         return state.timed(mesh_world, env), None
     clouds = _observe(env)
     robot = robot_for_env(env)
@@ -375,11 +323,11 @@ def _world_model(env, method: str, state: EpisodeState):
     return state.timed(pointcloud_world, clouds, q_full, robot=robot), clouds
 
 
-def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_base_object, clouds):
+def _grasp_candidates(env, spec: MethodSpec, state: EpisodeState, rng, tried: set, T_base_object, clouds):
     """The annotated grasps (a seeded random order), or the CGN predictions (best first); None
     when CGN has no target points to predict on."""
     cfg = state.config
-    if METHODS[method]["grasps"] == "oracle":
+    if spec.grasps == "oracle":
         return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id, cfg.grasp_labels), rng,
                            cfg.max_grasps)
     clouds = clouds if clouds is not None else _observe(env)
@@ -392,17 +340,17 @@ def _grasp_candidates(env, method: str, state: EpisodeState, rng, tried: set, T_
                        first_index=max(tried, default=-1) + 1)
 
 
-def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | None:
+def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str | None:
     """One try; returns the failure class, or None when the target was carried out."""
     from ..objects.loading import load_object
 
     cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
     ex = Executor(env, state)
     task = u.tasks[0]
-    world, clouds = _world_model(env, method, state)
+    world, clouds = _world_model(env, spec, state)
     T_base_object = object_poses_base(env)[task.target_index]
     asset = load_object(task.target.object_id)
-    grasps = _grasp_candidates(env, method, state, rng, tried, T_base_object, clouds)
+    grasps = _grasp_candidates(env, spec, state, rng, tried, T_base_object, clouds)
     if grasps is None:
         return "no_grasp_candidate"
     state.grasp_source = grasps.source
@@ -426,7 +374,7 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     # Annotated grasps: the open hand must be free (what collision-aware IK over every grasp
     # finds, as the original's IK filter does, at a fraction of its cost). CGN predictions:
     # the original's top 10 by score as they are; ``cgn_filter`` drops the colliding ones first.
-    oracle = METHODS[method]["grasps"] == "oracle"
+    oracle = spec.grasps == "oracle"
     free = clearance > cfg.margin
     order = np.flatnonzero(free) if (oracle or cfg.uses("cgn_filter")) else np.arange(len(clearance))
     if cfg.grasp_order == "clearance":
@@ -477,11 +425,11 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
     plan = None
     for goal_set in goal_sets():
         state.phases["ik_found"] = True
-        plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in goal_set]), method)
+        plan = _plan_and_move(state, ex, rng, open_checker, q_now, np.stack([c[1] for c in goal_set]), spec)
         state.notes.append(f"candidates {len(keep)} ik {len(goal_set)}; pre-grasp plan {plan.status} "
                            f"{plan.n_checked} checks {plan.planning_time:.2f}s"
                            + (" (start escaped)" if plan.start_escaped else ""))
-        if plan.success or (state.checks_left <= 0 and _check_budgeted(method)):
+        if plan.success or (state.checks_left <= 0 and spec.planner.budgeted):
             break
     if plan is None:
         return "no_grasp_candidate"
@@ -560,10 +508,10 @@ def _attempt(env, method: str, state: EpisodeState, rng, tried: set) -> str | No
             state.notes.append(f"retreated {distance:.2f} m")
             break
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
-    if len(goals) == 0 or (state.checks_left <= 0 and _check_budgeted(method)):
+    if len(goals) == 0 or (state.checks_left <= 0 and spec.planner.budgeted):
         state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning budget left")
         return "motion_planning_failure"
-    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], method)
+    plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], spec)
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.n_checked} checks "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
@@ -606,78 +554,55 @@ def _object_attachment(object_id: str) -> Attachment:
     return Attachment.from_convex_parts(load_object(object_id).convex_parts, seed=seed)
 
 
-def _check_budgeted(method: str) -> bool:
-    """Whether the method's planner draws on the episode's collision-check budget (RRTConnect;
-    trajopt's exact checks and RRT fallback). MPPI is bounded by its replans per phase (the
-    original's 30) and its rollouts, not by the episode's checks."""
-    return METHODS[method]["planner"] != "mppi"
-
-
 def _plan_failure(plan) -> str:
     """The failure class of a failed plan: a wall-clock safety net is ``timeout``, anything
     else (budget spent, invalid start, no valid goal) ``motion_planning_failure``."""
     return "timeout" if plan.status == "timeout" else "motion_planning_failure"
 
 
-def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, method: str):
-    """Plan with the method's planner and move along the plan (when it succeeded). MPPI
-    moves while it plans: every replan executes a second of its plan from where the robot
-    really is (``planning.mppi``); its ``planning_time`` is its computation only."""
-    cfg = state.config
-    if METHODS[method]["planner"] == "mppi":
-        from ..planning.mppi import MppiConfig, plan_mppi
+def _plan_and_move(state: EpisodeState, ex: "Executor", rng, checker, q_start, q_goals, spec: MethodSpec):
+    """Plan with the method's planner (``spec.planner``: ``plan(PlanRequest)``, seeded from the
+    episode's rng) and move along the plan when it succeeded. A budgeted planner (RRTConnect,
+    trajopt) may spend ``plan_checks_per_try`` collision checks at most, and what the episode
+    has left, which the checks it spent are taken from. An executing planner (MPPI) moves while
+    it plans: every replan executes a second of its plan from where the robot really is; its
+    ``planning_time`` is its computation only."""
+    cfg, planner = state.config, spec.planner
+    plan_fn = load(planner.entry)
 
-        cost = cfg.mppi_cost or METHODS[method]["collision"]
-        region = MppiConfig.goal_region if cfg.mppi_goal_region is None else cfg.mppi_goal_region
-        mppi_cfg = MppiConfig(cost=cost, goal_region=region, speed_scale=cfg.speed_scale,
-                              seed=int(rng.integers(2**31)))
+    def execute(path):
+        ex.follow(path, cfg.speed_scale, settle_steps=0)
+        return ex.q
 
-        def execute(path):
-            ex.follow(path, cfg.speed_scale, settle_steps=0)
-            return ex.q
-
-        plan = plan_mppi(checker, q_start, q_goals, execute, mppi_cfg)
+    request = PlanRequest(checker, q_start, q_goals, seed=int(rng.integers(2**31)),
+                          max_checks=max(0, min(cfg.plan_checks_per_try, state.checks_left)),
+                          checks_per_try=cfg.plan_checks_per_try, time_limit=cfg.plan_safety_seconds,
+                          start_tolerance=cfg.start_escape_depth, speed_scale=cfg.speed_scale, collision=spec.collision,
+                          options={name: getattr(cfg, name) for name in planner.options},
+                          execute=execute if planner.executes else None)
+    if planner.executes:
+        plan = plan_fn(request)
         state.computation_time += plan.planning_time
         return plan
-    plan = _plan(state, rng, checker, q_start, q_goals, method)
+    plan = state.timed(plan_fn, request)
+    if planner.budgeted:
+        state.checks_left -= plan.n_checked
     if plan.success:
         ex.follow(plan.path, cfg.speed_scale)
     return plan
 
 
-def _plan(state: EpisodeState, rng, checker, q_start, q_goals, method: str = "ga-mesh-rrt"):
-    """The method's planner (``METHODS[method]["planner"]``): OMPL RRTConnect, or the batched
-    torch trajectory optimiser (``planning.trajopt``: CUDA when available, else CPU, or
-    ``$FETCHBENCH_TRAJOPT_DEVICE``). Both are seeded from the episode's rng and bounded by
-    collision checks (at most ``plan_checks_per_try``, and what the episode has left); the
-    checks spent are taken from the episode's budget. Both return a ``PlanResult``."""
-    cfg = state.config
-    seed = int(rng.integers(2**31))
-    max_checks = max(0, min(cfg.plan_checks_per_try, state.checks_left))
-    if METHODS[method].get("planner", "rrt") == "trajopt":
-        from ..planning.trajopt import plan_trajopt
-
-        plan = state.timed(plan_trajopt, checker, q_start, q_goals, cfg.plan_safety_seconds,
-                           start_tolerance=cfg.start_escape_depth, seed=seed, max_checks=max_checks)
-    else:
-        plan = state.timed(plan_rrtconnect, checker, q_start, q_goals, cfg.plan_safety_seconds,
-                           start_tolerance=cfg.start_escape_depth, seed=seed, max_checks=max_checks,
-                           restart_checks=max(1, min(max_checks, cfg.plan_checks_per_try // 2)))
-    state.checks_left -= plan.n_checked
-    return plan
-
-
-def _return_home(env, method: str, state: EpisodeState, rng) -> bool:
+def _return_home(env, spec: MethodSpec, state: EpisodeState, rng) -> bool:
     """Open the gripper and go back to the task's start configuration (for a retry)."""
     cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
     ex = Executor(env, state)
     ex.hold(GRIPPER_OPEN, 0.5)
-    world, _ = _world_model(env, method, state)
+    world, _ = _world_model(env, spec, state)
     checker = CollisionChecker(robot, world, margin=cfg.margin)
     q_home = u.start_arm_qpos(0)
-    if state.checks_left <= 0 and _check_budgeted(method):
+    if state.checks_left <= 0 and spec.planner.budgeted:
         return False
-    plan = _plan_and_move(state, ex, rng, checker, ex.q, q_home, method)
+    plan = _plan_and_move(state, ex, rng, checker, ex.q, q_home, spec)
     return plan.success
 
 
@@ -693,23 +618,25 @@ def final_failure(failure: str | None, held_at_end: bool, others_undisturbed: bo
     return failure
 
 
-def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: int = 1,
+def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt", retries: int = 1,
           config: SolveConfig | None = None, reset: bool = True, grasp_model: str | None = None) -> dict:
     """Run one FetchBench episode with a sense-plan-act baseline; returns its metrics.
 
+    ``method``: its spec (``method_spec.MethodSpec``; a name is looked up once, here).
     ``retries`` is the number of tries in all (FetchBench's ``--retries 5``); a further try
     is made only if the target moved <= 0.12 m and nothing else moved >= 0.10 m.
     """
     from ..envs import settle_and_hold
 
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    spec = method if isinstance(method, MethodSpec) else method_spec(method)
+    if spec.planner is None:
+        raise ValueError(f"{spec.name} runs no sense-plan-act pipeline (it has no planner)")
     if retries < 1:
         raise ValueError(f"retries must be >= 1, got {retries}")
     if config is not None and config.grasp_order not in GRASP_ORDERS:
         raise ValueError(f"unknown grasp_order {config.grasp_order!r}; valid: {', '.join(GRASP_ORDERS)}")
-    if needs_pointcloud(method) and env.unwrapped.obs_mode != "pointcloud":
-        raise ValueError(f"{method} reads the observed point clouds: make the env with obs_mode='pointcloud' "
+    if spec.reads_clouds and env.unwrapped.obs_mode != "pointcloud":
+        raise ValueError(f"{spec.name} reads the observed point clouds: make the env with obs_mode='pointcloud' "
                          f"(it has {env.unwrapped.obs_mode!r})")
     config = dataclasses.replace(config or SolveConfig(), retries=retries)
     if grasp_model is not None:
@@ -723,7 +650,7 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
     tried: set = set()
     failure, attempts = None, 0
     for attempts in range(1, retries + 1):
-        outcome = _attempt(env, method, state, rng, tried)
+        outcome = _attempt(env, spec, state, rng, tried)
         # A retry that finds no untried grasp keeps the failure that made it retry.
         failure = failure if (outcome == "no_grasp_candidate" and attempts > 1) else outcome
         if failure is None or attempts == retries:
@@ -731,7 +658,7 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
         target_moved, others_moved = _moved(env)
         if target_moved > config.retry_target_moved or others_moved >= config.retry_others_moved:
             break
-        if not _return_home(env, method, state, rng):
+        if not _return_home(env, spec, state, rng):
             break
     info = settle_and_hold(env)
     success = bool(info["success"][0])
@@ -741,7 +668,7 @@ def solve(env, seed: int | None = None, method: str = "ga-mesh-rrt", retries: in
                                 others_undisturbed=bool(info["others_undisturbed"][0]))
     task = env.unwrapped.tasks[0]
     return {
-        "method": method,
+        "method": spec.name,
         "seed": seed,
         "task_seed": task.seed,
         "scene_type": task.scene_type,

@@ -15,7 +15,8 @@ import time
 import torch
 
 from fetchbench_ms.policies.data import POLICY_SIZES
-from fetchbench_ms.policies.networks import POLICIES, build_policy
+from fetchbench_ms.method_spec import POLICY_KINDS
+from fetchbench_ms.policies.networks import build_policy
 
 
 def observation(model, device) -> dict:
@@ -39,7 +40,7 @@ def main(argv=None) -> None:
         torch.set_num_threads(args.threads)
     print(f"device {args.device}, {torch.get_num_threads()} threads, {args.repeats} repeats after 3 warm-up calls")
     print(f"{'kind':<12} {'parameters':>11} {'ms a step (median)':>19} {'min':>7}")
-    for kind in POLICIES:
+    for kind in POLICY_KINDS:
         model = build_policy(kind).to(args.device).eval()
         obs = observation(model, args.device)
         times = []

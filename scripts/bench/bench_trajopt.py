@@ -34,26 +34,26 @@ class _Recorded(Exception):
 
 
 def record_problems(suite: str, tasks: str, world: str, full: bool) -> list[dict]:
-    from fetchbench_ms.evaluation.methods import TaskRunner
+    from fetchbench_ms.evaluation.methods import TaskRunner, resolve_run
     from fetchbench_ms.evaluation.runner import open_suite, parse_range, suite_items
     from fetchbench_ms.solutions import sense_plan_act as spa
 
     method = "ga-mesh-rrt" if world == "mesh" else "ga-ptd-rrt"
     suite_obj, _, _ = open_suite(suite)
     items = suite_items(suite_obj, parse_range(tasks, len(suite_obj.tasks)))
-    runner = TaskRunner(method)
-    problems, original = [], spa._plan
+    runner = TaskRunner(resolve_run(method))
+    problems, original = [], spa._plan_and_move
 
-    def recorder(state, rng, checker, q_start, q_goals, *args):
+    def recorder(state, ex, rng, checker, q_start, q_goals, *args):
         kind = "pre-grasp" if not any(p["task"] == item.task_id for p in problems) else "retrieval/home"
         problems.append(dict(task=item.task_id, kind=kind, checker=checker, q_start=np.array(q_start, float),
                              q_goals=np.array(q_goals, float).reshape(-1, 7),
                              start_tolerance=state.config.start_escape_depth))
         if not full:
             raise _Recorded
-        return original(state, rng, checker, q_start, q_goals, *args)
+        return original(state, ex, rng, checker, q_start, q_goals, *args)
 
-    spa._plan = recorder
+    spa._plan_and_move = recorder
     try:
         for item in items:
             env = runner.env(item.env_id)
@@ -63,7 +63,7 @@ def record_problems(suite: str, tasks: str, world: str, full: bool) -> list[dict
             except _Recorded:
                 pass
     finally:
-        spa._plan = original
+        spa._plan_and_move = original
         runner.close()
     return problems
 

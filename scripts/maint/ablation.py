@@ -44,7 +44,7 @@ GROUPS = ("core", "minus", "env", "rows", "planner")
 
 def runs() -> list[tuple[str, str, list[str]]]:
     """(group, name, fetchbench eval arguments) in the order they start."""
-    from fetchbench_ms.solutions.sense_plan_act import IMPROVEMENTS, METHODS
+    from fetchbench_ms.method_spec import IMPROVEMENTS, method_spec
 
     out = []
     for method in CORE:
@@ -52,7 +52,7 @@ def runs() -> list[tuple[str, str, list[str]]]:
         out.append(("core", f"{method}-ours", ["--method", method, "--pipeline", "ours"]))
     for method in CORE:
         for improvement in IMPROVEMENTS:
-            if improvement == "cgn_filter" and METHODS[method]["grasps"] != "cgn":
+            if improvement == "cgn_filter" and method_spec(method).grasps != "cgn":
                 continue  # annotated grasps are not filtered by it: the run would be "ours" again
             out.append(("minus", f"{method}-ours-minus-{improvement}",
                         ["--method", method, "--pipeline", "ours", "--without", improvement]))

@@ -28,12 +28,15 @@ import sys
 from pathlib import Path
 
 from fetchbench_ms.evaluation.metrics import summarize
-from fetchbench_ms.policies.deploy import POLICY_KINDS, POLICY_METHODS, default_checkpoint
+from fetchbench_ms.method_spec import POLICY_KINDS, registry
+from fetchbench_ms.policies.deploy import default_checkpoint
 from fetchbench_ms.tasks.splits import cli_guard, refuse_test_results
 from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text, sha256_file
 from fetchbench_ms.utils.packed import PLANES_SUFFIX, content_sha256, pack_planes, packed_or_plain
 
-KINDS = POLICY_KINDS  # every network the package has
+KINDS = tuple(POLICY_KINDS)  # every network the package has
+#: The imitation methods and the kind of policy each runs.
+POLICY_METHODS = {m.name: m.policy.name for m in registry().values() if m.policy is not None}
 
 
 def read_records(run: Path) -> list[dict]:

@@ -206,15 +206,29 @@ def costs_block() -> str:
                      f"{e['trajectories']} | {e['trajectories_per_cpu_hour']:,.0f} | {e['trajectories_per_core_hour']:,.0f} |")
     lines.append(f"| `reference` | 64-core node, 64 workers | train 0:{node['tasks']} | {node['yield']:.3f} | "
                  f"{node['trajectories']} | - | {node['trajectories_per_core_hour']:,.0f} |")
-    hours = PAPER_TRAJECTORIES / node["trajectories_per_core_hour"]
-    speedup = fast["trajectories_per_cpu_hour"] / before["trajectories_per_cpu_hour"]
+    rounds = load_record(RECORD)["rounds"]
+    for entry in rounds:  # each round's expert, as its record gives it
+        e = entry["expert"]
+        lines.append(f"| `{e['expert']}` | round {entry['round']}: {entry.get('machine', 'the node')} | "
+                     f"train {entry['tasks'][0]}:{entry['tasks'][1]} | {e['yield']:.3f} | {e['trajectories']} | - | "
+                     f"{e['trajectories_per_core_hour']:,.0f} |")
+    rate = rounds[-1]["expert"]["trajectories_per_core_hour"] if rounds else node["trajectories_per_core_hour"]
+    hours = PAPER_TRAJECTORIES / rate
     frames = PAPER_TRAJECTORIES * fast["mean_frames"] / r["cpu2"]["frame_stride"]
+    if rounds:
+        last = rounds[-1]
+        lines += ["", f"Round {last['round']} made its {last['demos']:,} demonstrations' {last['frames']:,} frames at the "
+                  f"expert's own states (no replay) at {last['expert']['conversion_frames_per_second']:,.0f} frames a "
+                  f"second, the render processes' start included."]
     lines += ["", f"The paper's {PAPER_TRAJECTORIES:,} demonstrations on one 32-core node with two H200s, at these "
-              f"rates: the expert {hours:.0f} worker-hours at the node's `reference` rate ({hours / 32:.1f} h on 32 "
-              f"workers; `fast` is {speedup:.2f}x that per CPU-hour on the CPU: ~{hours / 32 / speedup:.1f} h), and their "
-              f"~{frames / 1e6:.1f} M frames at stride {r['cpu2']['frame_stride']} {frames / n32['frames_a_second'] / 60:.0f}"
-              " minutes of `composed_pointcloud` observations (the state-only replay that converts their actions "
-              "comes on top)."]
+              f"rates: the expert {hours:.0f} worker-hours at the node's last measured rate ({hours / 32:.1f} h on 32 "
+              f"workers), and their ~{frames / 1e6:.1f} M frames at stride {r['cpu2']['frame_stride']} "
+              + (f"{frames / rounds[-1]['expert']['conversion_frames_per_second'] / 60:.0f} minutes at round "
+                 f"{rounds[-1]['round']}'s conversion rate ({frames / n32['frames_a_second'] / 60:.0f} at the "
+                 f"{n32['processes']}-process rate of composing alone, without the resets and renders of the episodes' "
+                 "starts)." if rounds else
+                 f"{frames / n32['frames_a_second'] / 60:.0f} minutes of `composed_pointcloud` observations at the "
+                 f"node's {n32['processes']}-process rate.")]
     return "\n".join(lines)
 
 

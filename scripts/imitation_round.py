@@ -372,31 +372,36 @@ def main(argv=None) -> int:
     # 3. val: every candidate end to end and as the hybrid (resumable eval folders), all at once:
     # the --procs workers shared among them (one start-up for all), each eval on a GPU in turn.
     t2 = time.perf_counter()
-    evals = [(kind, method) for kind in kinds for method in methods(kind)]
+    # (kind, method, checkpoint or None for the shipped one, folder): every candidate's runs, and
+    # the shipped checkpoint's runs it has no val figures of on these tasks (judged alike, once).
+    evals = [(kind, method, work / "export" / f"imit_{kind}.pt", work / "val" / method)
+             for kind in kinds for method in methods(kind)]
+    evals += [(kind, method, None, work / "val-shipped" / method) for kind in kinds for method in methods(kind)
+              if shipped(kind)[0] is not None and val_successes(shipped(kind)[1], method, val) is None]
     workers = max(1, args.procs // len(evals))
     processes = []
-    for i, (kind, method) in enumerate(evals):
-        out = work / "val" / method
-        eval_command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks", args.val_tasks,
-                   "--policy-checkpoint", str(work / "export" / f"imit_{kind}.pt"), "--policy-stride",
-                   str(FRAME_STRIDE), "--workers", str(workers), "--out", str(out)]
+    for i, (kind, method, checkpoint, out) in enumerate(evals):
+        eval_command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks",
+                        args.val_tasks, "--policy-stride", str(FRAME_STRIDE), "--workers", str(workers), "--out", str(out)]
+        if checkpoint is not None:
+            eval_command += ["--policy-checkpoint", str(checkpoint)]
         env = dict(os.environ)
         if gpus is not None:
             env["CUDA_VISIBLE_DEVICES"] = gpus[i % len(gpus)]
         log(f"$ {shlex.join(eval_command)}")
         out.mkdir(parents=True, exist_ok=True)
-        processes.append((method, subprocess.Popen(eval_command, cwd=ROOT, env=env, stdout=open(out / "eval.log", "a"),
-                                                   stderr=subprocess.STDOUT)))
-    failed = [f"{method} (exit {code}, {work / 'val' / method / 'eval.log'})"
-              for method, process in processes if (code := process.wait()) != 0]
+        processes.append((out, subprocess.Popen(eval_command, cwd=ROOT, env=env, stdout=open(out / "eval.log", "a"),
+                                                stderr=subprocess.STDOUT)))
+    failed = [f"{out.name} (exit {code}, {out / 'eval.log'})" for out, process in processes if (code := process.wait()) != 0]
     if failed:
         raise SystemExit(f"stopped: val runs failed: {', '.join(failed)}; run the same command to resume")
     figures = {kind: {} for kind in kinds}
-    for kind, method in evals:
-        out = work / "val" / method
+    shipped_figures = {kind: {} for kind in kinds}  # the shipped checkpoint's runs made here
+    for kind, method, checkpoint, out in evals:
         successes, n = eval_successes(out)
-        figures[kind][method] = {"successes": successes, "tasks": n, "success_rate": round(successes / n, 4),
-                                 "run": str(out.relative_to(args.work))}
+        (figures if checkpoint is not None else shipped_figures)[kind][method] = {
+            "successes": successes, "tasks": n, "success_rate": round(successes / n, 4),
+            "run": str(out.relative_to(args.work))}
     t_val = time.perf_counter() - t2
 
     # 4. choice (and shipping), 5. record
@@ -413,10 +418,14 @@ def main(argv=None) -> int:
     for kind in kinds:
         _, meta = shipped(kind)
         export_meta = json.loads((work / "export" / f"imit_{kind}.json").read_text())
-        choice = choose({m: v["successes"] for m, v in figures[kind].items()}, meta, val)
+        judged = {**meta, "validation_success": meta.get("validation_success", []) + [
+            {"method": m, "first_task": f"val/{val[0]:04d}", "last_task": f"val/{val[1] - 1:04d}",
+             "successes": v["successes"]} for m, v in shipped_figures[kind].items()]}
+        choice = choose({m: v["successes"] for m, v in figures[kind].items()}, judged, val)
         demos_seen = inits[kind]["demos_seen"] + entry["demos"]
         entry["kinds"][kind] = {"init_from": inits[kind], "steps": [inits[kind]["step"], int(export_meta["step"])],
-                                "demos_seen": demos_seen, "val": figures[kind], "choice": choice,
+                                "demos_seen": demos_seen, "val": figures[kind], "shipped_val": shipped_figures[kind],
+                                "choice": choice,
                                 "shipped": bool(choice["ships"] and args.ship)}
         if choice["ships"]:
             winners.append(kind)
@@ -426,6 +435,9 @@ def main(argv=None) -> int:
             (work / "export" / f"imit_{kind}.json").write_text(json.dumps(export_meta, indent=1))
         val_text = ", ".join(f"{m} {v['successes']}/{v['tasks']}" for m, v in figures[kind].items())
         log(f"{kind}: {val_text}; {'ships' if choice['ships'] else 'stays'}: {choice['why']}")
+    kept = [out for kind, method, checkpoint, out in evals if checkpoint is None and kind not in winners]
+    if args.ship and kept:  # the shipped checkpoints that stay keep their new val figures
+        run([py, "scripts/maint/ship_imitation.py", "--val-runs", *map(str, kept)], log)
     if args.ship and winners:
         val_runs = [str(work / "val" / m) for k in winners for m in methods(k)]
         run([py, "scripts/maint/ship_imitation.py", "--run", str(work), "--kinds", ",".join(winners),

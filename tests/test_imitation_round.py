@@ -11,7 +11,8 @@ import pytest
 from script_modules import import_script
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = "--batch-size 8 --point-dims 16 32 --warmup 1 --val-every 10000 --log-every 1 --ckpt-every 10000 --hidden 32"
+# Few, small batches; the shipped MLP's network (the round goes on from its weights).
+TINY = "--batch-size 8 --warmup 1 --val-every 10000 --log-every 1 --ckpt-every 10000"
 
 
 @pytest.fixture(scope="module")
@@ -74,9 +75,16 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     assert entry["round"] == 1 and entry["tasks"] == [0, 2] and entry["small_val"]
     assert entry["demos"] >= 1 and entry["frames"] > 0 and len(entry["data_sha256"]) == 64
     mlp = entry["kinds"]["mlp"]
-    assert mlp["steps"] == [0, 3] and mlp["init_from"]["path"] is None and mlp["demos_seen"] == entry["demos"]
+    # The shipped MLP reads composed_pointcloud: the round goes on from it, on its new demos.
+    shipped = json.loads((ROOT / "assets/checkpoints/imit_mlp.json").read_text())
+    assert mlp["init_from"]["path"] == "assets/checkpoints/imit_mlp.pt.planes.xz"
+    assert mlp["steps"] == [shipped["step"], shipped["step"] + 3]
+    assert mlp["demos_seen"] == shipped["demos_seen"] + entry["demos"]
     assert set(mlp["val"]) == {"e2e-mlp", "cgn-imit-mlp"} and all(v["tasks"] == 1 for v in mlp["val"].values())
     assert not mlp["shipped"]  # no --ship: the shipped checkpoints stay as they are
+    # The shipped checkpoint has no val figures on these tasks: it is judged on them alike.
+    assert set(mlp["shipped_val"]) == {"e2e-mlp", "cgn-imit-mlp"}
+    assert set(mlp["choice"]["compared"]) == {"e2e-mlp", "cgn-imit-mlp"}
     export = tmp_path / "work/round_01/export/imit_mlp.json"
     assert json.loads(export.read_text())["obs_mode"] == "composed_pointcloud"
     for method in ("e2e-mlp", "cgn-imit-mlp"):  # the runs record the obs mode their policy read

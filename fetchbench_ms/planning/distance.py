@@ -390,6 +390,10 @@ class TorchRobot:
         self.centers_link = torch.as_tensor(sp.centers_link, **dd)
         self.radii = torch.as_tensor(sp.radii, **dd)
         self.groups = SphereGroups(sp.link_index, self.device, dtype)  # the world broad phase, link by link
+        assert (np.diff(sp.link_index) >= 0).all()  # spheres are stored link by link
+        table, valid = self.groups.table.cpu().numpy(), self.groups.valid.cpu().numpy()
+        self.centers_link_padded = torch.as_tensor(sp.centers_link[table] * valid[..., None], **dd)  # (L, W, 3)
+        self.sphere_slots = torch.as_tensor(np.flatnonzero(valid.reshape(-1)), device=self.device)
         self.P = len(checkers)
         self.finger = torch.as_tensor([c.finger for c in checkers], **dd)
         self.margin = torch.as_tensor([c.margin for c in checkers], **dd)
@@ -411,8 +415,10 @@ class TorchRobot:
         gripper = self.robot.gripper_q(self.finger).to(q)  # (P, G)
         G = gripper.shape[1]
         poses = self.fk.forward(torch.cat([q, gripper[:, None].expand(P, B, G)], dim=2).reshape(P * B, 7 + G))
-        T = torch.stack([poses[l] for l in self.links], dim=1)[:, self.link_index]  # (PB, S, 4, 4)
-        centers = torch.einsum("nsij,sj->nsi", T[..., :3, :3], self.centers_link) + T[..., :3, 3]
+        T = torch.stack([poses[l] for l in self.links], dim=1)  # (PB, L, 4, 4)
+        # Per link, its spheres (padded (L, W)), then the valid ones in sphere order (link-major).
+        centers = torch.einsum("nlij,lwj->nlwi", T[..., :3, :3], self.centers_link_padded) + T[..., None, :3, 3]
+        centers = centers.flatten(1, 2).index_select(1, self.sphere_slots)
         att = None
         if self.has_attachment:
             H = poses[self.robot.hand_link].reshape(P, B, 4, 4)

@@ -143,3 +143,43 @@ def test_ga_mesh_trajopt_runs_a_smoke_task_end_to_end(tmp_path, monkeypatch):
     assert not record.get("error"), record["error"]
     assert record["phases"]["pregrasp_plan"] and record["phases"]["retrieval_plan"], record["notes"]
     assert record["success"], record["notes"]
+
+
+def test_grouped_broad_phase_gives_the_flat_costs_and_gradients(robot, worlds):
+    """The link-by-link broad phase (``SphereGroups``) drops only pairs beyond the horizon:
+    the trajectory costs and their gradients are bitwise those of the flat sphere test."""
+    from fetchbench_ms.planning.trajopt import _Costs
+
+    checkers = _checkers(robot, worlds)
+    cfg = TrajoptConfig(device="cpu")
+    tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], max_planes=cfg.max_planes)
+    tr = TorchRobot(robot, checkers)
+    costs = _Costs(tr, tw, cfg, robot.q_min, robot.q_max)
+    rng = np.random.default_rng(3)
+    traj = torch.as_tensor(np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min,
+                                   robot.q_max), dtype=torch.float32)
+    out = []
+    for groups in (tr.groups, None):
+        tr.groups = groups
+        x = traj.clone().requires_grad_(True)
+        total, collision = costs(x)
+        (grad,) = torch.autograd.grad(total.sum(), x)
+        out.append((total.detach(), collision.detach(), grad))
+    assert (out[0][1] > 0).all()  # every trajectory touches something: the pairs are tested
+    for a, b in zip(*out):
+        assert torch.equal(a, b)
+
+
+def test_sphere_centres_link_by_link_match_the_per_sphere_transform(robot, worlds):
+    """``TorchRobot.spheres`` transforms each link's spheres at once; the centres are the
+    per-sphere transform's (``PandaModel``'s link poses) up to float rounding."""
+    checkers = _checkers(robot, worlds)[:1]
+    tr = TorchRobot(robot, checkers)
+    q = np.clip(Q_DEFAULT + np.random.default_rng(4).normal(0, 0.5, (20, 7)), robot.q_min, robot.q_max)
+    centers, _ = tr.spheres(torch.as_tensor(q[None], dtype=torch.float32))
+    gripper = robot.gripper_q(tr.finger).double()
+    poses = robot.fk.forward(torch.cat([torch.as_tensor(q), gripper.expand(20, -1)], dim=1))
+    sp = robot.spheres
+    T = torch.stack([poses[link] for link in sp.links], dim=1)[:, torch.as_tensor(sp.link_index)]
+    ref = torch.einsum("nsij,sj->nsi", T[..., :3, :3], torch.as_tensor(sp.centers_link)) + T[..., :3, 3]
+    assert torch.allclose(centers[0].double(), ref, atol=1e-5)

@@ -67,39 +67,55 @@ class _Primitives:
         self.t = {k: torch.as_tensor(v, device=device, dtype=dtype) for k, v in tensors.items()}
         self.bound_c = torch.as_tensor(bound_c, device=device, dtype=dtype)
         self.bound_r = torch.as_tensor(bound_r, device=device, dtype=dtype)
+        self.O = self.bound_r.shape[1]
+        # Flat (P * O, ...) views: a pair's row is one index_select (multi-tensor indexing and
+        # its backward are several times slower on a CPU).
+        self.flat = {k: v.flatten(0, 1) for k, v in self.t.items()}
+        self.flat_bound_c, self.flat_bound_r = self.bound_c.flatten(0, 1), self.bound_r.flatten(0, 1)
 
     def exact(self, x: torch.Tensor, p: torch.Tensor, o: torch.Tensor) -> torch.Tensor:
         """Signed distance of points ``x`` (M, 3) to obstacle ``o`` of problem ``p`` (the
         formulas of world.py)."""
-        t = self.t
+        po = p * self.O + o
+
+        def take(name):
+            return self.flat[name].index_select(0, po)
+
         if self.kind == "convex":
-            planes = t["planes"][p, o]  # (M, K, 4)
+            planes = take("planes")  # (M, K, 4)
             d = (torch.einsum("mkj,mj->mk", planes[..., :3], x) - planes[..., 3]).amax(dim=1)
             if self.reduced:  # fewer planes bound a larger polytope: the bounding sphere caps it
-                d = torch.maximum(d, _smooth_norm(x - self.bound_c[p, o]) - self.bound_r[p, o])
+                d = torch.maximum(d, _smooth_norm(x - self.flat_bound_c.index_select(0, po))
+                                  - self.flat_bound_r.index_select(0, po))
             return d
-        local = torch.einsum("mij,mj->mi", t["R"][p, o], x) + t["t"][p, o]
+        local = torch.einsum("mij,mj->mi", take("R"), x) + take("t")
         if self.kind == "box":
-            q = local.abs() - t["half"][p, o]
+            q = local.abs() - take("half")
             return _smooth_norm(q.clamp(min=0)) + q.amax(dim=1).clamp(max=0)
-        r, h, capsule = t["radius"][p, o], t["half_length"][p, o], t["capsule"][p, o] > 0.5
+        r, h, capsule = take("radius"), take("half_length"), take("capsule") > 0.5
         z = torch.maximum(torch.minimum(local[:, 2], h), -h)
         d_capsule = _smooth_norm(torch.stack([local[:, 0], local[:, 1], local[:, 2] - z], 1)) - r
         d = torch.stack([_smooth_norm(local[:, :2]) - r, local[:, 2].abs() - h], 1)
         d_cylinder = _smooth_norm(d.clamp(min=0)) + d.amax(dim=1).clamp(max=0)
         return torch.where(capsule, d_capsule, d_cylinder)
 
-    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None
-              ) -> tuple[torch.Tensor, torch.Tensor]:
+    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
+              groups: "SphereGroups | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(flat point index into P*N, signed distance) of every (point, obstacle) pair whose
-        bounding sphere is within ``horizon`` (+ the point's radius in ``radii`` (P, N))."""
+        bounding sphere is within ``horizon`` (+ the point's radius in ``radii`` (P, N)).
+        With ``groups`` the points are tested group by group first (the same pairs, each
+        point's in ascending obstacle order, as without)."""
         P, N, _ = points.shape
         with torch.no_grad():
-            coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
-            if radii is not None:
-                coarse = coarse - radii[..., None]
-            p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
-        return p * N + n, self.exact(points[p, n], p, o)
+            if groups is None:
+                coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
+                if radii is not None:
+                    coarse = coarse - radii[..., None]
+                p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
+            else:
+                p, n, o = groups.candidates(points.detach(), radii, self, horizon)
+        pn = p * N + n
+        return pn, self.exact(points.reshape(P * N, 3).index_select(0, pn), p, o)
 
 
 def _fewer_planes(planes: np.ndarray, max_planes: int | None) -> np.ndarray:
@@ -253,34 +269,99 @@ class TorchWorld:
         out = F.grid_sample(self.grid, u[:, None, None], mode="bilinear", padding_mode="border", align_corners=True)
         return out[:, 0, 0, 0]  # outside the grid: the border's value, >= the truncation
 
-    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None
-              ) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
+    def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
+              groups: "SphereGroups | None" = None) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
         """Per obstacle kind: (flat point index or None for one value per point, distance)."""
-        out = [kind.pairs(points, horizon, radii) for kind in self.kinds]
+        out = [kind.pairs(points, horizon, radii, groups) for kind in self.kinds]
         if self.grid is not None:
             out.append((None, self.grid_distance(points).reshape(-1)))
         return out
 
-    def distance(self, points: torch.Tensor, horizon: float = 0.2) -> torch.Tensor:
+    def distance(self, points: torch.Tensor, horizon: float = 0.2, groups: "SphereGroups | None" = None
+                 ) -> torch.Tensor:
         """Signed distance (P, N) of points (P, N, 3) to the nearest obstacle of their problem."""
         P, N, _ = points.shape
         out = torch.full((P * N,), FAR, device=points.device, dtype=points.dtype)
-        for idx, d in self.pairs(points, horizon):
+        for idx, d in self.pairs(points, horizon, groups=groups):
             out = torch.minimum(out, d) if idx is None else out.scatter_reduce(0, idx, d, reduce="amin")
         return out.reshape(P, N)
 
-    def penalty(self, points: torch.Tensor, radii: torch.Tensor, eta: float) -> torch.Tensor:
+    def penalty(self, points: torch.Tensor, radii: torch.Tensor, eta: float,
+                groups: "SphereGroups | None" = None) -> torch.Tensor:
         """(P, N): sum over obstacles of ``collision_cost(distance - radius, eta)`` per sphere
         of centre ``points`` (P, N, 3) and radius ``radii`` (P, N)."""
         P, N, _ = points.shape
         r = radii.reshape(-1)
         out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
-        for idx, d in self.pairs(points, eta, radii.reshape(P, N)):
+        for idx, d in self.pairs(points, eta, radii.reshape(P, N), groups):
             if idx is None:
                 out = out + collision_cost(d - r, eta)
             else:
                 out = out.index_add(0, idx, collision_cost(d - r[idx], eta))
         return out.reshape(P, N)
+
+
+class SphereGroups:
+    """A two-level broad phase for points that come in fixed groups: the points (P, N, 3)
+    are (P, C, S, 3), C configurations of S spheres, sphere s in group ``group_of[s]`` (the
+    robot's spheres by link). Per configuration and group: the centre (the mean of its
+    members) and a radius that holds every member sphere (computed from the points, so it
+    needs no rigid-link assumption); an obstacle whose bounding sphere is beyond
+    ``horizon`` of a group's sphere is beyond it for every member, so only the members of
+    groups near an obstacle are tested sphere by sphere. The pairs are those of the flat
+    test (up to float rounding at the horizon, where the cost is zero)."""
+
+    SLACK = 1e-5  # m: the group test is widened by this (float rounding of the triangle inequality)
+
+    def __init__(self, group_of: np.ndarray, device=None, dtype=torch.float32):
+        group_of = np.asarray(group_of, dtype=np.int64)
+        self.S, self.G = len(group_of), int(group_of.max()) + 1
+        members = [np.flatnonzero(group_of == g) for g in range(self.G)]
+        self.table = torch.as_tensor(_pad(members, 0, ()).astype(np.int64), device=device)  # (G, W)
+        self.valid = torch.as_tensor(_pad([np.ones(len(m)) for m in members], 0, ()) > 0, device=device)
+        mean = np.zeros((self.G, self.S))
+        for g, m in enumerate(members):
+            mean[g, m] = 1.0 / len(m)
+        self.mean = torch.as_tensor(mean, device=device, dtype=dtype)
+
+    def candidates(self, points: torch.Tensor, radii: torch.Tensor | None, kind: "_Primitives",
+                   horizon: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(p, n, o) of the (point, obstacle) pairs within ``horizon`` (bounding spheres)
+        whose obstacle is within ``horizon`` of the point's group sphere (exact distance),
+        ordered by point, then obstacle. The pairs the second test drops are beyond
+        ``horizon`` by their exact distance too (it is 1-Lipschitz), so their cost and its
+        gradient are zero."""
+        bound_c, bound_r = kind.bound_c, kind.bound_r
+        P, N, _ = points.shape
+        S, G = self.S, self.G
+        C = N // S
+        O = bound_c.shape[1]
+        x = points.reshape(P, C, S, 3)
+        centre = torch.einsum("gs,pcsi->pcgi", self.mean, x)  # (P, C, G, 3)
+        flat_table = self.table.reshape(-1)
+        member = (x.index_select(2, flat_table).reshape(P, C, G, -1, 3) - centre[:, :, :, None]).norm(dim=-1)
+        if radii is not None:
+            member = member + radii.reshape(P, C, S).index_select(2, flat_table).reshape(P, C, G, -1)
+        reach = member.masked_fill(~self.valid, -FAR).amax(dim=3)  # (P, C, G)
+        coarse = torch.cdist(centre.reshape(P, C * G, 3), bound_c) - bound_r[:, None, :] - reach.reshape(P, -1, 1)
+        p, cg, o = torch.nonzero(coarse < horizon + self.SLACK, as_tuple=True)
+        group_reach = reach.reshape(P * C * G).index_select(0, p * (C * G) + cg)
+        exact = kind.exact(centre.reshape(P * C * G, 3).index_select(0, p * (C * G) + cg), p, o)
+        near = exact - group_reach < horizon + self.SLACK
+        p, cg, o = p[near], cg[near], o[near]
+        c, g = cg // G, cg % G
+        keep = self.valid.index_select(0, g)  # (F, W)
+        pn = ((p * N + c * S)[:, None] + self.table.index_select(0, g))[keep]
+        po = (p * O + o)[:, None].expand_as(keep)[keep]
+        d = ((points.reshape(P * N, 3).index_select(0, pn) - bound_c.reshape(P * O, 3).index_select(0, po)).norm(dim=1)
+             - bound_r.reshape(P * O).index_select(0, po))
+        if radii is not None:
+            d = d - radii.reshape(P * N).index_select(0, pn)
+        near = d < horizon
+        key = pn[near] * O + (po[near] % O)  # the flat test's order: problem, point, obstacle
+        key = key.sort().values
+        pn, o = key // O, key % O
+        return pn // N, pn % N, o
 
 
 def collision_cost(d: torch.Tensor, eta: float) -> torch.Tensor:
@@ -308,6 +389,11 @@ class TorchRobot:
         self.link_index = torch.as_tensor(sp.link_index, device=self.device)
         self.centers_link = torch.as_tensor(sp.centers_link, **dd)
         self.radii = torch.as_tensor(sp.radii, **dd)
+        self.groups = SphereGroups(sp.link_index, self.device, dtype)  # the world broad phase, link by link
+        assert (np.diff(sp.link_index) >= 0).all()  # spheres are stored link by link
+        table, valid = self.groups.table.cpu().numpy(), self.groups.valid.cpu().numpy()
+        self.centers_link_padded = torch.as_tensor(sp.centers_link[table] * valid[..., None], **dd)  # (L, W, 3)
+        self.sphere_slots = torch.as_tensor(np.flatnonzero(valid.reshape(-1)), device=self.device)
         self.P = len(checkers)
         self.finger = torch.as_tensor([c.finger for c in checkers], **dd)
         self.margin = torch.as_tensor([c.margin for c in checkers], **dd)
@@ -329,8 +415,10 @@ class TorchRobot:
         gripper = self.robot.gripper_q(self.finger).to(q)  # (P, G)
         G = gripper.shape[1]
         poses = self.fk.forward(torch.cat([q, gripper[:, None].expand(P, B, G)], dim=2).reshape(P * B, 7 + G))
-        T = torch.stack([poses[l] for l in self.links], dim=1)[:, self.link_index]  # (PB, S, 4, 4)
-        centers = torch.einsum("nsij,sj->nsi", T[..., :3, :3], self.centers_link) + T[..., :3, 3]
+        T = torch.stack([poses[l] for l in self.links], dim=1)  # (PB, L, 4, 4)
+        # Per link, its spheres (padded (L, W)), then the valid ones in sphere order (link-major).
+        centers = torch.einsum("nlij,lwj->nlwi", T[..., :3, :3], self.centers_link_padded) + T[..., None, :3, 3]
+        centers = centers.flatten(1, 2).index_select(1, self.sphere_slots)
         att = None
         if self.has_attachment:
             H = poses[self.robot.hand_link].reshape(P, B, 4, 4)
@@ -398,7 +486,7 @@ class TorchRobot:
         P, B, _ = q.shape
         centers, att = self.spheres(q)
         S = centers.shape[2]
-        d = world.distance(centers.reshape(P, B * S, 3), horizon).reshape(P, B, S) - self.world_radii[:, None]
+        d = world.distance(centers.reshape(P, B * S, 3), horizon, self.groups).reshape(P, B, S) - self.world_radii[:, None]
         clear = torch.minimum(d.amin(dim=2), self.self_distance(centers, horizon) + self_tolerance)
         if att is not None:
             M = att.shape[2]

@@ -138,7 +138,7 @@ class _Costs:
         centers, att = robot.spheres(q.reshape(P, B * n, 7))
         S = centers.shape[2]
         radii = (robot.world_radii + robot.margin[:, None])[:, None].expand(P, B * n, S)
-        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta).reshape(P, B, -1).sum(2)
+        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta, robot.groups).reshape(P, B, -1).sum(2)
         idx, d_self = robot.self_pairs(centers, 0.01 - cfg.self_tolerance)
         per_config = torch.zeros(P * B * n, device=q.device, dtype=q.dtype)
         per_config = per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))

@@ -178,6 +178,27 @@ def print_table(problems, rows, recheck, device) -> None:
           "by the straight segment; batch times are the batch's time over its problems")
 
 
+def summary(rows: dict, recheck: dict) -> dict:
+    """Per planner (``rrtconnect``, ``trajopt``, ``trajopt_batch``): success, median and p95
+    plan time, the median over problems the straight segment did not solve, C-space length
+    (median of the successes) and validity at the finer check."""
+    out = {}
+    for name, results in rows.items():
+        key = "trajopt_batch" if name.startswith("trajopt batch") else name
+        times = [r.planning_time for r in results]
+        searched = [r for r in results if r.status != "direct"]
+        ok = [v for v in recheck[name] if v is not None]
+        out[key] = dict(
+            problems=len(results), success=sum(r.success for r in results) / len(results),
+            median_s=statistics.median(times), p95_s=float(np.percentile(times, 95)),
+            searched=len(searched),
+            searched_median_s=statistics.median([r.planning_time for r in searched]) if searched else None,
+            searched_median_cpu_s=statistics.median([r.cpu_time for r in searched]) if searched else None,
+            cspace_length_median=statistics.median([cspace_length(r.path) for r in results if r.success] or [np.nan]),
+            valid_fine=sum(ok) / max(len(ok), 1), fallback=sum(r.planner == "trajopt+rrtconnect" for r in results))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--suite", default="val")
@@ -188,6 +209,8 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=16, help="problems per batched trajopt call")
     parser.add_argument("--time-limit", type=float, default=10.0, help="s per problem, as the pipelines")
     parser.add_argument("--verbose", action="store_true", help="a line per problem")
+    parser.add_argument("--json", default=None, metavar="PATH",
+                        help="write the figures: one object per planner (rrtconnect, trajopt, trajopt_batch), and run")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
@@ -217,6 +240,15 @@ def main() -> None:
                 f"{name} {rs[i].status}/{rs[i].planner} {rs[i].planning_time:.2f}s len {cspace_length(rs[i].path):.2f}"
                 for name, rs in rows.items()))
     print_table(problems, rows, recheck, device)
+    if args.json:
+        import json
+        import sys
+
+        with open(args.json, "w") as f:
+            json.dump(dict(summary(rows, recheck), run=dict(
+                command=" ".join(sys.argv), suite=args.suite, tasks=args.tasks, world=args.world, full=args.full,
+                device=device, batch=args.batch, threads=torch.get_num_threads(), torch=torch.__version__,
+                problems=len(problems))), f, indent=1)
 
 
 if __name__ == "__main__":

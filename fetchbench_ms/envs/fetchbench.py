@@ -36,21 +36,14 @@ from ..utils.canonical import canonical_lengths, canonical_quat
 from . import composed, pointcloud
 from .composed import ComposedCloud
 from .curriculum import resolve_curriculum
+from .judging import HOLD_SECONDS, SUCCESS_CRITERIA, settle_and_hold, success_flags  # noqa: F401  (public here too)
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
 from .task_source import (  # noqa: F401  (DEFAULT_TASK_SUITE: docs/envs.md names it here too)
     DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, OBJECT_SPLITS, TASK_SOURCES, resolve_task_source, sample_task_cached,
     scene_of)
 
-#: Success thresholds on the target's centre of mass in the robot-base frame, and on the
-#: largest displacement of any other object. "paper": strict inequalities as in the paper;
-#: "release": the original code release's (inclusive) values.
-SUCCESS_CRITERIA = {
-    "paper": dict(min_height=0.30, max_x=0.0, max_others_moved=0.10, inclusive=False),
-    "release": dict(min_height=0.28, max_x=0.15, max_others_moved=0.10, inclusive=True),
-}
 CAMERA_RESOLUTIONS = ((320, 240), (640, 480))
-HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
 # Farthest a finger pad can be from the TCP (the pads span ~2 cm along the hand axis
 # around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
 # this, the fingers cannot touch it.
@@ -758,12 +751,7 @@ class FetchBenchEnv(BaseEnv):
         others = b.valid.clone()
         others[rows, b.target_index] = False
         max_others_moved = torch.where(others, moved, torch.zeros_like(moved)).max(dim=1).values
-        c = SUCCESS_CRITERIA[self.success_criteria]
-        if c["inclusive"]:
-            lifted, retrieved = target_com_base[:, 2] >= c["min_height"], target_com_base[:, 0] <= c["max_x"]
-        else:
-            lifted, retrieved = target_com_base[:, 2] > c["min_height"], target_com_base[:, 0] < c["max_x"]
-        undisturbed = max_others_moved < c["max_others_moved"]
+        flags = success_flags(self.success_criteria, target_com_base, max_others_moved)
         extra = {}
         contacts = None
         if self._reward_mode in ("dense", "normalized_dense"):
@@ -775,7 +763,7 @@ class FetchBenchEnv(BaseEnv):
                 extra["robot_furniture_force"] = contacts["robot_furniture_force"]
         return dict(
             objects_pose=raw_pose,
-            success=lifted & retrieved & undisturbed,
+            success=flags["success"],
             is_grasped=self._is_grasping(target_com_world, contacts),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
@@ -784,9 +772,9 @@ class FetchBenchEnv(BaseEnv):
             max_others_moved=max_others_moved,
             # The target's centre of mass above the success height (not "lifted from its
             # start": a target on a high shelf starts above it; ``target_lift`` is the rise).
-            is_above_height=lifted,
-            is_retrieved=retrieved,
-            others_undisturbed=undisturbed,
+            is_above_height=flags["is_above_height"],
+            is_retrieved=flags["is_retrieved"],
+            others_undisturbed=flags["others_undisturbed"],
             task_filtered=self._task_filtered.clone(),
             **extra,
         )
@@ -1005,34 +993,3 @@ def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:
     bottom = torch.zeros((extrinsic.shape[0], 1, 4), dtype=extrinsic.dtype, device=extrinsic.device)
     bottom[:, 0, 3] = 1
     return torch.cat([extrinsic, bottom], dim=1)
-
-
-def settle_and_hold(env, seconds: float = HOLD_SECONDS) -> dict:
-    """FetchBench's judging step: keep the gripper closed (squeezing) and the arm at its
-    current joint positions for ``seconds`` of simulated time, then evaluate.
-
-    Works for every control mode: it drives the joints directly (not through the
-    controller) and steps the physics, so it does not count as env steps. Returns the
-    ``evaluate()`` dict after the hold.
-    """
-    base = env.unwrapped
-    robot = base.agent.robot
-    joints = robot.active_joints
-    targets = robot.get_qpos().clone()
-    squeeze = getattr(base.agent, "squeeze_targets", None)
-    if squeeze is None:  # the Franka hand
-        is_finger = torch.tensor(["finger" in j.name for j in joints], device=base.device)
-        targets[:, is_finger] = -0.01  # below fully closed (0): the fingers keep squeezing
-    else:
-        for k, joint in enumerate(joints):
-            if joint.name in squeeze:
-                targets[:, k] = squeeze[joint.name]
-    robot.set_joint_drive_targets(targets, joints=joints, joint_indices=torch.arange(len(joints), device=base.device))
-    if base.gpu_sim_enabled:
-        base.scene._gpu_apply_all()
-    for _ in range(int(round(seconds * base.sim_freq))):
-        base.scene.step()
-    if base.gpu_sim_enabled:
-        base.scene.px.gpu_update_articulation_kinematics()
-        base.scene._gpu_fetch_all()
-    return base.evaluate()

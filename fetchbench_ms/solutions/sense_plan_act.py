@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..envs.judging import final_failure, judge  # noqa: F401  (final_failure: public here too)
 from ..method_spec import IMPROVEMENTS, MethodSpec, RunSpec, load, method_spec, pipeline_label
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
@@ -606,18 +607,6 @@ def _return_home(env, spec: MethodSpec, state: EpisodeState, rng) -> bool:
     return plan.success
 
 
-def final_failure(failure: str | None, held_at_end: bool, others_undisturbed: bool) -> str:
-    """The failure class of a failed episode, from the try's own verdict (None: every step
-    went through) and the judge's: another object pushed away is a ``collision``; a target
-    still held but not carried out a ``retrieval_failure``; one not held a ``grasp_failure``.
-    Planning failures and timeouts keep their class."""
-    if failure in (None, "grasp_failure"):
-        if not others_undisturbed:
-            return "collision"
-        return "retrieval_failure" if held_at_end else "grasp_failure"
-    return failure
-
-
 def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt", retries: int = 1,
           config: SolveConfig | None = None, reset: bool = True, grasp_model: str | None = None) -> dict:
     """Run one FetchBench episode with a sense-plan-act baseline; returns its metrics.
@@ -626,8 +615,6 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
     ``retries`` is the number of tries in all (FetchBench's ``--retries 5``); a further try
     is made only if the target moved <= 0.12 m and nothing else moved >= 0.10 m.
     """
-    from ..envs import settle_and_hold
-
     spec = method if isinstance(method, MethodSpec) else method_spec(method)
     if spec.planner is None:
         raise ValueError(f"{spec.name} runs no sense-plan-act pipeline (it has no planner)")
@@ -660,12 +647,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
             break
         if not _return_home(env, spec, state, rng):
             break
-    info = settle_and_hold(env)
-    success = bool(info["success"][0])
-    state.phases["held_at_end"] = bool(env.unwrapped.agent.is_grasping(env.unwrapped.target)[0])
-    if not success:
-        failure = final_failure(failure, held_at_end=state.phases["held_at_end"],
-                                others_undisturbed=bool(info["others_undisturbed"][0]))
+    verdict = judge(env, failure)
+    state.phases["held_at_end"] = verdict.held_at_end
     task = env.unwrapped.tasks[0]
     return {
         "method": spec.name,
@@ -674,8 +657,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
         "scene_type": task.scene_type,
         "category": task.target_label,
         "target_object": task.target.object_id,
-        "success": success,
-        "failure": None if success else failure,
+        "success": verdict.success,
+        "failure": verdict.failure,
         "computation_time": round(state.computation_time, 4),
         "cspace_length": round(state.cspace_length, 4),
         "attempts": attempts,
@@ -684,8 +667,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
         "planning_checks": config.plan_checks_total - state.checks_left,
         "phases": state.phases,
         "grasp_source": state.grasp_source,
-        "target_moved": round(float(info["target_moved"][0]), 4),
-        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
+        "target_moved": verdict.target_moved,
+        "max_others_moved": verdict.max_others_moved,
         "sim_steps": state.sim_steps,
         "notes": state.notes,
         "wall_time": round(time.perf_counter() - t_wall, 2),

@@ -16,7 +16,6 @@ import sapien
 import torch
 from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.envs.sapien_env import BaseEnv
-from mani_skill.envs.utils.observations import ALL_VISUAL_TEXTURES
 from mani_skill.envs.utils.system.backend import sim_backend_name_mapping
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import common, sapien_utils
@@ -33,9 +32,11 @@ from ..tasks.camera_views import paper_camera_pair
 from ..tasks.sampler import SamplerConfig, look_at_quat
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
-from . import composed, pointcloud
-from .composed import ComposedCloud
+from . import pointcloud
 from .curriculum import resolve_curriculum
+from .obs_modes import (  # noqa: F401  (the obs modes' names and checks: public here too)
+    CAMERA_RESOLUTIONS, MANISKILL_OBS_MODES, NAMED_OBS_MODES, NO_RENDER_OBS_MODES, RENDERED_OBS_KEYS, ObsModes,
+    camera_size, check_obs_mode, homogeneous, obs_mode_needs_renderer)
 from .judging import HOLD_SECONDS, SUCCESS_CRITERIA, settle_and_hold, success_flags  # noqa: F401  (public here too)
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
@@ -43,7 +44,6 @@ from .task_source import (  # noqa: F401  (DEFAULT_TASK_SUITE: docs/envs.md name
     DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, OBJECT_SPLITS, TASK_SOURCES, resolve_task_source, sample_task_cached,
     scene_of)
 
-CAMERA_RESOLUTIONS = ((320, 240), (640, 480))
 # Farthest a finger pad can be from the TCP (the pads span ~2 cm along the hand axis
 # around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
 # this, the fingers cannot touch it.
@@ -66,64 +66,12 @@ DISTURB_PENALTY = 0.5
 CONTACT_PENALTY = 0.25
 CONTACT_FORCE = 1.0  # N: a robot link pushing furniture or the robot table harder than this is in contact
 FULL_GC_EVERY = 16  # CPU reconfigures between full garbage collections (see FetchBenchEnv._clear)
-#: Observation modes that need no renderer (no camera data); every other mode renders.
-NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
-#: ManiSkill's named obs modes; any "+"-joined combination of camera textures
-#: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
-NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE,
-                                         pointcloud.POLICY_OBS_MODE, pointcloud.COMPOSED_OBS_MODE)
-#: What ``policy_pointcloud`` asks ManiSkill for: the two textures its points are made of (no colour).
-_POLICY_TEXTURES = "position+segmentation"
-#: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
-MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
-                       "rgb+depth", "rgb+depth+segmentation", "rgb+segmentation", "depth+segmentation",
-                       "pointcloud")
-
-
-def _camera_size(obs_mode: Optional[str], width: Optional[int], height: Optional[int]) -> tuple[int, int]:
-    """The cameras' (width, height): given, or 320x240; ``policy_pointcloud``'s own
-    ``POLICY_CAMERA_SIZE`` (its observation is the policies' input, one resolution)."""
-    if obs_mode == pointcloud.POLICY_OBS_MODE:
-        size = pointcloud.POLICY_CAMERA_SIZE
-        if (width, height) not in ((None, None), size):
-            raise ValueError(f"obs_mode {obs_mode!r} renders its cameras at {size[0]}x{size[1]}; leave "
-                             "camera_width / camera_height unset")
-        return size
-    width, height = 320 if width is None else width, 240 if height is None else height
-    if (width, height) not in CAMERA_RESOLUTIONS:
-        valid = ", ".join(f"{w}x{h}" for w, h in CAMERA_RESOLUTIONS)
-        raise ValueError(f"camera resolution {width}x{height} is not supported; valid: {valid}")
-    return width, height
 
 
 def control_modes() -> tuple[str, ...]:
     """The Panda's control modes (its controller configs are class-level, no robot needed);
     every robot of ``fetchbench_ms.robots`` has the same ones."""
     return tuple(Panda._controller_configs.fget(Panda))
-
-
-def obs_mode_needs_renderer(obs_mode: Optional[str]) -> bool:
-    """Whether ``obs_mode`` reads the cameras (None: ManiSkill's default, "state")."""
-    return obs_mode is not None and obs_mode not in NO_RENDER_OBS_MODES
-
-
-def check_obs_mode(obs_mode: Optional[str], render_backend: Optional[str] = "gpu") -> None:
-    """ValueError naming the valid choices for an obs mode ManiSkill would reject (it
-    asserts deep in its parser) or one that cannot work with ``render_backend``: without
-    a renderer the cameras are never built and the first observation fails on a missing
-    camera (a KeyError), so it is refused here, before anything is built."""
-    valid = (f"{', '.join(NAMED_OBS_MODES)}, or camera textures joined by '+' "
-             f"({', '.join(ALL_VISUAL_TEXTURES)}; e.g. rgb+depth, optionally with +state or +state_dict)")
-    if obs_mode is not None and obs_mode not in NAMED_OBS_MODES:
-        parts = obs_mode.split("+")
-        textures = [p for p in parts if p in ALL_VISUAL_TEXTURES]
-        unknown = [p for p in parts if p not in ALL_VISUAL_TEXTURES and p not in ("state", "state_dict")]
-        if unknown or not textures or len(set(parts)) != len(parts):
-            raise ValueError(f"unknown obs_mode {obs_mode!r}; valid: {valid}")
-    if render_backend in (None, "none") and obs_mode_needs_renderer(obs_mode):
-        raise ValueError(f"obs_mode {obs_mode!r} reads the cameras, which need a renderer, but render_backend="
-                         f"{render_backend!r}; without a renderer valid obs modes: {', '.join(NO_RENDER_OBS_MODES)} "
-                         "(or leave render_backend at its default)")
 
 
 def check_num_envs(num_envs: int, sim_backend: str = "auto") -> None:
@@ -291,7 +239,7 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
         if success_criteria not in SUCCESS_CRITERIA:
             raise ValueError(f"unknown success_criteria {success_criteria!r}; valid: {', '.join(SUCCESS_CRITERIA)}")
-        camera_width, camera_height = _camera_size(kwargs.get("obs_mode"), camera_width, camera_height)
+        camera_width, camera_height = camera_size(kwargs.get("obs_mode"), camera_width, camera_height)
         self.robot_setup = robot_setup(check_robot_uid(robot_uids))
         if object_split not in OBJECT_SPLITS:
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
@@ -303,22 +251,10 @@ class FetchBenchEnv(BaseEnv):
         _check_sim_config(self._sim_freq_kwarg, kwargs.get("sim_config"))
         _check_maniskill_kwargs(type(self), kwargs)
         check_num_envs(num_envs, kwargs.get("sim_backend", "auto"))
-        # compact_pointcloud: ManiSkill's pointcloud mode underneath, compacted in get_obs.
-        self._compact_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPACT_OBS_MODE
-        if self._compact_pointcloud:
-            kwargs["obs_mode"] = "pointcloud"
-        # policy_pointcloud: ManiSkill's position and segmentation textures, made into the
-        # policies' points in get_obs (no colour, no camera cloud, no compact cloud).
-        self._policy_pointcloud = kwargs.get("obs_mode") == pointcloud.POLICY_OBS_MODE
-        if self._policy_pointcloud:
-            kwargs["obs_mode"] = _POLICY_TEXTURES
-        # composed_pointcloud: ManiSkill renders nothing a step (state_dict); the cameras render
-        # once as an episode starts and get_obs composes the points (envs/composed.py).
-        self._composed_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPOSED_OBS_MODE
-        self._composed: Optional[ComposedCloud] = None
-        self._robot_points: Optional[composed.RobotPoints] = None
-        if self._composed_pointcloud:
-            kwargs["obs_mode"] = "state_dict"
+        # FetchBench's obs modes run on one of ManiSkill's (envs/obs_modes.py).
+        self.obs_modes = ObsModes(kwargs.get("obs_mode"))
+        if self.obs_modes.asked != self.obs_modes.maniskill_obs_mode:
+            kwargs["obs_mode"] = self.obs_modes.maniskill_obs_mode
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
@@ -605,9 +541,7 @@ class FetchBenchEnv(BaseEnv):
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
         self._init_contact_queries()
-        # composed_pointcloud keeps its store from here; another camera mode makes one at its
-        # first composed_pointcloud_obs() call (a new task's: made again).
-        self._composed = self._composed_cloud() if self._composed_pointcloud else None
+        self.obs_modes.after_reconfigure(self)
 
     def _init_contact_queries(self) -> None:
         """What the reward's contact terms look up: the robot links that count for
@@ -645,8 +579,7 @@ class FetchBenchEnv(BaseEnv):
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
-            if self._composed is not None:  # these episodes' first observation renders
-                self._composed.stale[env_idx.to(self._composed.device)] = True
+            self.obs_modes.episodes_start(env_idx)  # (composed points: these episodes' first observation renders)
 
     def start_arm_qpos(self, env_idx: int = 0) -> np.ndarray:
         """The arm's start configuration of sub-scene ``env_idx`` (7,): the task's on the
@@ -801,56 +734,14 @@ class FetchBenchEnv(BaseEnv):
             base_inv = self.agent.robot.pose.inv().to_transformation_matrix()  # [B, 4, 4]
             for side in ("left", "right"):
                 params = self._sensors[f"{side}_camera"].get_params()
-                cam2world = torch.linalg.inv(_homogeneous(params["extrinsic_cv"].to(self.device)))
+                cam2world = torch.linalg.inv(homogeneous(params["extrinsic_cv"].to(self.device)))
                 obs[f"cam_pose_base_{side}"] = (base_inv @ cam2world).reshape(self.num_envs, 16)
                 obs[f"cam_intrinsic_{side}"] = params["intrinsic_cv"].to(self.device).reshape(self.num_envs, 9)
         return obs
 
     def get_obs(self, info: Optional[dict] = None, unflattened: bool = False):
-        obs = super().get_obs(info, unflattened=True)
-        if self._obs_mode == "pointcloud":
-            pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
-            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
-        if self._compact_pointcloud or self._policy_pointcloud:
-            steps = common.to_numpy(self.elapsed_steps).reshape(-1)
-            seeds = [pointcloud.compact_seed(int(e), int(t)) for e, t in zip(np.atleast_1d(self._episode_seed), steps)]
-        if self._compact_pointcloud:
-            obs = pointcloud.compact_pointcloud_obs(obs, seeds)
-        if self._policy_pointcloud:
-            obs = self._policy_pointcloud_obs(obs, seeds)
-        if self._composed_pointcloud:
-            obs["pointcloud"] = self.composed_pointcloud_obs()
-        obs = _own_arrays(obs)
+        obs = self.obs_modes.observation(self, super().get_obs(info, unflattened=True))
         return obs if unflattened else self._flatten_raw_obs(obs)
-
-    def _policy_pointcloud_obs(self, obs: dict, seeds: list[int]) -> dict:
-        """``obs`` with the cameras' textures replaced by ``obs["pointcloud"]``: the policies'
-        points (``points`` [B, N, 3] float16, base frame) and labels (``point_label`` [B, N]
-        uint8), made on the render device and moved to the env's."""
-        points_base, labels = pointcloud.camera_points_base(obs, self.segmentation_lut, self._T_base_world())
-        points, point_label = pointcloud.policy_cloud(points_base, labels, torch.tensor(seeds, dtype=torch.int64))
-        out = {k: v for k, v in obs.items() if k != "sensor_data"}
-        out["pointcloud"] = {"points": points.to(self.device), "point_label": point_label.to(self.device)}
-        return out
-
-    def _T_base_world(self) -> torch.Tensor:
-        """[B, 4, 4] world -> robot base (the base is fixed: from the task's base pose)."""
-        p_world_base, R_world_base = self._world_base
-        T = torch.zeros((self.num_envs, 4, 4), device=p_world_base.device)
-        T[:, :3, :3] = R_world_base.transpose(1, 2)
-        T[:, :3, 3] = -(R_world_base.transpose(1, 2) @ p_world_base[..., None])[..., 0]
-        T[:, 3, 3] = 1
-        return T
-
-    def _composed_cloud(self) -> ComposedCloud:
-        """The composed clouds' store, with points fixed on this robot's links (its visual
-        meshes in the link frames, from the first sub-scene: every sub-scene has the same
-        robot; drawn once per env, as the robot stays the same through reconfigurations)."""
-        if self._robot_points is None:
-            meshes = [(link.generate_mesh(lambda link, shape: True, "fetch_composed_points") or [None])[0]
-                      for link in self.agent.robot.links]
-            self._robot_points = composed.robot_link_points(meshes, pointcloud.POLICY_CLOUD_SIZES["robot"])
-        return ComposedCloud(self.num_envs, self._robot_points, self.device)
 
     def composed_pointcloud_obs(self) -> dict:
         """``obs["pointcloud"]`` of ``composed_pointcloud``: the episode-start render of the
@@ -860,45 +751,14 @@ class FetchBenchEnv(BaseEnv):
         Also callable in the other camera modes (a hybrid method whose policy reads these
         points while the env renders full clouds for its grasp network): the first call after
         a reset takes the episode's start, so call it before anything moves."""
-        if self._composed is None:
-            if not self.scene.can_render():
-                raise RuntimeError("composed points render the cameras as an episode starts: this env has no renderer")
-            self._composed = self._composed_cloud()
-        T_base_world = self._T_base_world()
-        T_base_target = T_base_world @ self.target.pose.to_transformation_matrix()
-        stale = torch.nonzero(self._composed.stale).reshape(-1)
-        if len(stale):
-            for obj in self._hidden_objects:
-                obj.hide_visual()
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            textures = {"sensor_data": {}, "sensor_param": {}}
-            for uid, sensor in self._sensors.items():
-                sensor.capture()
-                textures["sensor_data"][uid] = sensor.get_obs(rgb=False, depth=False, position=True, segmentation=True)
-                textures["sensor_param"][uid] = sensor.get_params()
-            points_base, labels = pointcloud.camera_points_base(textures, self.segmentation_lut, T_base_world)
-            seeds = torch.tensor([pointcloud.compact_seed(int(e), 0) for e in np.atleast_1d(self._episode_seed)],
-                                 dtype=torch.int64)
-            rows = stale.to(points_base.device)
-            self._composed.start(stale, points_base[rows], labels[rows], seeds[stale.cpu()], T_base_target[stale])
-        raw = self._links_raw_pose()
-        T_world_links = torch.zeros((*raw.shape[:2], 4, 4), device=raw.device)
-        T_world_links[..., :3, :3] = quaternion_to_matrix(raw[..., 3:])
-        T_world_links[..., :3, 3] = raw[..., :3]
-        T_world_links[..., 3, 3] = 1
-        points, point_label = self._composed.compose(T_base_target, T_base_world[:, None] @ T_world_links)
-        return {"points": points.to(self.device), "point_label": point_label.to(self.device)}
+        return self.obs_modes.composed_points(self)
 
     @property
     def obs_mode(self) -> str:
         """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath,
         ``policy_pointcloud`` its position and segmentation textures, ``composed_pointcloud``
-        ManiSkill's ``state_dict`` with a render as an episode starts)."""
-        if self._compact_pointcloud:
-            return pointcloud.COMPACT_OBS_MODE
-        if self._composed_pointcloud:
-            return pointcloud.COMPOSED_OBS_MODE
-        return pointcloud.POLICY_OBS_MODE if self._policy_pointcloud else self._obs_mode
+        ManiSkill's ``state_dict`` with a render as an episode starts: ``envs/obs_modes.py``)."""
+        return self.obs_modes.name(self._obs_mode)
 
     # ------------------------------------------------------------------ rewards
     def target_surface_distance(self) -> torch.Tensor:
@@ -970,26 +830,3 @@ def paper_camera_poses(task: TaskSpec, scene, aspect: float = 4.0 / 3.0) -> tupl
     left, right = (CameraPose(canonical_lengths(eye), canonical_quat(look_at_quat(eye, target)), fov_x)
                    for eye, target in pair)
     return left, right
-
-
-#: Observation entries made fresh by every render (large): not copied by ``_own_arrays``.
-RENDERED_OBS_KEYS = ("sensor_data", "pointcloud")
-
-
-def _own_arrays(obs):
-    """``obs`` with every tensor its own copy, but the freshly rendered camera data:
-    ManiSkill hands out some buffers as they are (the base pose, camera parameters, on
-    CPU the robot's state), so a kept observation would change under its owner's feet
-    (gymnasium's data-not-reused check). Small tensors: ~2 us each."""
-    if isinstance(obs, torch.Tensor):
-        return obs.clone()
-    if isinstance(obs, dict):
-        return {k: v if k in RENDERED_OBS_KEYS else _own_arrays(v) for k, v in obs.items()}
-    return obs
-
-
-def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:
-    """[B, 3, 4] -> [B, 4, 4]."""
-    bottom = torch.zeros((extrinsic.shape[0], 1, 4), dtype=extrinsic.dtype, device=extrinsic.device)
-    bottom[:, 0, 3] = 1
-    return torch.cat([extrinsic, bottom], dim=1)

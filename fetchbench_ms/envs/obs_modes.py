@@ -154,8 +154,8 @@ class ObsModes:
         """ManiSkill's observation ``obs`` (unflattened) as the asked mode's: the fetch cloud's
         extra fields in ``pointcloud`` (and ``compact_pointcloud``), then compacted, made into
         the policies' points, or composed; every small tensor its own copy."""
-        if env._obs_mode == "pointcloud":
-            pixels = {uid: s.config.width * s.config.height for uid, s in env._sensors.items()}
+        if self.maniskill_obs_mode == "pointcloud":
+            pixels = {uid: s.config.width * s.config.height for uid, s in env.scene.sensors.items()}
             pointcloud.add_fetch_pointcloud(obs, env.segmentation_lut, *env._world_base, pixels)
         if self.compact or self.policy:
             steps = common.to_numpy(env.elapsed_steps).reshape(-1)
@@ -207,7 +207,7 @@ class ObsModes:
                 obj.hide_visual()
             env.scene.update_render(update_sensors=True, update_human_render_cameras=False)
             textures = {"sensor_data": {}, "sensor_param": {}}
-            for uid, sensor in env._sensors.items():
+            for uid, sensor in env.scene.sensors.items():
                 sensor.capture()
                 textures["sensor_data"][uid] = sensor.get_obs(rgb=False, depth=False, position=True, segmentation=True)
                 textures["sensor_param"][uid] = sensor.get_params()

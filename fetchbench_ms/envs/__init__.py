@@ -110,7 +110,8 @@ def make(env_id: str, **kwargs):
 
 #: Names loaded on first use (they import torch and the simulator).
 _LAZY = {
-    "FetchBenchEnv": "fetchbench", "control_modes": "fetchbench", "settle_and_hold": "fetchbench",
+    "FetchBenchEnv": "fetchbench", "control_modes": "fetchbench",
+    "settle_and_hold": "judging", "judge": "judging", "Judgement": "judging",
     "CAMERA_PLACEMENTS": "options", "ENV_OPTIONS": "options", "SIM_FREQS": "options", "parse_env_options": "options",
     "FetchClouds": "pointcloud", "fetch_clouds": "pointcloud", "make_vec_env": "vector",
 }
@@ -122,6 +123,6 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["CAMERA_PLACEMENTS", "ENV_IDS", "ENV_OPTIONS", "FetchBenchEnv", "FetchClouds", "SIM_FREQS", "control_modes",
-           "fetch_clouds", "make", "make_vec_env", "parse_env_options", "register_with_maniskill",
+__all__ = ["CAMERA_PLACEMENTS", "ENV_IDS", "ENV_OPTIONS", "FetchBenchEnv", "FetchClouds", "Judgement", "SIM_FREQS", "control_modes",
+           "fetch_clouds", "judge", "make", "make_vec_env", "parse_env_options", "register_with_maniskill",
            "settle_and_hold"]

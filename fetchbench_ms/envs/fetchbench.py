@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import difflib
 import gc
-import inspect
 import math
 from typing import Any, Optional
 
@@ -16,13 +14,11 @@ import sapien
 import torch
 from mani_skill.agents.robots.panda.panda import Panda
 from mani_skill.envs.sapien_env import BaseEnv
-from mani_skill.envs.utils.observations import ALL_VISUAL_TEXTURES
-from mani_skill.envs.utils.system.backend import sim_backend_name_mapping
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import common, sapien_utils
 from mani_skill.utils.geometry.rotation_conversions import quaternion_to_matrix
 from mani_skill.utils.structs.pose import Pose
-from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
+from mani_skill.utils.structs.types import GPUMemoryConfig
 
 from ..objects.loading import check_object_source
 from ..robots import ROBOT_UIDS, check_robot_uid, robot_setup
@@ -33,187 +29,24 @@ from ..tasks.camera_views import paper_camera_pair
 from ..tasks.sampler import SamplerConfig, look_at_quat
 from ..tasks.spec import CATEGORY_LABELS, CameraPose, TaskSpec, category_name
 from ..utils.canonical import canonical_lengths, canonical_quat
-from . import composed, pointcloud
-from .composed import ComposedCloud
+from . import pointcloud, rewards
+from .checks import (  # noqa: F401  (control_modes, check_num_envs: public here too)
+    check_id_fixes, check_kwarg_names, check_maniskill_kwargs, check_num_envs, check_sim_config, control_modes)
+from .contacts import FINGER_REACH, ContactQueries  # noqa: F401  (FINGER_REACH: public here too)
 from .curriculum import resolve_curriculum
+from .judging import HOLD_SECONDS, SUCCESS_CRITERIA, settle_and_hold, success_flags  # noqa: F401  (public here too)
+from .obs_modes import (  # noqa: F401  (the obs modes' names and checks: public here too)
+    CAMERA_RESOLUTIONS, MANISKILL_OBS_MODES, NAMED_OBS_MODES, NO_RENDER_OBS_MODES, RENDERED_OBS_KEYS, ObsModes,
+    camera_size, check_obs_mode, homogeneous, obs_mode_needs_renderer)
 from .options import DEFAULT_CAMERA_PLACEMENT, check_camera_placement, check_sim_freq
+from .rewards import (  # noqa: F401  (public here too)
+    CONTACT_FORCE, CONTACT_PENALTY, DENSE_REWARD_MAX, DISTURB_PENALTY, REWARD_WEIGHTS)
 from .scene_builder import BuiltTasks, build_tasks, initialize_tasks
 from .task_source import (  # noqa: F401  (DEFAULT_TASK_SUITE: docs/envs.md names it here too)
-    DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, OBJECT_SPLITS, TASK_SOURCES, resolve_task_source, sample_task_cached,
-    scene_of)
+    DEFAULT_OBJECT_SPLIT, DEFAULT_TASK_SUITE, OBJECT_SPLITS, TASK_SOURCES, curriculum_category, resolve_task_source,
+    sample_task_cached, scene_of, tasks_from_options)
 
-#: Success thresholds on the target's centre of mass in the robot-base frame, and on the
-#: largest displacement of any other object. "paper": strict inequalities as in the paper;
-#: "release": the original code release's (inclusive) values.
-SUCCESS_CRITERIA = {
-    "paper": dict(min_height=0.30, max_x=0.0, max_others_moved=0.10, inclusive=False),
-    "release": dict(min_height=0.28, max_x=0.15, max_others_moved=0.10, inclusive=True),
-}
-CAMERA_RESOLUTIONS = ((320, 240), (640, 480))
-HOLD_SECONDS = 10.0  # FetchBench's settle-and-hold before judging
-# Farthest a finger pad can be from the TCP (the pads span ~2 cm along the hand axis
-# around the TCP; 4 cm of opening across), with a margin: beyond the target's radius plus
-# this, the fingers cannot touch it.
-FINGER_REACH = 0.08  # m
-#: The dense reward (``FetchBenchEnv.reward_terms``, docs/rl.md): the stages of a fetch,
-#: each in [0, 1], times these weights. A later stage counts only once the earlier ones
-#: hold (grasp, lift, carry and hold need the grasp), so a state of a later stage earns
-#: more than any state of an earlier one; success earns the maximum.
-REWARD_WEIGHTS = {"reach": 1.0, "grasp": 1.0, "lift": 1.0, "carry": 2.0, "hold": 1.0}
-DENSE_REWARD_MAX = sum(REWARD_WEIGHTS.values())  # 6
-REACH_TOLERANCE = 0.02  # m of TCP-to-surface distance that count as reached (the TCP sits between the pads)
-REACH_SCALE = 5.0  # 1/m: reach = 1 - tanh(5 * distance beyond the tolerance)
-LIFT_HEIGHT = 0.05  # m above its start at which the target is off its support
-CARRY_MARGIN = 0.05  # m past the success thresholds the carry term aims at
-CARRY_SCALE = 3.0  # 1/m
-HOLD_SPEED_SCALE = 5.0  # s/m: hold = 1 - tanh(5 * target speed) once in the success region
-#: Penalties, as fractions of the stage reward taken away: others' largest displacement
-#: (at the success threshold, 0.10 m, and beyond) and robot-furniture contact.
-DISTURB_PENALTY = 0.5
-CONTACT_PENALTY = 0.25
-CONTACT_FORCE = 1.0  # N: a robot link pushing furniture or the robot table harder than this is in contact
 FULL_GC_EVERY = 16  # CPU reconfigures between full garbage collections (see FetchBenchEnv._clear)
-#: Observation modes that need no renderer (no camera data); every other mode renders.
-NO_RENDER_OBS_MODES = ("state", "state_dict", "none")
-#: ManiSkill's named obs modes; any "+"-joined combination of camera textures
-#: (``ALL_VISUAL_TEXTURES``, optionally with "state" / "state_dict") is accepted too.
-NAMED_OBS_MODES = NO_RENDER_OBS_MODES + ("sensor_data", "rgbd", "pointcloud", pointcloud.COMPACT_OBS_MODE,
-                                         pointcloud.POLICY_OBS_MODE, pointcloud.COMPOSED_OBS_MODE)
-#: What ``policy_pointcloud`` asks ManiSkill for: the two textures its points are made of (no colour).
-_POLICY_TEXTURES = "position+segmentation"
-#: The obs modes ManiSkill's BaseEnv documents (all of them work here; tests sweep them).
-MANISKILL_OBS_MODES = ("state", "state_dict", "none", "sensor_data", "rgb", "depth", "segmentation", "rgbd",
-                       "rgb+depth", "rgb+depth+segmentation", "rgb+segmentation", "depth+segmentation",
-                       "pointcloud")
-
-
-def _camera_size(obs_mode: Optional[str], width: Optional[int], height: Optional[int]) -> tuple[int, int]:
-    """The cameras' (width, height): given, or 320x240; ``policy_pointcloud``'s own
-    ``POLICY_CAMERA_SIZE`` (its observation is the policies' input, one resolution)."""
-    if obs_mode == pointcloud.POLICY_OBS_MODE:
-        size = pointcloud.POLICY_CAMERA_SIZE
-        if (width, height) not in ((None, None), size):
-            raise ValueError(f"obs_mode {obs_mode!r} renders its cameras at {size[0]}x{size[1]}; leave "
-                             "camera_width / camera_height unset")
-        return size
-    width, height = 320 if width is None else width, 240 if height is None else height
-    if (width, height) not in CAMERA_RESOLUTIONS:
-        valid = ", ".join(f"{w}x{h}" for w, h in CAMERA_RESOLUTIONS)
-        raise ValueError(f"camera resolution {width}x{height} is not supported; valid: {valid}")
-    return width, height
-
-
-def control_modes() -> tuple[str, ...]:
-    """The Panda's control modes (its controller configs are class-level, no robot needed);
-    every robot of ``fetchbench_ms.robots`` has the same ones."""
-    return tuple(Panda._controller_configs.fget(Panda))
-
-
-def obs_mode_needs_renderer(obs_mode: Optional[str]) -> bool:
-    """Whether ``obs_mode`` reads the cameras (None: ManiSkill's default, "state")."""
-    return obs_mode is not None and obs_mode not in NO_RENDER_OBS_MODES
-
-
-def check_obs_mode(obs_mode: Optional[str], render_backend: Optional[str] = "gpu") -> None:
-    """ValueError naming the valid choices for an obs mode ManiSkill would reject (it
-    asserts deep in its parser) or one that cannot work with ``render_backend``: without
-    a renderer the cameras are never built and the first observation fails on a missing
-    camera (a KeyError), so it is refused here, before anything is built."""
-    valid = (f"{', '.join(NAMED_OBS_MODES)}, or camera textures joined by '+' "
-             f"({', '.join(ALL_VISUAL_TEXTURES)}; e.g. rgb+depth, optionally with +state or +state_dict)")
-    if obs_mode is not None and obs_mode not in NAMED_OBS_MODES:
-        parts = obs_mode.split("+")
-        textures = [p for p in parts if p in ALL_VISUAL_TEXTURES]
-        unknown = [p for p in parts if p not in ALL_VISUAL_TEXTURES and p not in ("state", "state_dict")]
-        if unknown or not textures or len(set(parts)) != len(parts):
-            raise ValueError(f"unknown obs_mode {obs_mode!r}; valid: {valid}")
-    if render_backend in (None, "none") and obs_mode_needs_renderer(obs_mode):
-        raise ValueError(f"obs_mode {obs_mode!r} reads the cameras, which need a renderer, but render_backend="
-                         f"{render_backend!r}; without a renderer valid obs modes: {', '.join(NO_RENDER_OBS_MODES)} "
-                         "(or leave render_backend at its default)")
-
-
-def check_num_envs(num_envs: int, sim_backend: str = "auto") -> None:
-    """ValueError for GPU simulation asked for without a CUDA device, and for several
-    sub-scenes where GPU simulation is impossible (ManiSkill raises a bare RuntimeError
-    about a missing "cuda" device or a CPU backend), naming the ways that work."""
-    backend = str(sim_backend).split(":")[0]
-    if sim_backend_name_mapping.get(backend) == "physx_cuda" and not torch.cuda.is_available():
-        raise ValueError(f"sim_backend={sim_backend!r} simulates on a CUDA GPU, and no CUDA device is available "
-                         "here; valid here: sim_backend='auto' or 'physx_cpu' (one sub-scene an env; for many, "
-                         "fetchbench_ms.envs.make_vec_env)")
-    if num_envs <= 1:
-        return
-    cpu = backend in ("cpu", "physx_cpu")
-    if cpu or not torch.cuda.is_available():
-        why = (f"sim_backend={sim_backend!r} simulates one sub-scene" if cpu
-               else "no CUDA device is available here")
-        raise ValueError(
-            f"num_envs={num_envs} needs GPU simulation, but {why}. Either run sim_backend='physx_cuda' on a "
-            "machine with a CUDA GPU (and SAPIEN's PhysX GPU runtime), or on the CPU use "
-            f"fetchbench_ms.envs.make_vec_env(env_id, {num_envs}, **kwargs): a gymnasium AsyncVectorEnv of "
-            "single-scene CPU envs")
-
-
-def _check_kwarg_names(cls, kwargs: dict) -> None:
-    """ValueError for a keyword argument neither the env nor ManiSkill's ``BaseEnv`` takes
-    (``camera_widht``), with the closest valid name; Python would raise a bare TypeError
-    from deep inside ManiSkill."""
-    taken = {fn: [name for name, p in inspect.signature(fn).parameters.items()
-                  if name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
-             for fn in (cls.__init__, BaseEnv.__init__)}
-    unknown = [name for name in kwargs if name not in taken[BaseEnv.__init__]]
-    if unknown:
-        valid = sorted({name for names in taken.values() for name in names})
-        close = difflib.get_close_matches(unknown[0], valid, n=1)
-        hint = f"did you mean {close[0]!r}? " if close else ""
-        raise ValueError(f"unknown env kwarg {unknown[0]!r}; {hint}valid: {', '.join(valid)}")
-
-
-def _check_maniskill_kwargs(cls, kwargs: dict) -> None:
-    """ValueErrors naming the valid choices for ManiSkill's own kwargs, raised before any
-    scene is built (ManiSkill raises NotImplementedError, KeyError or an assertion)."""
-    control_mode = kwargs.get("control_mode")
-    if control_mode is not None and control_mode not in control_modes():
-        raise ValueError(f"unknown control mode {control_mode!r}; valid: {', '.join(control_modes())}")
-    reward_mode = kwargs.get("reward_mode")
-    if reward_mode is not None and reward_mode not in cls.SUPPORTED_REWARD_MODES:
-        raise ValueError(f"unknown reward_mode {reward_mode!r}; valid: {', '.join(cls.SUPPORTED_REWARD_MODES)}")
-    render_mode = kwargs.get("render_mode")
-    if render_mode is not None and render_mode not in cls.SUPPORTED_RENDER_MODES:
-        raise ValueError(f"unknown render_mode {render_mode!r}; valid: None, {', '.join(cls.SUPPORTED_RENDER_MODES)}")
-    sim_backend = kwargs.get("sim_backend", "auto")
-    if sim_backend != "auto" and str(sim_backend).split(":")[0] not in sim_backend_name_mapping:
-        valid = ", ".join(["auto", *sim_backend_name_mapping])
-        raise ValueError(f"unknown sim_backend {sim_backend!r}; valid: {valid} (a GPU may be named, e.g. cuda:1)")
-    check_obs_mode(kwargs.get("obs_mode"), kwargs.get("render_backend", "gpu"))
-
-
-def _check_sim_config(sim_freq: Optional[int], sim_config) -> None:
-    """ValueError when ManiSkill's ``sim_config`` sets another physics rate than the
-    ``sim_freq`` kwarg (it would silently win over the kwarg)."""
-    if sim_freq is None or sim_config is None:
-        return
-    given = sim_config.sim_freq if isinstance(sim_config, SimConfig) else dict(sim_config).get("sim_freq")
-    if given is not None and given != sim_freq:
-        raise ValueError(f"sim_config sets sim_freq={given!r} but the sim_freq kwarg is {sim_freq!r}; valid: give "
-                         "the physics rate once, as sim_freq=60 or 120 (or only in sim_config)")
-
-
-def _check_id_fixes(id_fixes: Optional[dict], **given) -> None:
-    """ValueError when a kwarg contradicts what the env id fixes (e.g.
-    ``gym.make("FetchBench-Shelf-v0", category="Table")``). ``id_fixes``: the kwargs the id
-    was registered with (``fetchbench_ms.envs.ENV_KWARGS``)."""
-    for key, fixed in (id_fixes or {}).items():
-        if given.get(key) != fixed:
-            from . import ENV_KWARGS
-
-            env_id = next(i for i, kw in ENV_KWARGS.items() if kw == id_fixes)
-            wanted = [i for i, kw in ENV_KWARGS.items() if kw == {key: given.get(key)}]
-            raise ValueError(
-                f"{env_id} is the env for {key}={fixed!r}, but {key}={given.get(key)!r} was given; valid: leave "
-                f"{key} out (or give {key}={fixed!r}), or make " + (f"{wanted[0]} or " if wanted else "")
-                + f"FetchBench-v0 with {key}={given.get(key)!r}")
 
 
 class FetchBenchEnv(BaseEnv):
@@ -291,14 +124,14 @@ class FetchBenchEnv(BaseEnv):
         id_fixes: Optional[dict] = None,
         **kwargs,
     ):
-        _check_kwarg_names(type(self), kwargs)
+        check_kwarg_names(type(self), kwargs)
         category = category_name(category)  # either vocabulary: Shelf or on_shelf
-        _check_id_fixes(id_fixes, scene_type=scene_type, category=category)
+        check_id_fixes(id_fixes, scene_type=scene_type, category=category)
         if scene_type is not None and scene_type not in SCENE_TYPES:
             raise ValueError(f"unknown scene type {scene_type!r}; valid: {', '.join(SCENE_TYPES)}")
         if success_criteria not in SUCCESS_CRITERIA:
             raise ValueError(f"unknown success_criteria {success_criteria!r}; valid: {', '.join(SUCCESS_CRITERIA)}")
-        camera_width, camera_height = _camera_size(kwargs.get("obs_mode"), camera_width, camera_height)
+        camera_width, camera_height = camera_size(kwargs.get("obs_mode"), camera_width, camera_height)
         self.robot_setup = robot_setup(check_robot_uid(robot_uids))
         if object_split not in OBJECT_SPLITS:
             raise ValueError(f"unknown object_split {object_split!r}; valid: {', '.join(OBJECT_SPLITS)}")
@@ -307,32 +140,20 @@ class FetchBenchEnv(BaseEnv):
         self.camera_placement = check_camera_placement(camera_placement)
         # None: 120 Hz, or the rate ManiSkill's ``sim_config`` sets (it overrides the defaults).
         self._sim_freq_kwarg = None if sim_freq is None else check_sim_freq(sim_freq)
-        _check_sim_config(self._sim_freq_kwarg, kwargs.get("sim_config"))
-        _check_maniskill_kwargs(type(self), kwargs)
+        check_sim_config(self._sim_freq_kwarg, kwargs.get("sim_config"))
+        check_maniskill_kwargs(type(self), kwargs)
         check_num_envs(num_envs, kwargs.get("sim_backend", "auto"))
-        # compact_pointcloud: ManiSkill's pointcloud mode underneath, compacted in get_obs.
-        self._compact_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPACT_OBS_MODE
-        if self._compact_pointcloud:
-            kwargs["obs_mode"] = "pointcloud"
-        # policy_pointcloud: ManiSkill's position and segmentation textures, made into the
-        # policies' points in get_obs (no colour, no camera cloud, no compact cloud).
-        self._policy_pointcloud = kwargs.get("obs_mode") == pointcloud.POLICY_OBS_MODE
-        if self._policy_pointcloud:
-            kwargs["obs_mode"] = _POLICY_TEXTURES
-        # composed_pointcloud: ManiSkill renders nothing a step (state_dict); the cameras render
-        # once as an episode starts and get_obs composes the points (envs/composed.py).
-        self._composed_pointcloud = kwargs.get("obs_mode") == pointcloud.COMPOSED_OBS_MODE
-        self._composed: Optional[ComposedCloud] = None
-        self._robot_points: Optional[composed.RobotPoints] = None
-        if self._composed_pointcloud:
-            kwargs["obs_mode"] = "state_dict"
+        # FetchBench's obs modes run on one of ManiSkill's (envs/obs_modes.py).
+        self.obs_modes = ObsModes(kwargs.get("obs_mode"))
+        if self.obs_modes.asked != self.obs_modes.maniskill_obs_mode:
+            kwargs["obs_mode"] = self.obs_modes.maniskill_obs_mode
         self.scene_type = scene_type
         self.category = category
         self.camera_size = (camera_width, camera_height)
         self.success_criteria = success_criteria
         self.curriculum = resolve_curriculum(curriculum)
         self.task_source_kwarg = task_source
-        self._sample_category = self._curriculum_category(category)
+        self._sample_category = curriculum_category(self.curriculum, category, task_source)
         self.sampler_config = SamplerConfig(num_objects=num_objects, object_split=object_split)
         self.task_source, self.task_suite, self._suite_pool = resolve_task_source(
             task_source, task_suite, object_split, scene_type, category, self.curriculum)
@@ -409,7 +230,7 @@ class FetchBenchEnv(BaseEnv):
             self._seed_np_random(seed)
         options = dict(options) if options else {}
         partial = "env_idx" in options and len(options["env_idx"]) != self.num_envs
-        tasks = self._tasks_from_options(options)
+        tasks = tasks_from_options(options, self.task_suite, self.num_envs)
         if tasks is not None and self.curriculum is not None:
             tasks = [self.curriculum.apply(t) for t in tasks]
         ids = [options["task_id"]] * self.num_envs if "task_id" in options else [None] * self.num_envs
@@ -462,27 +283,6 @@ class FetchBenchEnv(BaseEnv):
             raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} sub-scenes; give 1 or {self.num_envs}")
         return seeds
 
-    def _curriculum_category(self, category: Optional[str]) -> Optional[str]:
-        """The category seed-sampled tasks are drawn with: the env's, or the curriculum's
-        one target label; ValueError where the two contradict."""
-        labels = self.curriculum.target_labels if self.curriculum is not None else None
-        if labels is None:
-            return category
-        if category is not None:
-            if CATEGORY_LABELS[category] not in labels:
-                raise ValueError(f"the env's category {category!r} ({CATEGORY_LABELS[category]}) is not among the "
-                                 f"curriculum's target_labels {list(labels)}; valid: target_labels including "
-                                 f"{CATEGORY_LABELS[category]!r}, or an env id of one of "
-                                 + ", ".join(c for c, lab in CATEGORY_LABELS.items() if lab in labels))
-            return category
-        if len(labels) == 1:
-            return next(c for c, lab in CATEGORY_LABELS.items() if lab == labels[0])
-        if self.task_source_kwarg == "sampled":
-            raise ValueError(f"a sampled task is drawn for one category, but the curriculum's target_labels are "
-                             f"{list(labels)}; valid: one target label with task_source='sampled', or "
-                             "task_source='suite'")
-        return None
-
     def suite_task_id(self, seed: int) -> str:
         """The id of the suite task a seed picks (``task_source="suite"``): uniform over the
         suite's tasks of this env's scene type / category, from the seed alone."""
@@ -491,34 +291,6 @@ class FetchBenchEnv(BaseEnv):
     def _sample_task(self, seed: int) -> TaskSpec:
         # A copy: a TaskSpec's dict fields (scene_params, extra) could be changed by a caller.
         return copy.deepcopy(sample_task_cached(seed, self.scene_type, self._sample_category, self.sampler_config))
-
-    def _tasks_from_options(self, options: dict) -> Optional[list[TaskSpec]]:
-        given = [k for k in ("task", "tasks", "task_id") if k in options]
-        if len(given) > 1:
-            raise ValueError(f"reset options give {', '.join(given)}; give only one of task, tasks, task_id")
-        if not given:
-            return None
-        if "task_id" in options:
-            if self.task_suite is None:
-                raise ValueError("reset option task_id needs a task suite: make the env with task_suite=PATH")
-            task = self.task_suite.get(options["task_id"])
-            # Recorded demos name their task by id and content hash: a suite rebuilt since
-            # (ids are positions in its stratified order) must not replay another task.
-            if "task_hash" in options and task.content_hash()[: len(options["task_hash"])] != options["task_hash"]:
-                raise ValueError(f"task {options['task_id']!r} of suite {self.task_suite.name!r} is not the task "
-                                 f"recorded (content hash {task.content_hash()[:16]} != {options['task_hash']}): the "
-                                 "suite changed since; regenerate the trajectories (docs/demos.md)")
-            return [task] * self.num_envs
-        if "task_hash" in options:
-            raise ValueError("reset option task_hash goes with task_id (it checks the suite's task); valid: "
-                             "task_id with an optional task_hash, task, or tasks")
-        if "task" in options:
-            task = options["task"]
-            return [task if isinstance(task, TaskSpec) else TaskSpec.from_dict(task)] * self.num_envs
-        tasks = options["tasks"]
-        if not isinstance(tasks, (list, tuple)) or len(tasks) != self.num_envs:
-            raise ValueError(f"reset option tasks must be a list of {self.num_envs} task dicts")
-        return [t if isinstance(t, TaskSpec) else TaskSpec.from_dict(t) for t in tasks]
 
     def _check_task(self, task: TaskSpec) -> None:
         check_object_source(task.object_source)
@@ -611,32 +383,8 @@ class FetchBenchEnv(BaseEnv):
         self._initial_com_world = self._com_world(b.initial_pose)
         # The base is the articulation's fixed root, placed by the task: its frame is constant.
         self._world_base = (b.base_pose[:, :3], quaternion_to_matrix(b.base_pose[:, 3:]))
-        self._init_contact_queries()
-        # composed_pointcloud keeps its store from here; another camera mode makes one at its
-        # first composed_pointcloud_obs() call (a new task's: made again).
-        self._composed = self._composed_cloud() if self._composed_pointcloud else None
-
-    def _init_contact_queries(self) -> None:
-        """What the reward's contact terms look up: the robot links that count for
-        robot-furniture contact (all but the base, which stands on the robot table) and the
-        static furniture and robot table of each sub-scene. On the GPU one pairwise impulse
-        query holds every (link, furniture / robot table) pair of every sub-scene; on the
-        CPU the contact list is walked once a step (``_contact_forces_cpu``)."""
-        b = self.built
-        links = [link for link in self.agent.robot.links if link.name != self.robot_setup.base_link]
-        if self.gpu_sim_enabled:
-            # Made on first use (as ManiSkill's own pairwise queries), after the GPU system is set up.
-            self._furniture_query = None
-            self._furniture_pairs = [(link._bodies[i], statics[i]._bodies[0]) for link in links
-                                     for statics in (b.furniture, b.robot_tables) for i in range(self.num_envs)]
-            self._furniture_query_shape = (len(links) * 2, self.num_envs, 3)
-            return
-        # The physics components themselves: SAPIEN hands out the same Python object for a
-        # body every time, so a contact's bodies are found by identity (4x faster than
-        # comparing entity ids, with ~150 resting contacts a step).
-        self._robot_bodies = frozenset(link._bodies[0] for link in links)
-        self._furniture_bodies = frozenset(a._bodies[0] for a in b.furniture + b.robot_tables)
-        self._finger_bodies = (self.agent.finger1_link._bodies[0], self.agent.finger2_link._bodies[0])
+        self.contact_queries = ContactQueries(self)
+        self.obs_modes.after_reconfigure(self)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
@@ -652,8 +400,7 @@ class FetchBenchEnv(BaseEnv):
                 qpos[:, :7] += torch.tensor(noise, dtype=torch.float32).reshape(len(env_idx), 7)
             self.agent.reset(qpos)
             self.agent.robot.set_root_pose(Pose.create(b.base_pose[env_idx]))
-            if self._composed is not None:  # these episodes' first observation renders
-                self._composed.stale[env_idx.to(self._composed.device)] = True
+            self.obs_modes.episodes_start(env_idx)  # (composed points: these episodes' first observation renders)
 
     def start_arm_qpos(self, env_idx: int = 0) -> np.ndarray:
         """The arm's start configuration of sub-scene ``env_idx`` (7,): the task's on the
@@ -686,66 +433,9 @@ class FetchBenchEnv(BaseEnv):
         poses = [link._objs[0].entity_pose for link in self.agent.robot.links]
         return torch.from_numpy(np.array([np.concatenate([p.p, p.q]) for p in poses], dtype=np.float32))[None]
 
-    def _is_grasping(self, target_com_world: torch.Tensor, contacts: Optional[dict] = None) -> torch.Tensor:
-        """The Panda's grasp test: both fingers push on the target (>= 0.5 N, within 85 deg
-        of their closing direction), as ``Panda.is_grasping``.
-
-        On CPU that test walks the scene's contact list in Python twice (once per finger),
-        which with ~15 resting objects costs more than the physics step. Here the fingers'
-        forces come from one pass that also serves the reward's furniture contacts
-        (``contacts``, from ``_contact_forces_cpu``), and without it the test is skipped
-        while the TCP is too far for the fingers to touch the target."""
-        if self.gpu_sim_enabled:
-            return self.agent.is_grasping(self.target)
-        not_grasping = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-        reach = self.built.target_radius + FINGER_REACH
-        if not bool((torch.linalg.norm(self.agent.tcp.pose.p - target_com_world, dim=1) < reach).any()):
-            return not_grasping
-        if contacts is None:
-            contacts = self._contact_forces_cpu(furniture=False)
-        l_force, r_force = contacts["finger_forces"]
-        if not (bool(l_force.any()) and bool(r_force.any())):
-            return not_grasping
-        agent = self.agent
-        l_sign, r_sign = self.robot_setup.finger_open_signs
-        l_open = l_sign * agent.finger1_link.pose.to_transformation_matrix()[..., :3, 1]  # direction that opens the finger
-        r_open = r_sign * agent.finger2_link.pose.to_transformation_matrix()[..., :3, 1]
-        flags = []
-        for force, direction in ((l_force, l_open), (r_force, r_open)):
-            angle = common.compute_angle_between(direction, force)
-            flags.append((torch.linalg.norm(force, dim=1) >= 0.5) & (torch.rad2deg(angle) <= 85))
-        return flags[0] & flags[1]
-
     def _contact_forces_cpu(self, furniture: bool = True) -> dict:
-        """One pass over the CPU contact list: ``finger_forces``, the target's contact force
-        [1, 3] on each finger, and (``furniture``) ``robot_furniture_force`` [1], the
-        total force between robot links (not the base) and the furniture / robot table."""
-        fingers, target = self._finger_bodies, self.target._bodies[0]
-        robot, statics = self._robot_bodies, self._furniture_bodies
-        finger_impulse = np.zeros((2, 3))
-        furniture_impulse = 0.0
-        for contact in self.scene.px.get_contacts():
-            b0, b1 = contact.bodies
-            if b1 is target or b0 is target:
-                # Impulses act on the first body.
-                finger, sign = (b0, 1.0) if b1 is target else (b1, -1.0)
-                for k in (0, 1):
-                    if finger is fingers[k]:
-                        finger_impulse[k] += sign * np.sum([point.impulse for point in contact.points], axis=0)
-            elif furniture and ((b0 in robot and b1 in statics) or (b1 in robot and b0 in statics)):
-                furniture_impulse += float(np.linalg.norm(np.sum([p.impulse for p in contact.points], axis=0)))
-        dt = self.scene.px.timestep
-        forces = torch.tensor(finger_impulse / dt, dtype=torch.float32, device=self.device)
-        return dict(finger_forces=(forces[0:1], forces[1:2]),
-                    robot_furniture_force=torch.tensor([furniture_impulse / dt], dtype=torch.float32, device=self.device))
-
-    def _robot_furniture_force_gpu(self) -> torch.Tensor:
-        """[B] total force between robot links and furniture / robot table (GPU sim)."""
-        if self._furniture_query is None:
-            self._furniture_query = self.scene.px.gpu_create_contact_pair_impulse_query(self._furniture_pairs)
-        self.scene.px.gpu_query_contact_pair_impulses(self._furniture_query)
-        impulses = self._furniture_query.cuda_impulses.torch().reshape(self._furniture_query_shape)
-        return torch.linalg.norm(impulses, dim=-1).sum(dim=0) / self.scene.px.timestep
+        """One pass over the CPU contact list (``ContactQueries.forces_cpu``)."""
+        return self.contact_queries.forces_cpu(self, furniture)
 
     def evaluate(self):
         b = self.built
@@ -758,25 +448,20 @@ class FetchBenchEnv(BaseEnv):
         others = b.valid.clone()
         others[rows, b.target_index] = False
         max_others_moved = torch.where(others, moved, torch.zeros_like(moved)).max(dim=1).values
-        c = SUCCESS_CRITERIA[self.success_criteria]
-        if c["inclusive"]:
-            lifted, retrieved = target_com_base[:, 2] >= c["min_height"], target_com_base[:, 0] <= c["max_x"]
-        else:
-            lifted, retrieved = target_com_base[:, 2] > c["min_height"], target_com_base[:, 0] < c["max_x"]
-        undisturbed = max_others_moved < c["max_others_moved"]
+        flags = success_flags(self.success_criteria, target_com_base, max_others_moved)
         extra = {}
         contacts = None
-        if self._reward_mode in ("dense", "normalized_dense"):
+        if self.reward_mode in ("dense", "normalized_dense"):
             # The reward's furniture contacts, from the same pass as the grasp test on CPU.
             if self.gpu_sim_enabled:
-                extra["robot_furniture_force"] = self._robot_furniture_force_gpu()
+                extra["robot_furniture_force"] = self.contact_queries.robot_furniture_force_gpu(self)
             else:
-                contacts = self._contact_forces_cpu()
+                contacts = self.contact_queries.forces_cpu(self)
                 extra["robot_furniture_force"] = contacts["robot_furniture_force"]
         return dict(
             objects_pose=raw_pose,
-            success=lifted & retrieved & undisturbed,
-            is_grasped=self._is_grasping(target_com_world, contacts),
+            success=flags["success"],
+            is_grasped=self.contact_queries.is_grasping(self, target_com_world, contacts),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],
@@ -784,9 +469,9 @@ class FetchBenchEnv(BaseEnv):
             max_others_moved=max_others_moved,
             # The target's centre of mass above the success height (not "lifted from its
             # start": a target on a high shelf starts above it; ``target_lift`` is the rise).
-            is_above_height=lifted,
-            is_retrieved=retrieved,
-            others_undisturbed=undisturbed,
+            is_above_height=flags["is_above_height"],
+            is_retrieved=flags["is_retrieved"],
+            others_undisturbed=flags["others_undisturbed"],
             task_filtered=self._task_filtered.clone(),
             **extra,
         )
@@ -812,57 +497,15 @@ class FetchBenchEnv(BaseEnv):
             obs["target_segmentation_id"] = self.target.per_scene_id.to(self.device)
             base_inv = self.agent.robot.pose.inv().to_transformation_matrix()  # [B, 4, 4]
             for side in ("left", "right"):
-                params = self._sensors[f"{side}_camera"].get_params()
-                cam2world = torch.linalg.inv(_homogeneous(params["extrinsic_cv"].to(self.device)))
+                params = self.scene.sensors[f"{side}_camera"].get_params()
+                cam2world = torch.linalg.inv(homogeneous(params["extrinsic_cv"].to(self.device)))
                 obs[f"cam_pose_base_{side}"] = (base_inv @ cam2world).reshape(self.num_envs, 16)
                 obs[f"cam_intrinsic_{side}"] = params["intrinsic_cv"].to(self.device).reshape(self.num_envs, 9)
         return obs
 
     def get_obs(self, info: Optional[dict] = None, unflattened: bool = False):
-        obs = super().get_obs(info, unflattened=True)
-        if self._obs_mode == "pointcloud":
-            pixels = {uid: s.config.width * s.config.height for uid, s in self._sensors.items()}
-            pointcloud.add_fetch_pointcloud(obs, self.segmentation_lut, *self._world_base, pixels)
-        if self._compact_pointcloud or self._policy_pointcloud:
-            steps = common.to_numpy(self.elapsed_steps).reshape(-1)
-            seeds = [pointcloud.compact_seed(int(e), int(t)) for e, t in zip(np.atleast_1d(self._episode_seed), steps)]
-        if self._compact_pointcloud:
-            obs = pointcloud.compact_pointcloud_obs(obs, seeds)
-        if self._policy_pointcloud:
-            obs = self._policy_pointcloud_obs(obs, seeds)
-        if self._composed_pointcloud:
-            obs["pointcloud"] = self.composed_pointcloud_obs()
-        obs = _own_arrays(obs)
+        obs = self.obs_modes.observation(self, super().get_obs(info, unflattened=True))
         return obs if unflattened else self._flatten_raw_obs(obs)
-
-    def _policy_pointcloud_obs(self, obs: dict, seeds: list[int]) -> dict:
-        """``obs`` with the cameras' textures replaced by ``obs["pointcloud"]``: the policies'
-        points (``points`` [B, N, 3] float16, base frame) and labels (``point_label`` [B, N]
-        uint8), made on the render device and moved to the env's."""
-        points_base, labels = pointcloud.camera_points_base(obs, self.segmentation_lut, self._T_base_world())
-        points, point_label = pointcloud.policy_cloud(points_base, labels, torch.tensor(seeds, dtype=torch.int64))
-        out = {k: v for k, v in obs.items() if k != "sensor_data"}
-        out["pointcloud"] = {"points": points.to(self.device), "point_label": point_label.to(self.device)}
-        return out
-
-    def _T_base_world(self) -> torch.Tensor:
-        """[B, 4, 4] world -> robot base (the base is fixed: from the task's base pose)."""
-        p_world_base, R_world_base = self._world_base
-        T = torch.zeros((self.num_envs, 4, 4), device=p_world_base.device)
-        T[:, :3, :3] = R_world_base.transpose(1, 2)
-        T[:, :3, 3] = -(R_world_base.transpose(1, 2) @ p_world_base[..., None])[..., 0]
-        T[:, 3, 3] = 1
-        return T
-
-    def _composed_cloud(self) -> ComposedCloud:
-        """The composed clouds' store, with points fixed on this robot's links (its visual
-        meshes in the link frames, from the first sub-scene: every sub-scene has the same
-        robot; drawn once per env, as the robot stays the same through reconfigurations)."""
-        if self._robot_points is None:
-            meshes = [(link.generate_mesh(lambda link, shape: True, "fetch_composed_points") or [None])[0]
-                      for link in self.agent.robot.links]
-            self._robot_points = composed.robot_link_points(meshes, pointcloud.POLICY_CLOUD_SIZES["robot"])
-        return ComposedCloud(self.num_envs, self._robot_points, self.device)
 
     def composed_pointcloud_obs(self) -> dict:
         """``obs["pointcloud"]`` of ``composed_pointcloud``: the episode-start render of the
@@ -872,100 +515,31 @@ class FetchBenchEnv(BaseEnv):
         Also callable in the other camera modes (a hybrid method whose policy reads these
         points while the env renders full clouds for its grasp network): the first call after
         a reset takes the episode's start, so call it before anything moves."""
-        if self._composed is None:
-            if not self.scene.can_render():
-                raise RuntimeError("composed points render the cameras as an episode starts: this env has no renderer")
-            self._composed = self._composed_cloud()
-        T_base_world = self._T_base_world()
-        T_base_target = T_base_world @ self.target.pose.to_transformation_matrix()
-        stale = torch.nonzero(self._composed.stale).reshape(-1)
-        if len(stale):
-            for obj in self._hidden_objects:
-                obj.hide_visual()
-            self.scene.update_render(update_sensors=True, update_human_render_cameras=False)
-            textures = {"sensor_data": {}, "sensor_param": {}}
-            for uid, sensor in self._sensors.items():
-                sensor.capture()
-                textures["sensor_data"][uid] = sensor.get_obs(rgb=False, depth=False, position=True, segmentation=True)
-                textures["sensor_param"][uid] = sensor.get_params()
-            points_base, labels = pointcloud.camera_points_base(textures, self.segmentation_lut, T_base_world)
-            seeds = torch.tensor([pointcloud.compact_seed(int(e), 0) for e in np.atleast_1d(self._episode_seed)],
-                                 dtype=torch.int64)
-            rows = stale.to(points_base.device)
-            self._composed.start(stale, points_base[rows], labels[rows], seeds[stale.cpu()], T_base_target[stale])
-        raw = self._links_raw_pose()
-        T_world_links = torch.zeros((*raw.shape[:2], 4, 4), device=raw.device)
-        T_world_links[..., :3, :3] = quaternion_to_matrix(raw[..., 3:])
-        T_world_links[..., :3, 3] = raw[..., :3]
-        T_world_links[..., 3, 3] = 1
-        points, point_label = self._composed.compose(T_base_target, T_base_world[:, None] @ T_world_links)
-        return {"points": points.to(self.device), "point_label": point_label.to(self.device)}
+        return self.obs_modes.composed_points(self)
 
     @property
     def obs_mode(self) -> str:
         """The obs mode asked for (``compact_pointcloud`` is ManiSkill's ``pointcloud`` underneath,
         ``policy_pointcloud`` its position and segmentation textures, ``composed_pointcloud``
-        ManiSkill's ``state_dict`` with a render as an episode starts)."""
-        if self._compact_pointcloud:
-            return pointcloud.COMPACT_OBS_MODE
-        if self._composed_pointcloud:
-            return pointcloud.COMPOSED_OBS_MODE
-        return pointcloud.POLICY_OBS_MODE if self._policy_pointcloud else self._obs_mode
+        ManiSkill's ``state_dict`` with a render as an episode starts: ``envs/obs_modes.py``)."""
+        return self.obs_modes.name(super().obs_mode)
 
-    # ------------------------------------------------------------------ rewards
+    # ------------------------------------------------------------------ rewards (envs/rewards.py)
     def target_surface_distance(self) -> torch.Tensor:
-        """[B] distance from the TCP to the nearest of the target's surface points (the TCP
-        taken into the target's frame: one point turned instead of 512)."""
-        pose = self.target.pose
-        R = quaternion_to_matrix(pose.q)  # [B, 3, 3]
-        tcp_local = ((self.agent.tcp.pose.p - pose.p)[:, None] @ R)[:, 0]  # R^T (tcp - p), as a row
-        return torch.linalg.norm(self.built.target_surface - tcp_local[:, None], dim=-1).min(dim=1).values
+        """[B] distance from the TCP to the nearest of the target's surface points."""
+        return rewards.target_surface_distance(self)
 
     def reward_terms(self, info: dict) -> dict[str, torch.Tensor]:
-        """The dense reward's parts, each [B] in [0, 1] (docs/rl.md):
-
-        - ``reach``: 1 - tanh(5 x the TCP's distance to the target's surface beyond 2 cm); 1 once grasped;
-        - ``grasp``: both fingers push on the target (``is_grasped``);
-        - ``lift``: grasped, and the target's rise above its start over 5 cm (1 in the success region);
-        - ``carry``: grasped, and 1 - tanh(3 x the target's distance to 5 cm inside the
-          success region, in the base frame): out of the furniture toward the free space;
-        - ``hold``: grasped inside the success region (lifted and retrieved), and still:
-          1 - tanh(5 x the target's speed);
-        - ``disturb``: the other objects' largest move over the success threshold (0.10 m), clipped to 1;
-        - ``contact``: a robot link (not the base) pushes furniture or the robot table > 1 N.
-        """
-        c = SUCCESS_CRITERIA[self.success_criteria]
-        grasped = info["is_grasped"].float()
-        reach = torch.maximum(1 - torch.tanh(REACH_SCALE * torch.relu(self.target_surface_distance() - REACH_TOLERANCE)),
-                              grasped)
-        in_region = (info["is_above_height"] & info["is_retrieved"]).float()
-        # Out in the success region counts as off the support, also where the carry went
-        # down from a high shelf to below the target's start height.
-        lift = grasped * torch.maximum(torch.clamp(info["target_lift"] / LIFT_HEIGHT, 0.0, 1.0), in_region)
-        com = info["target_com_base"]
-        shortfall = torch.stack([torch.relu(com[:, 0] - (c["max_x"] - CARRY_MARGIN)),
-                                 torch.relu((c["min_height"] + CARRY_MARGIN) - com[:, 2])], dim=1)
-        carry = grasped * (1 - torch.tanh(CARRY_SCALE * torch.linalg.norm(shortfall, dim=1)))
-        speed = torch.linalg.norm(self.target.linear_velocity, dim=1)
-        hold = grasped * in_region * (1 - torch.tanh(HOLD_SPEED_SCALE * speed))
-        disturb = torch.clamp(info["max_others_moved"] / c["max_others_moved"], 0.0, 1.0)
-        force = info.get("robot_furniture_force")
-        contact = (force > CONTACT_FORCE).float() if force is not None else torch.zeros_like(grasped)
-        return dict(reach=reach, grasp=grasped, lift=lift, carry=carry, hold=hold, disturb=disturb, contact=contact)
+        """The dense reward's parts, each [B] in [0, 1] (``rewards.reward_terms``, docs/rl.md)."""
+        return rewards.reward_terms(self, info)
 
     def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
-        """The weighted stages (``REWARD_WEIGHTS``, at most 6) times the penalty factor
-        (1 - 0.5 disturb)(1 - 0.25 contact), in [0, 6]; 6 on success."""
-        terms = self.reward_terms(info)
-        stages = sum(weight * terms[name] for name, weight in REWARD_WEIGHTS.items())
-        factor = (1 - DISTURB_PENALTY * terms["disturb"]) * (1 - CONTACT_PENALTY * terms["contact"])
-        reward = stages * factor
-        return torch.where(info["success"], torch.full_like(reward, DENSE_REWARD_MAX), reward)
+        """The weighted stages times the penalty factor, in [0, 6]; 6 on success (``rewards.dense_reward``)."""
+        return rewards.dense_reward(self, info)
 
     def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict):
         """The dense reward over its maximum: in [0, 1]."""
         return self.compute_dense_reward(obs=obs, action=action, info=info) / DENSE_REWARD_MAX
-
 
 #: Mixed into the seed of ``paper_camera_poses``, so its draws are its own.
 PAPER_CAMERA_SALT = 0x70617065  # "pape"
@@ -982,57 +556,3 @@ def paper_camera_poses(task: TaskSpec, scene, aspect: float = 4.0 / 3.0) -> tupl
     left, right = (CameraPose(canonical_lengths(eye), canonical_quat(look_at_quat(eye, target)), fov_x)
                    for eye, target in pair)
     return left, right
-
-
-#: Observation entries made fresh by every render (large): not copied by ``_own_arrays``.
-RENDERED_OBS_KEYS = ("sensor_data", "pointcloud")
-
-
-def _own_arrays(obs):
-    """``obs`` with every tensor its own copy, but the freshly rendered camera data:
-    ManiSkill hands out some buffers as they are (the base pose, camera parameters, on
-    CPU the robot's state), so a kept observation would change under its owner's feet
-    (gymnasium's data-not-reused check). Small tensors: ~2 us each."""
-    if isinstance(obs, torch.Tensor):
-        return obs.clone()
-    if isinstance(obs, dict):
-        return {k: v if k in RENDERED_OBS_KEYS else _own_arrays(v) for k, v in obs.items()}
-    return obs
-
-
-def _homogeneous(extrinsic: torch.Tensor) -> torch.Tensor:
-    """[B, 3, 4] -> [B, 4, 4]."""
-    bottom = torch.zeros((extrinsic.shape[0], 1, 4), dtype=extrinsic.dtype, device=extrinsic.device)
-    bottom[:, 0, 3] = 1
-    return torch.cat([extrinsic, bottom], dim=1)
-
-
-def settle_and_hold(env, seconds: float = HOLD_SECONDS) -> dict:
-    """FetchBench's judging step: keep the gripper closed (squeezing) and the arm at its
-    current joint positions for ``seconds`` of simulated time, then evaluate.
-
-    Works for every control mode: it drives the joints directly (not through the
-    controller) and steps the physics, so it does not count as env steps. Returns the
-    ``evaluate()`` dict after the hold.
-    """
-    base = env.unwrapped
-    robot = base.agent.robot
-    joints = robot.active_joints
-    targets = robot.get_qpos().clone()
-    squeeze = getattr(base.agent, "squeeze_targets", None)
-    if squeeze is None:  # the Franka hand
-        is_finger = torch.tensor(["finger" in j.name for j in joints], device=base.device)
-        targets[:, is_finger] = -0.01  # below fully closed (0): the fingers keep squeezing
-    else:
-        for k, joint in enumerate(joints):
-            if joint.name in squeeze:
-                targets[:, k] = squeeze[joint.name]
-    robot.set_joint_drive_targets(targets, joints=joints, joint_indices=torch.arange(len(joints), device=base.device))
-    if base.gpu_sim_enabled:
-        base.scene._gpu_apply_all()
-    for _ in range(int(round(seconds * base.sim_freq))):
-        base.scene.step()
-    if base.gpu_sim_enabled:
-        base.scene.px.gpu_update_articulation_kinematics()
-        base.scene._gpu_fetch_all()
-    return base.evaluate()

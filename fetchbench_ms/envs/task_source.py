@@ -124,3 +124,56 @@ def scene_of(task: TaskSpec):
             del _SCENES[next(iter(_SCENES))]
         _SCENES[key] = spec
     return spec
+
+
+def curriculum_category(curriculum, category: Optional[str], task_source: Optional[str]) -> Optional[str]:
+    """The category seed-sampled tasks are drawn with: the env's, or the curriculum's one
+    target label; ValueError where the two contradict (``task_source``: the env's kwarg)."""
+    labels = curriculum.target_labels if curriculum is not None else None
+    if labels is None:
+        return category
+    if category is not None:
+        if CATEGORY_LABELS[category] not in labels:
+            raise ValueError(f"the env's category {category!r} ({CATEGORY_LABELS[category]}) is not among the "
+                             f"curriculum's target_labels {list(labels)}; valid: target_labels including "
+                             f"{CATEGORY_LABELS[category]!r}, or an env id of one of "
+                             + ", ".join(c for c, lab in CATEGORY_LABELS.items() if lab in labels))
+        return category
+    if len(labels) == 1:
+        return next(c for c, lab in CATEGORY_LABELS.items() if lab == labels[0])
+    if task_source == "sampled":
+        raise ValueError(f"a sampled task is drawn for one category, but the curriculum's target_labels are "
+                         f"{list(labels)}; valid: one target label with task_source='sampled', or "
+                         "task_source='suite'")
+    return None
+
+
+def tasks_from_options(options: dict, task_suite, num_envs: int) -> Optional[list[TaskSpec]]:
+    """The tasks a reset's ``options`` give, one per sub-scene (``task``, ``tasks``, or
+    ``task_id`` of ``task_suite`` with an optional ``task_hash``); None when they give none."""
+    given = [k for k in ("task", "tasks", "task_id") if k in options]
+    if len(given) > 1:
+        raise ValueError(f"reset options give {', '.join(given)}; give only one of task, tasks, task_id")
+    if not given:
+        return None
+    if "task_id" in options:
+        if task_suite is None:
+            raise ValueError("reset option task_id needs a task suite: make the env with task_suite=PATH")
+        task = task_suite.get(options["task_id"])
+        # Recorded demos name their task by id and content hash: a suite rebuilt since
+        # (ids are positions in its stratified order) must not replay another task.
+        if "task_hash" in options and task.content_hash()[: len(options["task_hash"])] != options["task_hash"]:
+            raise ValueError(f"task {options['task_id']!r} of suite {task_suite.name!r} is not the task "
+                             f"recorded (content hash {task.content_hash()[:16]} != {options['task_hash']}): the "
+                             "suite changed since; regenerate the trajectories (docs/demos.md)")
+        return [task] * num_envs
+    if "task_hash" in options:
+        raise ValueError("reset option task_hash goes with task_id (it checks the suite's task); valid: "
+                         "task_id with an optional task_hash, task, or tasks")
+    if "task" in options:
+        task = options["task"]
+        return [task if isinstance(task, TaskSpec) else TaskSpec.from_dict(task)] * num_envs
+    tasks = options["tasks"]
+    if not isinstance(tasks, (list, tuple)) or len(tasks) != num_envs:
+        raise ValueError(f"reset option tasks must be a list of {num_envs} task dicts")
+    return [t if isinstance(t, TaskSpec) else TaskSpec.from_dict(t) for t in tasks]

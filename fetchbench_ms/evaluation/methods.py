@@ -192,20 +192,12 @@ def method_runner(run: RunSpec) -> Callable:
 
 
 def run_idle(env, seed) -> dict:
-    """Hold the start configuration with the gripper open, then FetchBench's judge."""
-    from ..envs import settle_and_hold
+    """Hold the start configuration with the gripper open, then FetchBench's judge (a failed
+    episode is ``not_attempted``)."""
+    from ..envs.judging import judge
 
-    info = settle_and_hold(env)
-    success = bool(info["success"][0])
-    return {
-        "success": success,
-        "failure": None if success else "not_attempted",
-        "computation_time": 0.0,
-        "cspace_length": 0.0,
-        "phases": {},
-        "target_moved": round(float(info["target_moved"][0]), 4),
-        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
-    }
+    return {**judge(env, "not_attempted").record_fields(), "computation_time": 0.0, "cspace_length": 0.0,
+            "phases": {}}
 
 
 VIDEO_EVERY = 8  # control steps between video frames (0.4 s at 20 Hz)

@@ -192,8 +192,7 @@ def run_policy(env, policy: ImitationPolicy, max_steps: int, on_step=None, obser
 def run_e2e(env, seed: int, run: RunSpec, max_steps: int = MAX_POLICY_STEPS) -> dict:
     """One end-to-end episode on an env already reset to its task (the policy re-grasps if
     its method does: ``e2e-*``, not ``twostage-*``); FetchBench's judge after."""
-    from ..envs import settle_and_hold
-    from ..solutions.sense_plan_act import final_failure
+    from ..envs.judging import judge
 
     method, checkpoint = run.method, run.policy_checkpoint
     policy = load_policy(method, checkpoint, stride=run.policy_stride,
@@ -201,31 +200,26 @@ def run_e2e(env, seed: int, run: RunSpec, max_steps: int = MAX_POLICY_STEPS) -> 
     policy.reset(episode_seed=seed)
     t = time.perf_counter()
     did = run_policy(env, policy, max_steps)
-    info = settle_and_hold(env)
-    u = env.unwrapped
-    success = bool(info["success"][0])
-    held = bool(u.agent.is_grasping(u.target)[0])
-    failure = None
-    if not success:
-        failure = final_failure(None, held_at_end=held, others_undisturbed=bool(info["others_undisturbed"][0]))
+    verdict = judge(env)
     return {
         "method": method.name,
-        "success": success,
-        "failure": failure,
+        "success": verdict.success,
+        "failure": verdict.failure,
         "computation_time": round(did["inference_time"], 4),
         "cspace_length": round(did["cspace_length"], 4),
         # The funnel's stages (evaluation.metrics.FUNNEL) an end-to-end policy has: it plans
         # nothing, so no plan stage; "retrieved": its retrieval ran to its end (termination).
         "phases": {"approach_reached": any(to == "close" for _, _, to in did["phase_log"]),
-                   "grasped": did["grasped"], "retrieved": did["final_phase"] == "done", "held_at_end": held},
+                   "grasped": did["grasped"], "retrieved": did["final_phase"] == "done",
+                   "held_at_end": verdict.held_at_end},
         "regrasps": did["regrasps"],
         "policy_steps": did["steps"],
         "policy_stride": policy.stride,
         "observations": did["observations"],
         "phase_log": did["phase_log"],
         **checkpoint_fields(method, checkpoint),
-        "target_moved": round(float(info["target_moved"][0]), 4),
-        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
+        "target_moved": verdict.target_moved,
+        "max_others_moved": verdict.max_others_moved,
         "wall_time": round(time.perf_counter() - t, 2),
     }
 

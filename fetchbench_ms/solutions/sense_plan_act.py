@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ..envs.judging import final_failure, judge  # noqa: F401  (final_failure: public here too)
 from ..method_spec import IMPROVEMENTS, MethodSpec, RunSpec, load, method_spec, pipeline_label
 from ..planning.checker import Attachment, CollisionChecker
 from ..planning.ik import solve_ik
@@ -340,65 +341,136 @@ def _grasp_candidates(env, spec: MethodSpec, state: EpisodeState, rng, tried: se
                        first_index=max(tried, default=-1) + 1)
 
 
-def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str | None:
-    """One try; returns the failure class, or None when the target was carried out."""
-    from ..objects.loading import load_object
+@dataclass
+class Sensed:
+    """What a try starts from: the world model, the observed clouds (None: the mesh world),
+    the target's pose in the base frame and its catalog asset."""
 
-    cfg, robot, u = state.config, robot_for_env(env), env.unwrapped
+    world: object
+    clouds: object
+    T_base_object: np.ndarray
+    asset: object
+
+
+@dataclass
+class Grasps:
+    """The grasp candidates still in play: their ids in the object's grasp list (a grasp tried
+    in an earlier try is not tried again), TCP poses at the grasp and at the pre-grasp (N, 4, 4)."""
+
+    ids: list
+    T_grasp_tcp: np.ndarray
+    T_pre_tcp: np.ndarray
+
+    def take(self, rows) -> "Grasps":
+        return Grasps([self.ids[i] for i in rows], self.T_grasp_tcp[rows], self.T_pre_tcp[rows])
+
+
+def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str | None:
+    """One try; returns the failure class, or None when the target was carried out. Its stages:
+    sense, grasp candidates (untried, then the open hand free), plan to a pre-grasp, approach
+    and close; then the method's retrieval policy, or lift, attach the object, clear the support,
+    retreat and plan the retrieval."""
+    cfg, robot = state.config, robot_for_env(env)
     ex = Executor(env, state)
-    task = u.tasks[0]
-    world, clouds = _world_model(env, spec, state)
-    T_base_object = object_poses_base(env)[task.target_index]
-    asset = load_object(task.target.object_id)
-    grasps = _grasp_candidates(env, spec, state, rng, tried, T_base_object, clouds)
+    sensed = _sense(env, spec, state)
+    grasps = _untried_grasps(env, spec, state, rng, tried, sensed)
     if grasps is None:
         return "no_grasp_candidate"
+    open_checker = CollisionChecker(robot, sensed.world, exclude=(), margin=cfg.margin)
+    near_target = CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin)
+    grasps = _free_grasps(spec, state, grasps, open_checker, near_target)
+    if not grasps.ids:
+        return "no_grasp_candidate"
+    failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, near_target)
+    if failure is not None:
+        return failure
+    state.phases["pregrasp_plan"] = True
+    tried.add(grasps.ids[chosen])
+    state.grasp_id = grasps.ids[chosen]
+    tcp_error = _approach_and_close(env, state, ex, approach_path, grasps.T_pre_tcp[chosen])
+    if cfg.retrieval is not None:
+        return cfg.retrieval(env, state, ex)
+    if not _lift(env, state, ex, robot, tcp_error):
+        return "grasp_failure"
+    carry, world, finger = _carry_checker(env, state, ex, rng, robot, sensed, grasps.T_grasp_tcp[chosen])
+    _clear_support(state, ex, robot, world, finger, carry)
+    _retreat(state, ex, robot, carry)
+    return _plan_retrieval(spec, state, ex, rng, robot, carry)
+
+
+def _sense(env, spec: MethodSpec, state: EpisodeState) -> Sensed:
+    """The try's world model (and clouds), the target's pose and its asset."""
+    from ..objects.loading import load_object
+
+    task = env.unwrapped.tasks[0]
+    world, clouds = _world_model(env, spec, state)
+    return Sensed(world, clouds, object_poses_base(env)[task.target_index], load_object(task.target.object_id))
+
+
+def _untried_grasps(env, spec: MethodSpec, state: EpisodeState, rng, tried: set, sensed: Sensed) -> Grasps | None:
+    """The method's grasp candidates not tried before, as TCP poses at the grasp and the
+    pre-grasp; None when there are none."""
+    grasps = _grasp_candidates(env, spec, state, rng, tried, sensed.T_base_object, sensed.clouds)
+    if grasps is None:
+        return None
     state.grasp_source = grasps.source
-    T_grasp_tcp = tcp_from_hand(_hand_poses_base(T_base_object, grasps.T_object_hand))  # (N, 4, 4)
-    # ``keep``: ids (in the object's grasp list) of the candidates still in play; a grasp
-    # tried in an earlier try is not tried again.
+    T_grasp_tcp = tcp_from_hand(_hand_poses_base(sensed.T_base_object, grasps.T_object_hand))  # (N, 4, 4)
     untried = np.array([int(i) not in tried for i in grasps.index], dtype=bool)
     keep = [int(i) for i in grasps.index[untried]]
     if not keep:
-        return "no_grasp_candidate"
+        return None
     T_grasp_tcp = T_grasp_tcp[untried]
-    T_pre_tcp = retreat(T_grasp_tcp, cfg.pregrasp_distance)
+    return Grasps(keep, T_grasp_tcp, retreat(T_grasp_tcp, state.config.pregrasp_distance))
 
-    open_checker = CollisionChecker(robot, world, exclude=(), margin=cfg.margin)
-    near_target = CollisionChecker(robot, world, exclude=("target",), margin=cfg.margin)
-    # Cheap filter before IK: the open hand alone must be free at the pre-grasp (target
-    # included) and at the grasp (target left out: the fingers close on it).
+
+def _free_grasps(spec: MethodSpec, state: EpisodeState, grasps: Grasps, open_checker, near_target) -> Grasps:
+    """The candidates that go to IK, in order. Cheap filter before IK: the open hand alone must
+    be free at the pre-grasp (target included) and at the grasp (target left out: the fingers
+    close on it). Annotated grasps: the open hand must be free (what collision-aware IK over
+    every grasp finds, as the original's IK filter does, at a fraction of its cost). CGN
+    predictions: the original's top 10 by score as they are; ``cgn_filter`` drops the colliding
+    ones first."""
+    cfg = state.config
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
-    clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(T_pre_tcp @ to_hand),
-                                               near_target.hand_clearance(T_grasp_tcp @ to_hand)))
-    # Annotated grasps: the open hand must be free (what collision-aware IK over every grasp
-    # finds, as the original's IK filter does, at a fraction of its cost). CGN predictions:
-    # the original's top 10 by score as they are; ``cgn_filter`` drops the colliding ones first.
+    clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(grasps.T_pre_tcp @ to_hand),
+                                               near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)))
     oracle = spec.grasps == "oracle"
     free = clearance > cfg.margin
     order = np.flatnonzero(free) if (oracle or cfg.uses("cgn_filter")) else np.arange(len(clearance))
     if cfg.grasp_order == "clearance":
         order = order[np.argsort(-clearance[order], kind="stable")]
-    order = order[: cfg.ik_grasps if oracle else cfg.cgn_grasps]
-    keep = [keep[i] for i in order]
-    T_grasp_tcp, T_pre_tcp = T_grasp_tcp[order], T_pre_tcp[order]
-    if not keep:
-        return "no_grasp_candidate"
-    q_now = ex.q
-    memo = _candidate_memo(task, q_now, object_poses_base(env), rng) if cfg.reuse_candidates else None
+    return grasps.take(order[: cfg.ik_grasps if oracle else cfg.cgn_grasps])
+
+
+def _pregrasp_configurations(env, state: EpisodeState, rng, grasps: Grasps, open_checker, q_now, memo) -> dict:
+    """Pre-grasp IK solutions by candidate row (the best per candidate that has one); with a
+    ``CandidateMemo``, only the candidates it has not met are solved for."""
+    cfg, robot = state.config, robot_for_env(env)
     if memo is None:
-        pre = state.timed(solve_ik, robot, T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds,
+        pre = state.timed(solve_ik, robot, grasps.T_pre_tcp, checker=open_checker, q_seed=q_now, n_seeds=cfg.ik_seeds,
                           rng=rng)
-        best_pre = pre.best_per_target()
-    else:
-        new = [j for j, grasp_id in enumerate(keep) if grasp_id not in memo.q_pre]
-        if new:
-            pre = state.timed(solve_ik, robot, T_pre_tcp[new], checker=open_checker, q_seed=q_now,
-                              n_seeds=cfg.ik_seeds, rng=rng).best_per_target()
-            memo.q_pre.update({keep[j]: pre.get(k) for k, j in enumerate(new)})
-        best_pre = {j: memo.q_pre[g] for j, g in enumerate(keep) if memo.q_pre[g] is not None}
+        return pre.best_per_target()
+    new = [j for j, grasp_id in enumerate(grasps.ids) if grasp_id not in memo.q_pre]
+    if new:
+        pre = state.timed(solve_ik, robot, grasps.T_pre_tcp[new], checker=open_checker, q_seed=q_now,
+                          n_seeds=cfg.ik_seeds, rng=rng).best_per_target()
+        memo.q_pre.update({grasps.ids[j]: pre.get(k) for k, j in enumerate(new)})
+    return {j: memo.q_pre[g] for j, g in enumerate(grasps.ids) if memo.q_pre[g] is not None}
+
+
+def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, grasps: Grasps, open_checker,
+                   near_target) -> tuple[str | None, int | None, np.ndarray | None]:
+    """IK for the pre-grasps, then the planner to a goal set of them (each with its straight
+    approach path); the robot moves to the pre-grasp. Returns (failure class or None, the
+    chosen candidate's row, its approach path)."""
+    cfg, robot = state.config, robot_for_env(env)
+    q_now = ex.q
+    memo = (_candidate_memo(env.unwrapped.tasks[0], q_now, object_poses_base(env), rng) if cfg.reuse_candidates
+            else None)
+    best_pre = _pregrasp_configurations(env, state, rng, grasps, open_checker, q_now, memo)
     # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
     pending = iter(best_pre.items())
+    keep, T_pre_tcp = grasps.ids, grasps.T_pre_tcp
 
     def goal_sets():
         """Up to ``pregrasp_goal_sets`` sets of ``goal_set_size`` (candidate index, q_pre,
@@ -432,51 +504,64 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
         if plan.success or (state.checks_left <= 0 and spec.planner.budgeted):
             break
     if plan is None:
-        return "no_grasp_candidate"
+        return "no_grasp_candidate", None, None
     if not plan.success:
-        return _plan_failure(plan)
-    state.phases["pregrasp_plan"] = True
+        return _plan_failure(plan), None, None
     chosen, _, approach_path = goal_set[plan.goal_index]
-    tried.add(keep[chosen])
-    state.grasp_id = keep[chosen]
+    return None, chosen, approach_path
+
+
+def _approach_and_close(env, state: EpisodeState, ex: "Executor", approach_path: np.ndarray,
+                        T_pre_tcp: np.ndarray) -> float:
+    """The straight approach from the pre-grasp, then the gripper closes; returns how far (m)
+    the TCP stopped from the approach's end."""
+    cfg, u = state.config, env.unwrapped
     ex.follow(np.vstack([ex.q[None], approach_path[1:]]), cfg.approach_speed_scale)
     T_tcp_actual = u.agent.tcp.pose.raw_pose[0].cpu().numpy()
     T_base_tcp_actual = np.linalg.inv(T_world_base(env)) @ pose_matrix(T_tcp_actual[:3], T_tcp_actual[3:])
-    T_end = retreat(T_pre_tcp[chosen], -cfg.pregrasp_distance * cfg.approach_overshoot)
-    state.phases["approach_reached"] = bool(np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]) < 0.01)
-
+    T_end = retreat(T_pre_tcp, -cfg.pregrasp_distance * cfg.approach_overshoot)
+    tcp_error = np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3])
+    state.phases["approach_reached"] = bool(tcp_error < 0.01)
     state.stage = "close"
     ex.hold(GRIPPER_CLOSED, cfg.close_seconds)
     state.stage = "retrieve"
-    if cfg.retrieval is not None:
-        return cfg.retrieval(env, state, ex)
+    return tcp_error
+
+
+def _lift(env, state: EpisodeState, ex: "Executor", robot, tcp_error: float) -> bool:
+    """Lift straight up; whether the target is grasped then."""
+    cfg, u = state.config, env.unwrapped
     T_lift = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
     T_lift[2, 3] += cfg.lift_height  # the base is upright: base z is world z
     lift = state.timed(_follow_cartesian, robot, ex.q, [T_lift], None)
     if lift is not None:
         ex.follow(lift, cfg.approach_speed_scale)
     state.phases["grasped"] = bool(u.agent.is_grasping(u.target)[0])
-    state.notes.append(f"finger gap after close {2 * ex.finger_opening():.4f} m, tcp error "
-                       f"{np.linalg.norm(T_base_tcp_actual[:3, 3] - T_end[:3, 3]):.4f} m")
-    if not state.phases["grasped"]:
-        return "grasp_failure"
+    state.notes.append(f"finger gap after close {2 * ex.finger_opening():.4f} m, tcp error {tcp_error:.4f} m")
+    return state.phases["grasped"]
 
-    # Attach the object in the hand frame: its convex parts at the simulated pose (mesh
-    # world), or its observed points carried along with the planned grasp (point clouds).
+
+def _carry_checker(env, state: EpisodeState, ex: "Executor", rng, robot, sensed: Sensed, T_grasp_tcp: np.ndarray):
+    """The checker of the arm carrying the object: the object attached in the hand frame, its
+    convex parts at the simulated pose (mesh world, built again: objects may have shifted while
+    grasping), or its observed points carried along with the planned grasp (point clouds).
+    Returns (checker, its world, the finger opening)."""
+    cfg, task = state.config, env.unwrapped.tasks[0]
     T_base_hand = robot.link_poses(ex.q[None])[robot.hand_link][0].numpy()
-    if clouds is None:
+    world = sensed.world
+    if sensed.clouds is None:
         T_hand_object = np.linalg.inv(T_base_hand) @ object_poses_base(env)[task.target_index]
         seed = int(rng.integers(2**31))
         if cfg.attachment_per_object:
             attachment = _object_attachment(task.target.object_id).moved(T_hand_object)
         else:
-            parts_hand = [p.copy().apply_transform(T_hand_object) for p in asset.convex_parts]
+            parts_hand = [p.copy().apply_transform(T_hand_object) for p in sensed.asset.convex_parts]
             attachment = Attachment.from_convex_parts(parts_hand, seed=seed)
-        # objects may have shifted while grasping
         world = state.timed(mesh_world, env, cfg.world_pose_tolerance)
     else:
-        T_hand_grasp = T_grasp_tcp[chosen] @ np.linalg.inv(tcp_from_hand(np.eye(4)))
-        points_hand = (np.linalg.inv(T_hand_grasp) @ np.c_[clouds.target, np.ones(len(clouds.target))].T).T[:, :3]
+        target = sensed.clouds.target
+        T_hand_grasp = T_grasp_tcp @ np.linalg.inv(tcp_from_hand(np.eye(4)))
+        points_hand = (np.linalg.inv(T_hand_grasp) @ np.c_[target, np.ones(len(target))].T).T[:, :3]
         if len(points_hand) == 0:  # target not seen: a ball between the fingers
             points_hand = np.array([[0.0, 0.0, 0.1034]])
         attachment = Attachment.from_points(points_hand, seed=int(rng.integers(2**31)))
@@ -484,20 +569,31 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     # The fingers wrap the object: the attachment spheres stand for both there.
     carry = CollisionChecker(robot, world, finger=finger, exclude=("target",), attachment=attachment,
                              margin=cfg.margin, ignore_links=robot.finger_links)
-    if not carry.valid(ex.q)[0]:
-        # The carried object's balls still touch what it stood on (they bulge ~1 cm past
-        # its faces, or it slipped a little): lift further, checking the arm alone.
-        arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
-                                    ignore_links=robot.finger_links)
-        for extra in (cfg.extra_lifts if cfg.uses("extra_lifts") else ()):
-            T_up = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
-            T_up[2, 3] += extra
-            path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(
-                robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy(), T_up, 3), arm_only)
-            if path is not None and carry.valid(path[-1])[0]:
-                ex.follow(path, cfg.approach_speed_scale)
-                state.notes.append(f"lifted {extra:.2f} m more")
-                break
+    return carry, world, finger
+
+
+def _clear_support(state: EpisodeState, ex: "Executor", robot, world, finger: float, carry) -> None:
+    """``extra_lifts``: the carried object's balls still touch what it stood on (they bulge
+    ~1 cm past its faces, or it slipped a little): lift further, checking the arm alone."""
+    cfg = state.config
+    if carry.valid(ex.q)[0]:
+        return
+    arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
+                                ignore_links=robot.finger_links)
+    for extra in (cfg.extra_lifts if cfg.uses("extra_lifts") else ()):
+        T_up = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
+        T_up[2, 3] += extra
+        path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(
+            robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy(), T_up, 3), arm_only)
+        if path is not None and carry.valid(path[-1])[0]:
+            ex.follow(path, cfg.approach_speed_scale)
+            state.notes.append(f"lifted {extra:.2f} m more")
+            break
+
+
+def _retreat(state: EpisodeState, ex: "Executor", robot, carry) -> None:
+    """``retreat``: back out straight along the approach, the longest free distance first."""
+    cfg = state.config
     T_tcp = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy()
     for distance in (cfg.retreat_distances if cfg.uses("retreat") else ()):
         path = state.timed(_follow_cartesian, robot, ex.q, _cartesian_waypoints(T_tcp, retreat(T_tcp, distance), 4),
@@ -507,6 +603,11 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
             ex.follow(path, cfg.approach_speed_scale * 2)
             state.notes.append(f"retreated {distance:.2f} m")
             break
+
+
+def _plan_retrieval(spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, robot, carry) -> str | None:
+    """The planner to the free-space pose with the object; the failure class or None."""
+    cfg = state.config
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     if len(goals) == 0 or (state.checks_left <= 0 and spec.planner.budgeted):
         state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning budget left")
@@ -606,18 +707,6 @@ def _return_home(env, spec: MethodSpec, state: EpisodeState, rng) -> bool:
     return plan.success
 
 
-def final_failure(failure: str | None, held_at_end: bool, others_undisturbed: bool) -> str:
-    """The failure class of a failed episode, from the try's own verdict (None: every step
-    went through) and the judge's: another object pushed away is a ``collision``; a target
-    still held but not carried out a ``retrieval_failure``; one not held a ``grasp_failure``.
-    Planning failures and timeouts keep their class."""
-    if failure in (None, "grasp_failure"):
-        if not others_undisturbed:
-            return "collision"
-        return "retrieval_failure" if held_at_end else "grasp_failure"
-    return failure
-
-
 def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt", retries: int = 1,
           config: SolveConfig | None = None, reset: bool = True, grasp_model: str | None = None) -> dict:
     """Run one FetchBench episode with a sense-plan-act baseline; returns its metrics.
@@ -626,8 +715,6 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
     ``retries`` is the number of tries in all (FetchBench's ``--retries 5``); a further try
     is made only if the target moved <= 0.12 m and nothing else moved >= 0.10 m.
     """
-    from ..envs import settle_and_hold
-
     spec = method if isinstance(method, MethodSpec) else method_spec(method)
     if spec.planner is None:
         raise ValueError(f"{spec.name} runs no sense-plan-act pipeline (it has no planner)")
@@ -660,12 +747,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
             break
         if not _return_home(env, spec, state, rng):
             break
-    info = settle_and_hold(env)
-    success = bool(info["success"][0])
-    state.phases["held_at_end"] = bool(env.unwrapped.agent.is_grasping(env.unwrapped.target)[0])
-    if not success:
-        failure = final_failure(failure, held_at_end=state.phases["held_at_end"],
-                                others_undisturbed=bool(info["others_undisturbed"][0]))
+    verdict = judge(env, failure)
+    state.phases["held_at_end"] = verdict.held_at_end
     task = env.unwrapped.tasks[0]
     return {
         "method": spec.name,
@@ -674,8 +757,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
         "scene_type": task.scene_type,
         "category": task.target_label,
         "target_object": task.target.object_id,
-        "success": success,
-        "failure": None if success else failure,
+        "success": verdict.success,
+        "failure": verdict.failure,
         "computation_time": round(state.computation_time, 4),
         "cspace_length": round(state.cspace_length, 4),
         "attempts": attempts,
@@ -684,8 +767,8 @@ def solve(env, seed: int | None = None, method: MethodSpec | str = "ga-mesh-rrt"
         "planning_checks": config.plan_checks_total - state.checks_left,
         "phases": state.phases,
         "grasp_source": state.grasp_source,
-        "target_moved": round(float(info["target_moved"][0]), 4),
-        "max_others_moved": round(float(info["max_others_moved"][0]), 4),
+        "target_moved": verdict.target_moved,
+        "max_others_moved": verdict.max_others_moved,
         "sim_steps": state.sim_steps,
         "notes": state.notes,
         "wall_time": round(time.perf_counter() - t_wall, 2),

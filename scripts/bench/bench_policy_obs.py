@@ -180,7 +180,7 @@ def main() -> None:
     try:
         env = envs["composed"].unwrapped if "composed" in envs else None
         for _ in range(args.starts if env is not None else 0):
-            env._composed.stale[:] = True
+            env.obs_modes.composed.stale[:] = True
             with start_timer.part("start"):
                 env.get_obs()
     finally:

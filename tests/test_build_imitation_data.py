@@ -30,9 +30,10 @@ def test_demos_limits_the_conversion_to_the_first_demos(tmp_path):
 
     build = _build()
     args = argparse.Namespace(chunk=256, procs=64, device="cuda", obs_mode="compact_pointcloud", frame_stride=3,
-                              render_gpus=4, demos=256, first_steps=None)
+                              render_gpus=4, demos=256, first_steps=None, labels="expert-states")
     out = build.converter_args(args, tmp_path / "train-0-600.h5", tmp_path / "data")
     assert out[out.index("--count") + 1] == "256" and out[out.index("--chunk") + 1] == "256"
+    assert out[out.index("--labels") + 1] == "expert-states"
     assert "--count" not in build.converter_args(argparse.Namespace(**{**vars(args), "demos": None}),
                                                  tmp_path / "m.h5", tmp_path / "data")
     with pytest.raises(SystemExit, match="--demos must be >= 1"):

@@ -207,7 +207,8 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="run whole episodes: retrieval problems too")
     parser.add_argument("--device", default=None, help="trajopt device (default: cuda when available)")
     parser.add_argument("--batch", type=int, default=16, help="problems per batched trajopt call")
-    parser.add_argument("--time-limit", type=float, default=10.0, help="s per problem, as the pipelines")
+    parser.add_argument("--time-limit", type=float, default=300.0,
+                        help="s per problem: a safety net, as the pipelines' (the budgets are counts)")
     parser.add_argument("--verbose", action="store_true", help="a line per problem")
     parser.add_argument("--json", default=None, metavar="PATH",
                         help="write the figures: one object per planner (rrtconnect, trajopt, trajopt_batch), and run")

@@ -1066,8 +1066,22 @@ def sample_frames_full_size_k3(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def sample_frames_by_stride(sample_frames_full_size, sample_frames_full_size_k3) -> dict:
-    return {1: sample_frames_full_size, 3: sample_frames_full_size_k3}
+def sample_frames_composed_k3(tmp_path_factory) -> Path:
+    """The same steps at frame stride 3 in composed_pointcloud at the demos' own states, as the
+    imitation rounds make their frames (--labels expert-states)."""
+    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    out = tmp_path_factory.mktemp("imit-composed-k3")
+    assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
+                         "--first-steps", "40", "--frame-stride", "3", "--obs-mode", "composed_pointcloud",
+                         "--labels", "expert-states"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def sample_frames_by_stride(sample_frames_full_size, sample_frames_full_size_k3, sample_frames_composed_k3) -> dict:
+    """The sample's frames by (obs mode, frame stride), as the shipped checkpoints were trained on."""
+    return {("compact_pointcloud", 1): sample_frames_full_size, ("compact_pointcloud", 3): sample_frames_full_size_k3,
+            ("composed_pointcloud", 3): sample_frames_composed_k3}
 
 
 def _shipped(kind: str, frames_by_stride: dict):
@@ -1080,7 +1094,7 @@ def _shipped(kind: str, frames_by_stride: dict):
     path = packed_or_plain(default_checkpoint(kind))  # shipped packed: imit_<kind>.pt.planes.xz
     model, _ = load_model(path)
     record = json.loads(default_checkpoint(kind).with_suffix(".json").read_text())
-    frames_dir = frames_by_stride[int(record.get("frame_stride", 1))]
+    frames_dir = frames_by_stride[(record.get("obs_mode") or "compact_pointcloud", int(record.get("frame_stride", 1)))]
     assert path.stat().st_size <= 8e6 and record["checkpoint_sha256"] == content_sha256(path)
     assert record["retrain_command"] and len(record["data_sha256"]) == 64 and record["validation"]["loss"]
     assert record["data_manifest"]["totals"]["demos"] >= 250
@@ -1095,9 +1109,9 @@ def _shipped(kind: str, frames_by_stride: dict):
 def test_shipped_checkpoint_imitates_the_expert(kind, sample_frames_by_stride):
     """The shipped checkpoints (assets/checkpoints/imit_<kind>.pt.planes.xz) load, carry their training
     record (command, data hash, validation) and imitate: on expert frames of the demo sample,
-    at the checkpoint's frame stride, their actions' squared error to the expert's is at most
-    60 % of holding still's (a zero action; the shipped ones: MLP 4 %, ACT 35 %, Transformer
-    57 %). (The sample's task, train/0001, is among their training demos:
+    in the checkpoint's obs mode and frame stride, their actions' squared error to the expert's
+    is at most 60 % of holding still's (a zero action; the shipped ones: MLP 56 %, ACT 35 %,
+    Transformer 57 %). (The sample's task, train/0001, is among their training demos:
     this checks that the shipped bytes are the trained policy, not how it generalises; that is
     the val and test runs'.)"""
     model, frames, index, obs = _shipped(kind, sample_frames_by_stride)

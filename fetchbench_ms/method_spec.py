@@ -161,7 +161,7 @@ PAPER_ROWS: dict[str, PaperRow] = {
     # appendix, "different models and more training data", 1x data
     "e2e-act": PaperRow("E2EImit-ACT", 0.093),
 }
-GRASP_SOURCES = {"ga": "oracle", "cgn": "cgn"}  # name prefix -> grasp source
+GRASP_SOURCES = {"ga": "annotated", "cgn": "cgn"}  # name prefix -> grasp source (ga: the annotated grasps)
 WORLDS = {"mesh": "mesh", "ptd": "pointcloud"}  # name part -> world model
 IDLE = "idle"
 PANDA_ONLY = ("panda",)  # what the learned networks were trained on
@@ -175,7 +175,7 @@ class MethodSpec:
     ``entry``: an importable ``module:function`` method's function (``run(env, seed)``)."""
 
     name: str
-    grasps: Optional[str] = None  # oracle | cgn
+    grasps: Optional[str] = None  # annotated | cgn
     world: Optional[str] = None  # mesh | pointcloud
     planner: Optional[PlannerSpec] = None
     collision: Optional[str] = None  # the planner's collision model (PlannerSpec.collision)

@@ -90,7 +90,7 @@ def test_toy_planner_and_policy_kind_run_through_fetchbench_eval(toys, tmp_path,
     out = tmp_path / "line"
     assert main(["eval", "--method", "ga-mesh-line", *common, "--out", str(out)]) == 0
     store = ResultsStore(out)
-    assert store.manifest()["method_spec"] == {"family": "sense_plan_act", "grasps": "oracle", "world": "mesh",
+    assert store.manifest()["method_spec"] == {"family": "sense_plan_act", "grasps": "annotated", "world": "mesh",
                                                "planner": "line", "collision": "spheres", "retrieval": "planner"}
     [record] = store.records()
     assert record["method"] == "ga-mesh-line" and "error" not in record and record["pipeline"] == "paper"

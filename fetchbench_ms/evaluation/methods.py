@@ -136,8 +136,8 @@ def resolve_run(method: MethodSpec | str, retries: int = 1, grasp_model: str = "
     planner_options = check_planner_options(spec, planner_options or {})
     robot = check_robot(spec, robot)
     if grasp_labels is not None:
-        if spec.family != "sense_plan_act" or spec.grasps != "oracle":
-            annotated = [m.name for m in registry().values() if m.family == "sense_plan_act" and m.grasps == "oracle"]
+        if spec.family != "sense_plan_act" or spec.grasps != "annotated":
+            annotated = [m.name for m in registry().values() if m.family == "sense_plan_act" and m.grasps == "annotated"]
             raise ValueError(f"--grasp-labels applies to the annotated-grasp methods ({', '.join(annotated)}), "
                              f"not {spec.name}")
         from ..grasps.store import GraspStore

@@ -132,7 +132,7 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     """One expert try; ``tried`` (grasp ids) is updated with the grasp it executed."""
     spec = method if isinstance(method, MethodSpec) else method_spec(method)
     oracle = [m.name for m in registry().values()
-              if m.family == "sense_plan_act" and m.world == "mesh" and m.grasps == "oracle"]
+              if m.family == "sense_plan_act" and m.world == "mesh" and m.grasps == "annotated"]
     if spec.name not in oracle:
         raise ValueError(f"the expert plans with the annotated grasps in the oracle mesh world; {spec.name!r} "
                          f"does not. Valid: {', '.join(oracle)}")

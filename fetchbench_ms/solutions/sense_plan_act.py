@@ -328,7 +328,7 @@ def _grasp_candidates(env, spec: MethodSpec, state: EpisodeState, rng, tried: se
     """The annotated grasps (a seeded random order), or the CGN predictions (best first); None
     when CGN has no target points to predict on."""
     cfg = state.config
-    if spec.grasps == "oracle":
+    if spec.grasps == "annotated":
         return state.timed(choose_grasps, object_grasps(env.unwrapped.tasks[0].target.object_id, cfg.grasp_labels), rng,
                            cfg.max_grasps)
     clouds = clouds if clouds is not None else _observe(env)
@@ -434,12 +434,12 @@ def _free_grasps(spec: MethodSpec, state: EpisodeState, grasps: Grasps, open_che
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
     clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(grasps.T_pre_tcp @ to_hand),
                                                near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)))
-    oracle = spec.grasps == "oracle"
+    annotated = spec.grasps == "annotated"
     free = clearance > cfg.margin
-    order = np.flatnonzero(free) if (oracle or cfg.uses("cgn_filter")) else np.arange(len(clearance))
+    order = np.flatnonzero(free) if (annotated or cfg.uses("cgn_filter")) else np.arange(len(clearance))
     if cfg.grasp_order == "clearance":
         order = order[np.argsort(-clearance[order], kind="stable")]
-    return grasps.take(order[: cfg.ik_grasps if oracle else cfg.cgn_grasps])
+    return grasps.take(order[: cfg.ik_grasps if annotated else cfg.cgn_grasps])
 
 
 def _pregrasp_configurations(env, state: EpisodeState, rng, grasps: Grasps, open_checker, q_now, memo) -> dict:

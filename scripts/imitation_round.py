@@ -379,7 +379,9 @@ def main(argv=None) -> int:
              for kind in kinds for method in methods(kind)]
     evals += [(kind, method, None, work / "val-shipped" / method) for kind in kinds for method in methods(kind)
               if shipped(kind)[0] is not None and val_successes(shipped(kind)[1], method, val) is None]
-    workers = max(1, args.procs // len(evals))
+    # Twice --procs workers in all: the runs' costs differ (an end-to-end run on compact_pointcloud
+    # is the slowest), and the slow ones keep the cores busy once the fast ones have ended.
+    workers = max(1, 2 * args.procs // len(evals))
     processes = []
     for i, (kind, method, checkpoint, out) in enumerate(evals):
         eval_command = [py, "-m", "fetchbench_ms", "eval", "--method", method, "--suite", "val", "--tasks",

@@ -342,7 +342,7 @@ def main(argv=None) -> int:
     # 2. training, from the shipped checkpoint of the kind where it reads this obs mode
     from fetchbench_ms.policies.agent import checkpoint_obs_mode
 
-    inits, kind_args = {}, []
+    inits, flags = {}, {}
     for kind in kinds:
         path, meta = shipped(kind)
         init = path if path is not None and checkpoint_obs_mode(path) == OBS_MODE else None
@@ -350,15 +350,14 @@ def main(argv=None) -> int:
         inits[kind] = {"path": str(init.relative_to(ROOT)) if init else None, "step": first,
                        "sha256": meta.get("checkpoint_sha256") if init else None,
                        "demos_seen": int(meta.get("demos_seen", 0)) if init else 0}
-        flags = f"--steps {first + steps[kind]} --export --export-path {work / 'export' / f'imit_{kind}.pt'}"
+        flags[kind] = f"--steps {first + steps[kind]} --export --export-path {work / 'export' / f'imit_{kind}.pt'}"
         if init:
-            flags += f" --init-from {init} --new-data"
-        kind_args += ["--kind-args", f"{kind}={flags}"]
+            flags[kind] += f" --init-from {init} --new-data"
     # A kind whose export finished its steps is not trained again: a resumed trainer exports anew
     # (other bytes), and its val records would no longer name the file they judged.
     todo = [kind for kind in kinds
             if not export_complete(work / "export" / f"imit_{kind}.json", inits[kind]["step"] + steps[kind])]
-    kind_args = [a for kind, pair in zip(kinds, zip(kind_args[::2], kind_args[1::2])) if kind in todo for a in pair]
+    kind_args = [a for kind in todo for a in ("--kind-args", f"{kind}={flags[kind]}")]
     t1 = time.perf_counter()
     if todo:
         gpu_list = "cpu" if gpus is None else ",".join(gpus[i % len(gpus)] for i in range(len(todo)))
@@ -377,8 +376,9 @@ def main(argv=None) -> int:
     # the shipped checkpoint's runs it has no val figures of on these tasks (judged alike, once).
     evals = [(kind, method, work / "export" / f"imit_{kind}.pt", work / "val" / method)
              for kind in kinds for method in methods(kind)]
+    shipped_now = {kind: shipped(kind) for kind in kinds}
     evals += [(kind, method, None, work / "val-shipped" / method) for kind in kinds for method in methods(kind)
-              if shipped(kind)[0] is not None and val_successes(shipped(kind)[1], method, val) is None]
+              if shipped_now[kind][0] is not None and val_successes(shipped_now[kind][1], method, val) is None]
     # Twice --procs workers in all: the runs' costs differ (an end-to-end run on compact_pointcloud
     # is the slowest), and the slow ones keep the cores busy once the fast ones have ended.
     workers = max(1, 2 * args.procs // len(evals))
@@ -419,7 +419,7 @@ def main(argv=None) -> int:
              "seconds": {"data": round(t_data), "training": round(t_train), "val": round(t_val)}, "kinds": {}}
     winners = []
     for kind in kinds:
-        _, meta = shipped(kind)
+        _, meta = shipped_now[kind]
         export_meta = json.loads((work / "export" / f"imit_{kind}.json").read_text())
         judged = {**meta, "validation_success": meta.get("validation_success", []) + [
             {"method": m, "first_task": f"val/{val[0]:04d}", "last_task": f"val/{val[1] - 1:04d}",

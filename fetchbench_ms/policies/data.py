@@ -351,8 +351,11 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
             clouds = ((d.traj["obs"]["pointcloud"]["xyz"][:][d.frame], d.traj["obs"]["pointcloud"]["seg"][:][d.frame])
                       for d in kept)
         else:
-            clouds = _rendered_clouds(kept, converted_json["env_info"]["env_id"], env_kwargs, render_workers,
-                                      render_obs_mode, render_backends, pool)
+            from ..render_env_states import render_compact_clouds
+
+            jobs = _render_jobs(kept)  # by the pool kept over many calls, or by workers started for them
+            clouds = pool.imap(jobs) if pool is not None else render_compact_clouds(
+                converted_json["env_info"]["env_id"], env_kwargs, jobs, render_workers, render_obs_mode, render_backends)
         out = _training_arrays(kept, episodes, clouds, sizes, render_obs_mode, frame_stride, device, log,
                                rendered=obs_mode != COMPACT_OBS_MODE, workers=render_workers)
     dropped = len(converted_json["episodes"]) - len(pairs)
@@ -361,19 +364,14 @@ def convert_episodes(converted_path: str | Path, source_path: str | Path, sizes:
     return out
 
 
-def _rendered_clouds(kept: list[_KeptFrames], env_id: str, env_kwargs: dict, workers: int, obs_mode: str,
-                     backends: list[str] | None, pool=None):
-    """The clouds of the kept frames rendered from their env states, by ``pool`` (a
-    ``StateRenderPool`` kept over many calls) or by workers started for them."""
+def _render_jobs(kept: list[_KeptFrames]) -> list:
+    """The kept frames as ``RenderJob``s: their task's reset and their recorded env states."""
     from mani_skill.trajectory.utils import index_dict
 
-    from ..render_env_states import RenderJob, render_compact_clouds
+    from ..render_env_states import RenderJob
 
-    jobs = [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
+    return [RenderJob(d.episode["reset_kwargs"], int(d.episode["episode_seed"]), d.frame,
                       index_dict(index_dict(d.traj["env_states"], slice(None)), d.frame)) for d in kept]
-    if pool is not None:
-        return pool.imap(jobs)
-    return render_compact_clouds(env_id, env_kwargs, jobs, workers, obs_mode, backends)
 
 
 def _training_arrays(kept: list[_KeptFrames], episodes: list[dict], clouds, sizes: dict, render_obs_mode: str,
@@ -463,9 +461,9 @@ def expert_state_episodes(source_path: str | Path, episodes: list[dict], pool, o
             out_episodes.append({"source": source_path.name, "episode_id": int(source["episode_id"]),
                                  "task_id": source.get("task_id"), "grasp_id": source.get("grasp_id"),
                                  "length": len(frame), "source_length": int(len(actions))})
-        clouds = _rendered_clouds(kept, "", {}, 1, obs_mode, None, pool)
+        clouds = pool.imap(_render_jobs(kept))
         return _training_arrays(kept, out_episodes, clouds, POLICY_CLOUD_SIZES, obs_mode, frame_stride, "cpu", log,
-                                rendered=True, workers=getattr(pool, "workers", 1), labels=EXPERT_STATE_LABELS)
+                                rendered=True, workers=pool.workers, labels=EXPERT_STATE_LABELS)
 
 
 def write_training_file(path: str | Path, data: dict) -> int:

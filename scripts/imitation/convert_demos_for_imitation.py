@@ -22,15 +22,15 @@ processes), so the costly rendering is a K-th (docs/imitation.md, "Frame stride"
 renders (the same files).
 
     # a 16-core GPU node (16 cores for physics, the GPU renders): 5,000 demos, ~10 minutes a call
-    python scripts/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
+    python scripts/imitation/convert_demos_for_imitation.py --traj-path demos/FetchBench-v0/motionplanning/train.h5 \\
         --out data/imit --count 5000 --chunk 128 --num-envs 16 --device cuda --time-limit 540
     # one shard of a run that goes over several (docs/imitation.md): demos 1,536 .. 3,071
-    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-s1 --start 1536 --count 1536 ...
+    python scripts/imitation/convert_demos_for_imitation.py --traj-path ... --out data/imit-s1 --start 1536 --count 1536 ...
     # a CPU check: the first 12 steps of 2 demos of the shipped sample, small clouds
-    python scripts/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
+    python scripts/imitation/convert_demos_for_imitation.py --traj-path assets/demos/sample/FetchBench-v0/motionplanning/train-sample.h5 \\
         --out /tmp/imit-sample --count 2 --first-steps 12 --sizes 128,64,32
     # every 3rd frame of each stage, the next chunk's replay beside each chunk's render pass
-    python scripts/convert_demos_for_imitation.py --traj-path ... --out data/imit-k3 --frame-stride 3 --overlap-replay ...
+    python scripts/imitation/convert_demos_for_imitation.py --traj-path ... --out data/imit-k3 --frame-stride 3 --overlap-replay ...
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The four imitation trainers at once, each on a GPU of its own, from one command.
 
-    python scripts/train_imitation_gpus.py --data ROOT/data --runs ROOT/runs --gpus 0,1,2,3 \
+    python scripts/imitation/train_imitation_gpus.py --data ROOT/data --runs ROOT/runs --gpus 0,1,2,3 \
         [--kinds act,diffusion,transformer,mlp] [--steps 30000] [--save-every 6000] [--time-limit 1500] \
         [--trainer-args "--eval-every 0"] [--kind-args act="--chunk 16"]
 
@@ -10,7 +10,7 @@ with ``CUDA_VISIBLE_DEVICES`` set to its GPU (kinds and GPUs paired in order), l
 each to ``RUNS/<kind>.log``, waits for all and exits non-zero, naming them, if any failed. Each
 trainer resumes its run folder, so the same command goes on after an interruption; with
 ``--save-every`` each writes a candidate export every N steps (``RUNS/<kind>/candidates/``), to
-be chosen on >= 100 val tasks by ``scripts/select_checkpoint.py``. The trainers read the
+be chosen on >= 100 val tasks by ``scripts/imitation/select_checkpoint.py``. The trainers read the
 training files' obs mode (``compact_pointcloud`` or ``policy_pointcloud``) and record it in their
 checkpoints. ``--gpus cpu`` runs them all on the CPU (tests).
 """
@@ -27,14 +27,14 @@ from pathlib import Path
 
 from fetchbench_ms.method_spec import POLICY_KINDS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 KINDS = ("act", "diffusion", "transformer", "mlp")  # the default: the shipped kinds, the slowest first
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", required=True, help="the training files' folder (scripts/build_imitation_data.py)")
+    p.add_argument("--data", required=True, help="the training files' folder (scripts/imitation/build_imitation_data.py)")
     p.add_argument("--runs", required=True, help="RUNS/<kind>: each trainer's run folder")
     p.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated, of {', '.join(POLICY_KINDS)}")
     p.add_argument("--gpus", default="0,1,2,3", help="one GPU index per kind, in order; or 'cpu'")
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
             p.error(f"--kind-args {item!r}: KIND=FLAGS with KIND one of {', '.join(kinds)}")
         per_kind[kind] = shlex.split(flags)
     if not Path(args.data).is_dir():
-        p.error(f"--data {args.data}: no such folder (make it with scripts/build_imitation_data.py)")
+        p.error(f"--data {args.data}: no such folder (make it with scripts/imitation/build_imitation_data.py)")
     runs = Path(args.runs)
     runs.mkdir(parents=True, exist_ok=True)
     common = shlex.split(args.trainer_args)

@@ -11,7 +11,7 @@ with a JSON beside it: the candidate's export JSON plus ``checkpoint_sha256`` an
 candidate's step, sha256 and val figures); ``OUT/selection.json`` holds the same record.
 
     # every 2,000 steps a candidate (trainer flag --save-every 2000), then on a 16-core GPU node:
-    python scripts/select_checkpoint.py --candidates runs/imit/mlp/candidates --workers 16 \\
+    python scripts/imitation/select_checkpoint.py --candidates runs/imit/mlp/candidates --workers 16 \\
         --export-path build/imit/export/imit_mlp.pt
     # ship it (scripts/maint/ship_imitation.py keeps the selection record), the chosen run as its val figures
     python scripts/maint/ship_imitation.py --run build/imit --kinds mlp --retrain "..." \\
@@ -197,7 +197,7 @@ def main(argv=None, evaluate: Callable[[dict, Path, dict], list[dict]] = run_fet
                  "tasks": args.tasks, "task_count": len(expected), "method": method,
                  "policy_stride": settings["policy_stride"], "eval_args": args.eval_args,
                  "chosen_step": best["step"], "chosen_sha256": best["sha256"], "candidates": figures,
-                 "command": " ".join(shlex.quote(a) for a in ["python", "scripts/select_checkpoint.py",
+                 "command": " ".join(shlex.quote(a) for a in ["python", "scripts/imitation/select_checkpoint.py",
                                                                 *(sys.argv[1:] if argv is None else argv)])}
     if warning:
         selection["warning"] = warning

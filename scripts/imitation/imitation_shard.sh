@@ -3,7 +3,7 @@
 # training files of the whole dataset (~15 GB) take ~2-3 hours of a 16-core node to convert,
 # so a run can go over shards: each call converts the next demos while the trainers learn
 # from the chunks finished so far:
-#   - scripts/convert_demos_for_imitation.py converts demos [START, START+COUNT) of TRAJ into
+#   - scripts/imitation/convert_demos_for_imitation.py converts demos [START, START+COUNT) of TRAJ into
 #     ROOT/data (a chunk of 128 demos at a time; the manifest is rewritten after each);
 #   - meanwhile the trainers run in rounds of ROUND seconds, each round resuming
 #     ROOT/runs/<kind>/checkpoint.pt on whatever chunks are finished (--new-data; every data
@@ -12,7 +12,7 @@
 #   - everything has stopped SECONDS after the start.
 # Keep (or restore) ROOT/runs/<kind>/checkpoint.pt from the previous shard to go on with a run.
 #
-#   bash scripts/imitation_shard.sh ROOT TRAJ START COUNT SECONDS
+#   bash scripts/imitation/imitation_shard.sh ROOT TRAJ START COUNT SECONDS
 #
 # Environment: STEPS_MLP, STEPS_TRANSFORMER, STEPS_DIFFUSION (each run's schedule length;
 # defaults 30000 / 16000 / 16000), NUM_ENVS (replay processes, default 13 beside the
@@ -36,7 +36,7 @@
 # --init-from, weights and step without the optimiser's state; ~15 MB for three against the
 # full checkpoints' 85 MB). SAVE_EVERY=STEPS: the trainers' --save-every (a candidate export every
 # STEPS steps in ROOT/runs/<kind>/candidates/, chosen from on val tasks afterwards by
-# scripts/select_checkpoint.py; docs/imitation.md "Choosing the checkpoint").
+# scripts/imitation/select_checkpoint.py; docs/imitation.md "Choosing the checkpoint").
 set -euo pipefail
 case "${1:-}" in -h|--help) sed -n '2,39p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 ROOT=${1:?usage: imitation_shard.sh ROOT TRAJ START COUNT SECONDS}
@@ -64,7 +64,7 @@ mkdir -p "$ROOT/export" "$ROOT/logs" "$ROOT/runs"
 say() { echo "[shard $(date +%H:%M:%S)] $*" | tee -a "$ROOT/logs/shard.log"; }
 
 say "converting demos $START..$((START + COUNT)) of $TRAJ (frame stride ${FRAME_STRIDE:-1}${overlap:+, replays overlapped}); trainers in rounds of ${ROUND} s until $(date -d @$deadline +%H:%M:%S)"
-$PY scripts/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
+$PY scripts/imitation/convert_demos_for_imitation.py --traj-path "$TRAJ" --out "$ROOT/data" --start "$START" --count "$COUNT" \
     --chunk "${CHUNK:-128}" --num-envs "$NUM_ENVS" --device "${DEVICE:-cuda}" --time-limit $((SECONDS_TOTAL - ${TRAIN_SECONDS:-120})) \
     --frame-stride "${FRAME_STRIDE:-1}" $overlap \
     >> "$ROOT/logs/convert.log" 2>&1 &
@@ -95,7 +95,7 @@ while :; do
     for kind in "${kinds[@]}"; do
         init=()  # read only while the run folder has no checkpoint (a later round resumes its own)
         [[ -z "${INIT_FROM:-}" ]] || init=(--init-from "$INIT_FROM/imit_$kind.pt")
-        save=()  # candidates for scripts/select_checkpoint.py
+        save=()  # candidates for scripts/imitation/select_checkpoint.py
         [[ -z "${SAVE_EVERY:-}" ]] || save=(--save-every "$SAVE_EVERY")
         $PY baselines/imitation/train_$kind.py --data "$ROOT/data" --run "$ROOT/runs/$kind" --steps "${STEPS[$kind]}" \
             --time-limit "$limit" --new-data --eval-every 0 --export --export-path "$ROOT/export/imit_$kind.pt" \

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # The imitation baselines from nothing on one GPU node (16 cores): demos -> training files ->
 # the four policies (MLP, Transformer, diffusion, ACT), a candidate every STEPS/5 steps -> the
-# checkpoint of each chosen on 100 `val` tasks (scripts/select_checkpoint.py) -> every method on
+# checkpoint of each chosen on 100 `val` tasks (scripts/imitation/select_checkpoint.py) -> every method on
 # them on `val`. Every stage resumes, so the same command continues after an interruption (the
 # root folder must survive). Test tasks are never used here: they are run once, by `fetchbench
 # eval --suite test`, for the shipped checkpoints.
 #
-#   bash scripts/imitation_pipeline.sh ROOT [DEMOS] [STEPS]
+#   bash scripts/imitation/imitation_pipeline.sh ROOT [DEMOS] [STEPS]
 #     ROOT   work folder (demos, data, runs, eval); DEMOS successful demos (default 5000);
 #     STEPS  training steps per policy (default 30000)
 #
@@ -24,7 +24,7 @@ mkdir -p "$ROOT/export"
 $PY -m fetchbench_ms.demos.run -e FetchBench-v0 --task-suite train -n "$DEMOS" --only-count-success \
     --record-dir "$ROOT/demos" --traj-name train --num-procs 16
 # 2. compact training files through ManiSkill's replay tool (docs/imitation.md)
-$PY scripts/convert_demos_for_imitation.py --traj-path "$ROOT/demos/FetchBench-v0/motionplanning/train.h5" \
+$PY scripts/imitation/convert_demos_for_imitation.py --traj-path "$ROOT/demos/FetchBench-v0/motionplanning/train.h5" \
     --out "$ROOT/data" --count "$DEMOS" --chunk 128 --num-envs 16 --device cuda
 # 3. the four policies at once on the one GPU (small models); each validates on 32 val tasks
 for kind in mlp transformer diffusion act; do
@@ -34,7 +34,7 @@ done
 wait
 # 3b. each policy's checkpoint: the candidate with the best success on val tasks 0:100
 for kind in mlp transformer diffusion act; do
-    $PY scripts/select_checkpoint.py --candidates "$ROOT/runs/$kind/candidates" --tasks 0:100 --workers 16 \
+    $PY scripts/imitation/select_checkpoint.py --candidates "$ROOT/runs/$kind/candidates" --tasks 0:100 --workers 16 \
         --out "$ROOT/select/e2e-$kind" --export-path "$ROOT/export/imit_$kind.pt"
 done
 # 4. every method on the first 100 val tasks (never test here)

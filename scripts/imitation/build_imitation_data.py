@@ -1,6 +1,6 @@
 """Train tasks -> expert demos -> imitation training files, in one resumable command.
 
-    python scripts/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda --render-gpus 4 \
+    python scripts/imitation/build_imitation_data.py --root ROOT --tasks 0:4000 --procs 64 --device cuda --render-gpus 4 \
         [--obs-mode policy_pointcloud] [--frame-stride 1] [--chunk 128] [--per-task 5] [--demos N] \
         [--labels expert-states]
 
@@ -8,7 +8,7 @@
    = task i of the suite, up to --per-task trajectories each, --procs processes), one part per
    task in ``ROOT/demos/FetchBench-v0/motionplanning/train-START-END.parts/``, merged into
    ``train-START-END.h5``;
-2. ``scripts/convert_demos_for_imitation.py``: those demos to training files in ``ROOT/data``
+2. ``scripts/imitation/convert_demos_for_imitation.py``: those demos to training files in ``ROOT/data``
    (``chunk_NNNNN.imit.h5`` + ``manifest.json``; --procs replay processes and render workers),
    in ``--obs-mode`` (default ``policy_pointcloud``: the policies' points made by the env from
    160x120 cameras, what a policy trained on them reads at deployment); ``--demos N`` converts
@@ -63,7 +63,7 @@ def _manifest_totals(path: Path) -> dict:
 
 
 def converter_args(args, merged: Path, data: Path) -> list[str]:
-    """``scripts/convert_demos_for_imitation.py``'s arguments for the merged demos."""
+    """``scripts/imitation/convert_demos_for_imitation.py``'s arguments for the merged demos."""
     out = ["--traj-path", str(merged), "--out", str(data), "--chunk", str(args.chunk), "--num-envs", str(args.procs),
            "--device", args.device, "--obs-mode", args.obs_mode, "--frame-stride", str(args.frame_stride),
            "--render-gpus", str(args.render_gpus), "--labels", args.labels]

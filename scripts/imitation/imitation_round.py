@@ -1,21 +1,21 @@
 """One round of the imitation dataset that grows round by round, as one command.
 
     # a 2-GPU node (32 cores): ~20 minutes
-    python scripts/imitation_round.py --work out/rounds --tasks 600 --per-task 3 --procs 32 --gpus 0,1 --ship
+    python scripts/imitation/imitation_round.py --work out/rounds --tasks 600 --per-task 3 --procs 32 --gpus 0,1 --ship
     # where the rounds stand: every round's data, steps and val figures, and the plateau check
-    python scripts/imitation_round.py --status
+    python scripts/imitation/imitation_round.py --status
     # the validation curve (val success against demos seen, per method) from the record
-    python scripts/imitation_round.py --plot docs/img/imitation-rounds.png
+    python scripts/imitation/imitation_round.py --plot docs/img/imitation-rounds.png
 
 A round takes the next ``--tasks`` tasks of the ``train`` suite after the last round's and:
 
 1. **data**: the expert on them (up to ``--per-task`` trajectories a task) and their frames in
    ``composed_pointcloud`` at frame stride 3 at the demos' own states, no replay (``--labels
-   expert-states``; ``scripts/build_imitation_data.py``);
+   expert-states``; ``scripts/imitation/build_imitation_data.py``);
 2. **training**: each policy kind (``--kinds``) for its ``--steps`` on this round's frames,
    from the shipped checkpoint of its kind when that one reads ``composed_pointcloud``
    (``--init-from``, ``--new-data``: the weights go on, the data is new), else from scratch;
-   the kinds share the GPUs in turn (``scripts/train_imitation_gpus.py``);
+   the kinds share the GPUs in turn (``scripts/imitation/train_imitation_gpus.py``);
 3. **val**: each candidate end to end (``e2e-<kind>``) and as the hybrid
    (``cgn-imit-<kind>``, the paper's pipeline) on ``--val-tasks`` (val 0:100) at policy stride 3,
    the runs at once with the ``--procs`` workers shared among them (``RUN/val/<method>/eval.log``);
@@ -47,7 +47,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RECORD = ROOT / "results/training/imitation-rounds"
 KINDS = ("act", "transformer", "mlp", "diffusion")  # (the order the GPUs are handed out in)
 #: Steps a round trains each kind for: ~4 minutes a kind with a GPU each (measured rates: act 28,
@@ -326,12 +326,12 @@ def main(argv=None) -> int:
         log_file.write(line + "\n")
         log_file.flush()
 
-    command = shlex.join(["python", "scripts/imitation_round.py", *(argv if argv is not None else sys.argv[1:])])
+    command = shlex.join(["python", "scripts/imitation/imitation_round.py", *(argv if argv is not None else sys.argv[1:])])
     log(f"round {number}: train tasks {start}:{end}; {command}")
     py = sys.executable
     t0 = time.perf_counter()
     # 1. data
-    run([py, "scripts/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
+    run([py, "scripts/imitation/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
          "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
          "--frame-stride", str(FRAME_STRIDE), "--labels", LABELS, "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda",
          "--render-gpus", str(1 if gpus is None else len(gpus))], log)
@@ -361,7 +361,7 @@ def main(argv=None) -> int:
     t1 = time.perf_counter()
     if todo:
         gpu_list = "cpu" if gpus is None else ",".join(gpus[i % len(gpus)] for i in range(len(todo)))
-        run([py, "scripts/train_imitation_gpus.py", "--data", str(work / "data"), "--runs", str(work / "runs"),
+        run([py, "scripts/imitation/train_imitation_gpus.py", "--data", str(work / "data"), "--runs", str(work / "runs"),
              "--kinds", ",".join(todo), "--gpus", gpu_list, "--time-limit", str(args.time_limit),
              "--trainer-args", f"--eval-every 0 {args.trainer_args}".strip(), *kind_args], log)
     t_train = time.perf_counter() - t1
@@ -444,7 +444,7 @@ def main(argv=None) -> int:
     if args.ship and winners:
         val_runs = [str(work / "val" / m) for k in winners for m in methods(k)]
         run([py, "scripts/maint/ship_imitation.py", "--run", str(work), "--kinds", ",".join(winners),
-             "--retrain", command, "--note", f"imitation round {number} (scripts/imitation_round.py --status)",
+             "--retrain", command, "--note", f"imitation round {number} (scripts/imitation/imitation_round.py --status)",
              "--val-runs", *val_runs], log)
     record.setdefault("val", {})["tasks"] = args.val_tasks
     record["rounds"].append(entry)

@@ -424,12 +424,12 @@ def test_bench_cgn_quality_refuses_test_unless_report_only(tmp_path, capsys):
 @pytest.fixture
 def test_objects_in_the_catalog(monkeypatch):
     """The train split as the catalog would list it if a test-split object slipped in."""
-    import fetchbench_ms.grasps
+    import fetchbench_ms.grasp_labels
     import fetchbench_ms.objects.loading
 
     ids = [*_train_objects(), _a_test_object()]
     monkeypatch.setattr(fetchbench_ms.objects.loading, "object_ids", lambda split="test": ids)
-    monkeypatch.setattr(fetchbench_ms.grasps, "objects_with_grasps", lambda: ids)
+    monkeypatch.setattr(fetchbench_ms.grasp_labels, "objects_with_grasps", lambda: ids)
 
 
 def test_cgn_training_data_refuses_test_objects(tmp_path, capsys, test_objects_in_the_catalog):

@@ -10,6 +10,10 @@ __version__ = "0.1.0"
 import importlib as _importlib
 import importlib.util as _util
 
+from . import _moved
+
+_moved.install()  # moved packages still import by their old names (fetchbench_ms/_moved.py)
+
 if _util.find_spec("fetchbench_ms.envs") is not None:
     from . import envs  # noqa: F401  (registers the environments)
 

@@ -10,12 +10,12 @@ from pathlib import Path
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 # Sub-packages that may contribute commands, in the order they appear in --help.
-COMMAND_PACKAGES = ("scenes", "objects", "grasps", "envs", "tasks", "solutions", "demos", "evaluation")
+COMMAND_PACKAGES = ("scenes", "objects", "grasp_labels", "envs", "tasks", "solutions", "demos", "evaluation")
 # Further command modules (a package's second set of commands).
 COMMAND_MODULES = ("fetchbench_ms.evaluation.results_cli",)
 # Sub-packages that add sub-commands to another package's command: package -> that command
 # (its ``add_commands`` returns its sub-commands). ``fetchbench grasps predict`` is grasp prediction's.
-SUBCOMMAND_PACKAGES = {"grasping": "grasps"}
+SUBCOMMAND_PACKAGES = {"grasp_prediction": "grasp_labels"}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,6 +1,6 @@
 """Compact point clouds of recorded env states, rendered without physics.
 
-``scripts/convert_demos_for_imitation.py --frame-stride K`` replays its demos state-only
+``scripts/imitation/convert_demos_for_imitation.py --frame-stride K`` replays its demos state-only
 (``-o state``: ManiSkill's recorder still stores every step's env state) and renders the
 frames it keeps only: per trajectory, the env is reset as the replay reset it (the same task),
 and for each kept step its recorded env state is set and the cameras render it.

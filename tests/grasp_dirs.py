@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fetchbench_ms.grasps import store
+from fetchbench_ms.grasp_labels import store
 
 
 def write_npz_form(packed_dir: Path, target: Path, shards=None) -> None:

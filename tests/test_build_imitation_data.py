@@ -1,4 +1,4 @@
-"""scripts/build_imitation_data.py: train tasks -> demos -> training files in one resumable
+"""scripts/imitation/build_imitation_data.py: train tasks -> demos -> training files in one resumable
 command, the same bytes per seed."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _build():
-    return import_script(ROOT / "scripts/build_imitation_data.py")
+    return import_script(ROOT / "scripts/imitation/build_imitation_data.py")
 
 
 def test_bad_task_ranges_are_refused(tmp_path):

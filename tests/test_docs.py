@@ -364,3 +364,13 @@ def test_every_script_is_in_the_scripts_readme():
 def test_every_script_answers_help(script, python_help_answers):
     argv = ["bash", str(script)] if script.suffix == ".sh" else [sys.executable, str(script)]
     assert _script_help(argv) is None, _script_help(argv)
+
+
+def test_shipped_records_name_scripts_that_exist():
+    """A shipped record's command (a checkpoint's retrain command, a round's command) stays a
+    command that runs: every script path it names exists (moved scripts leave a forwarder)."""
+    records = [*(ROOT / "assets" / "checkpoints").glob("*.json"), *(ROOT / "results" / "training").rglob("*.json")]
+    named = {m for path in records for m in re.findall(r"\b(?:scripts|baselines)/[\w/.-]+\.(?:py|sh)\b", path.read_text())}
+    assert named, "no record names a script: the pattern is stale"
+    missing = sorted(n for n in named if not (ROOT / n).is_file())
+    assert not missing, f"shipped records name scripts that no longer exist: {missing}"

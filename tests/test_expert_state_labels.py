@@ -74,7 +74,7 @@ def test_converter_writes_the_obs_mode_at_the_recorded_states(tmp_path):
     import h5py
     from mani_skill.trajectory.utils import index_dict
 
-    convert = import_script(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = import_script(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path / "data"
     argv = ["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "1", "--first-steps",
             "12", "--obs-mode", COMPOSED_OBS_MODE, "--frame-stride", "3", "--labels", "expert-states"]
@@ -111,7 +111,7 @@ def test_converter_writes_the_obs_mode_at_the_recorded_states(tmp_path):
 
 
 def test_expert_states_take_a_points_obs_mode(tmp_path, capsys):
-    convert = import_script(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = import_script(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     with pytest.raises(SystemExit, match="points obs modes"):
         convert.main(["--traj-path", str(SAMPLE), "--out", str(tmp_path / "x"), "--labels", "expert-states"])
     assert not (tmp_path / "x").exists()

@@ -132,7 +132,7 @@ def test_knn_interpolate_matches_inverse_distance_weighting(distances, monkeypat
 
 
 def test_network_is_batched_and_builds_orthonormal_hand_frames():
-    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasp_prediction.network import CGNConfig, ContactGraspNet
 
     torch.manual_seed(0)
     net = ContactGraspNet(CGNConfig(centers=(128, 32, 8))).eval()  # the layers as pretrained, fewer points
@@ -153,7 +153,7 @@ def test_network_is_batched_and_builds_orthonormal_hand_frames():
 
 
 def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path, capsys):
-    from fetchbench_ms.grasping import predict
+    from fetchbench_ms.grasp_prediction import predict
 
     with pytest.raises(ValueError, match="valid: pretrained, ours"):
         predict.load_model("nvidia")
@@ -177,7 +177,7 @@ def test_unknown_or_missing_weights_are_clear_errors(monkeypatch, tmp_path, caps
 
 @needs_pretrained
 def test_pretrained_weights_load_strictly():
-    from fetchbench_ms.grasping import load_model
+    from fetchbench_ms.grasp_prediction import load_model
 
     net = load_model("pretrained")
     assert sum(p.numel() for p in net.parameters()) > 2_000_000
@@ -200,10 +200,10 @@ def smoke_table_env():
 @needs_pretrained
 def test_pretrained_grasps_on_a_smoke_target_are_on_it_and_one_closes_on_it(smoke_table_env):
     from fetchbench_ms.envs import fetch_clouds
-    from fetchbench_ms.grasping import predict_from_clouds
+    from fetchbench_ms.grasp_prediction import predict_from_clouds
     from fetchbench_ms.planning.checker import CollisionChecker
     from fetchbench_ms.planning.robot import panda
-    from fetchbench_ms.grasps.candidates import tcp_from_hand
+    from fetchbench_ms.grasp_labels.candidates import tcp_from_hand
     from fetchbench_ms.planning.world_models import mesh_world
 
     obs, _ = smoke_table_env.reset(options={"task_id": "smoke/0003"})
@@ -250,7 +250,7 @@ def load_trainer():
 def test_a_few_training_steps_on_one_labelled_view_lower_the_loss():
     """baselines/contact_graspnet/train.py: a synthetic view of a train object, labelled from its
     verified grasps, and a small network fitted to it for a few steps."""
-    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasp_prediction.network import CGNConfig, ContactGraspNet
 
     train = load_trainer()
     object_id = train.train_val_objects(0.05)[0][0]
@@ -297,9 +297,9 @@ def test_labels_turn_back_into_the_annotated_hand_poses():
     object, width the finger gap); the network's grasp_frames of (contact, baseline, approach,
     width), turned into the project's hand frame as predict.py does, is the annotated hand pose
     (up to the finger swap), within 1 mm and 1 deg."""
-    from fetchbench_ms.grasping.network import grasp_frames
-    from fetchbench_ms.grasping.predict import T_CGN_HAND
-    from fetchbench_ms.grasps import load_grasps
+    from fetchbench_ms.grasp_prediction.network import grasp_frames
+    from fetchbench_ms.grasp_prediction.predict import T_CGN_HAND
+    from fetchbench_ms.grasp_labels import load_grasps
 
     train = load_trainer()
     scene, _ = scene_with_labels(train)
@@ -325,8 +325,8 @@ def test_labels_turn_back_into_the_annotated_hand_poses():
 def test_scene_labels_keep_only_grasps_whose_hand_clears_the_table_and_the_other_objects():
     import trimesh
 
-    from fetchbench_ms.grasps import load_grasps
-    from fetchbench_ms.grasps.sampler import ConvexUnion
+    from fetchbench_ms.grasp_labels import load_grasps
+    from fetchbench_ms.grasp_labels.sampler import ConvexUnion
 
     train = load_trainer()
     top_down = np.eye(4)
@@ -354,7 +354,7 @@ def test_the_pretrained_model_agrees_with_the_labels_of_a_view():
     objects made as the trainer makes it, the pretrained model's ADD-S against our labels is
     small and its best grasps are labelled ones; the same labels with the approach reversed
     (the hand on the far side of the contact) are far off."""
-    from fetchbench_ms.grasping.predict import load_model
+    from fetchbench_ms.grasp_prediction.predict import load_model
 
     train = load_trainer()
     scene, rng = scene_with_labels(train, seed=1)
@@ -381,7 +381,7 @@ def test_the_pretrained_model_agrees_with_the_labels_of_a_view():
 def test_fine_tuning_keeps_the_batchnorm_running_statistics():
     """train_mode(model, freeze_bn=True): a training step changes the weights (BatchNorm
     scales included) but not the running statistics the pretrained layers work with."""
-    from fetchbench_ms.grasping.network import CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasp_prediction.network import CGNConfig, ContactGraspNet
 
     train = load_trainer()
     torch.manual_seed(0)
@@ -421,7 +421,7 @@ def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp
     import dataclasses
     import json
 
-    from fetchbench_ms.grasping import predict
+    from fetchbench_ms.grasp_prediction import predict
 
     train = load_trainer()
     out = tmp_path / "export"
@@ -453,8 +453,8 @@ def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp
 
 
 def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):
-    from fetchbench_ms.grasping.predict import PredictedGrasps
-    from fetchbench_ms.grasping.show import render_predictions_png
+    from fetchbench_ms.grasp_prediction.predict import PredictedGrasps
+    from fetchbench_ms.grasp_prediction.show import render_predictions_png
 
     rng = np.random.default_rng(4)
     target = random_cloud(rng, 300, 0.02) + np.array([0.5, 0.0, 0.4], dtype=np.float32)
@@ -488,7 +488,7 @@ def test_speed_benchmark_times_the_shipped_cloud_without_rendering(capsys, tmp_p
 
 
 def test_grasp_coverage_counts_annotated_grasps_near_and_aligned_with_a_prediction():
-    from fetchbench_ms.grasping.metrics import grasp_coverage
+    from fetchbench_ms.grasp_prediction.metrics import grasp_coverage
 
     annotated = np.tile(np.eye(4), (4, 1, 1))
     annotated[:, :3, 3] = [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]]

@@ -10,10 +10,10 @@ import pytest
 import trimesh
 
 from fetchbench_ms.cli import main as cli_main
-from fetchbench_ms.grasps import hand, store
-from fetchbench_ms.grasps.build import LabelSettings, build
-from fetchbench_ms.grasps.physics import GraspLabeller
-from fetchbench_ms.grasps.sampler import SamplerConfig, object_collision_manager, sample_candidates
+from fetchbench_ms.grasp_labels import hand, store
+from fetchbench_ms.grasp_labels.build import LabelSettings, build
+from fetchbench_ms.grasp_labels.physics import GraspLabeller
+from fetchbench_ms.grasp_labels.sampler import SamplerConfig, object_collision_manager, sample_candidates
 from fetchbench_ms.objects.asset import ObjectAsset, ObjectRecord
 from fetchbench_ms.utils.packed import xz_bytes
 from grasp_dirs import write_npz_form
@@ -197,7 +197,7 @@ def manifest_count(manifest: dict, object_id: str) -> int:
 def test_shipped_labels_hold_when_rerun_in_physics(labeller):
     """A seeded sample of shipped labels, re-run in physics: stored successes hold again
     (>= 90%), stored failures mostly fail again. Also checks every file's hash."""
-    from fetchbench_ms.grasps.build import object_from_source
+    from fetchbench_ms.grasp_labels.build import object_from_source
 
     shipped = store.GraspStore(SHIPPED)
     assert shipped.verify() == []
@@ -250,7 +250,7 @@ def test_show_draws_successful_grasps_and_cli_errors(tmp_path, capsys):
 def test_objects_stats_report_grasps():
     from fetchbench_ms.objects import catalog
 
-    stats = catalog.stats()  # importing fetchbench_ms.grasps registered the extension
+    stats = catalog.stats()  # importing fetchbench_ms.grasp_labels registered the extension
     grasps = stats["grasps"]
     assert grasps["kept"] + grasps["dropped"] == grasps["labelled"] <= stats["total"]
     assert 0.5 < grasps["success_rate"] < 1.0 and grasps["mean_successes_per_kept"] >= store.MIN_SUCCESSES
@@ -276,3 +276,24 @@ def test_candidates_do_not_depend_on_how_the_hull_is_listed():
             sample_candidates(b, 16, np.random.default_rng(4)).T_object_hand,
             sample_candidates(a, 16, np.random.default_rng(4)).T_object_hand,
         )
+
+
+def test_the_old_package_names_import_the_same_modules():
+    """``grasps`` -> ``grasp_labels``, ``grasping`` -> ``grasp_prediction``: code, loader strings
+    and pickles written with the old names get the very same modules (fetchbench_ms/_moved.py)."""
+    import importlib
+    import pickle
+
+    import fetchbench_ms.grasp_labels.store as labels_store
+    import fetchbench_ms.grasp_prediction as prediction
+    from fetchbench_ms.grasp_labels.build import object_from_source, resolve_loader
+
+    assert importlib.import_module("fetchbench_ms.grasps.store") is labels_store
+    assert importlib.import_module("fetchbench_ms.grasping") is prediction
+    assert labels_store.__spec__.name == "fetchbench_ms.grasp_labels.store"  # its own spec, not the alias's
+    assert resolve_loader("fetchbench_ms.grasps.build:object_from_source") is object_from_source
+    old_pickle = pickle.dumps(labels_store.GraspStore, protocol=0).replace(b"fetchbench_ms.grasp_labels.store",
+                                                                           b"fetchbench_ms.grasps.store")
+    assert pickle.loads(old_pickle) is labels_store.GraspStore
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("fetchbench_ms.grasps.no_such_module")

@@ -47,7 +47,7 @@ _import = import_script
 @pytest.fixture(scope="module")
 def sample_data(tmp_path_factory) -> Path:
     """The first steps of the sample's first 2 demos, through ManiSkill's replay tool."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path_factory.mktemp("imit-data")
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
                          "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
@@ -71,7 +71,7 @@ def test_conversion_writes_the_policies_frames(sample_data):
     # the TCP is in front of the base, within the Panda's reach
     assert (np.linalg.norm(data["tcp"][:, :3], axis=1) < 1.0).all()
     # re-running resumes: nothing is converted again
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     before = sorted((p.name, p.stat().st_mtime_ns) for p in sample_data.glob("*.imit.h5"))
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(sample_data), "--count", "2", "--chunk", "2",
                          "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
@@ -245,7 +245,7 @@ def test_a_run_goes_on_over_shards_of_the_data(sample_data, tmp_path):
     numbers a shard's chunks as in the whole, --until-step stops a call, and --new-data
     resumes the checkpoint on the next shard (refused without it); the export records each
     shard's data hash and the step it began at."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     shard = tmp_path / "shard1"
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(shard), "--start", "2", "--count", "2",
                          "--chunk", "2", "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"]) == 0
@@ -346,7 +346,7 @@ FRAME_STRIDE = 3
 def sample_data_k3(tmp_path_factory) -> Path:
     """``sample_data``'s demos and steps converted with --frame-stride 3: a replay without
     rendering, then the kept frames rendered from its env states."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path_factory.mktemp("imit-data-k3")
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
                          "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32",
@@ -459,7 +459,7 @@ def test_strided_conversion_keeps_the_replays_frames(sample_data, sample_data_k3
     print(f"segments equal to the bit: {same.sum()} of {same.size}")
     assert same.mean() >= 0.6 and same.all(axis=1).any()
     # The folder holds stride 3: another stride is refused before anything runs.
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     with pytest.raises(SystemExit, match="frame_stride"):
         convert.main(["--traj-path", str(SAMPLE), "--out", str(sample_data_k3), "--count", "2", "--chunk", "2",
                       "--first-steps", str(FIRST_STEPS), "--sizes", "128,64,32"])
@@ -469,7 +469,7 @@ def test_overlapped_replay_writes_the_same_files(tmp_path, monkeypatch):
     """--overlap-replay (chunk k + 1's state-only replay in the background during chunk k's
     render) writes the sequential conversion's bytes; an error during a chunk stops the
     background replay and removes its work folder, and the same command then resumes."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     common = ["--traj-path", str(SAMPLE), "--count", "2", "--chunk", "1", "--first-steps", str(FIRST_STEPS),
               "--sizes", "128,64,32", "--frame-stride", str(FRAME_STRIDE)]
     with pytest.raises(SystemExit, match="--overlap-replay.*K > 1"):
@@ -1047,7 +1047,7 @@ def test_e2e_act_without_a_checkpoint_says_how_to_train_one(tmp_path, monkeypatc
 @pytest.fixture(scope="module")
 def sample_frames_full_size(tmp_path_factory) -> Path:
     """The first 40 steps of the sample's first 2 demos at the policies' point counts."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path_factory.mktemp("imit-full")
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
                          "--first-steps", "40"]) == 0
@@ -1058,7 +1058,7 @@ def sample_frames_full_size(tmp_path_factory) -> Path:
 def sample_frames_full_size_k3(tmp_path_factory) -> Path:
     """The same steps at frame stride 3: what a checkpoint trained at that stride reads (its
     history is of frames 3 steps apart, its actions the mean over each window)."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path_factory.mktemp("imit-full-k3")
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
                          "--first-steps", "40", "--frame-stride", "3"]) == 0
@@ -1069,7 +1069,7 @@ def sample_frames_full_size_k3(tmp_path_factory) -> Path:
 def sample_frames_composed_k3(tmp_path_factory) -> Path:
     """The same steps at frame stride 3 in composed_pointcloud at the demos' own states, as the
     imitation rounds make their frames (--labels expert-states)."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     out = tmp_path_factory.mktemp("imit-composed-k3")
     assert convert.main(["--traj-path", str(SAMPLE), "--out", str(out), "--count", "2", "--chunk", "2",
                          "--first-steps", "40", "--frame-stride", "3", "--obs-mode", "composed_pointcloud",

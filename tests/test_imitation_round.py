@@ -1,4 +1,4 @@
-"""scripts/imitation_round.py: one round of the growing imitation dataset end to end on the CPU
+"""scripts/imitation/imitation_round.py: one round of the growing imitation dataset end to end on the CPU
 (two train tasks, a tiny MLP, one val task), its record, status, curve and choice rule."""
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ TINY = "--batch-size 8 --warmup 1 --val-every 10000 --log-every 1 --ckpt-every 1
 
 @pytest.fixture(scope="module")
 def rounds():
-    return import_script(ROOT / "scripts/imitation_round.py")
+    return import_script(ROOT / "scripts/imitation/imitation_round.py")
 
 
 def _shipped(**successes) -> dict:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from fetchbench_ms.grasps import store as grasp_store
+from fetchbench_ms.grasp_labels import store as grasp_store
 from fetchbench_ms.tasks import suite_packed
 from fetchbench_ms.tasks.suite import load_suite, shipped_suite_file, suite_file_sha256, suite_text
 from fetchbench_ms.utils import packed

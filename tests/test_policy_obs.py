@@ -106,7 +106,7 @@ def test_policy_obs_mode_cameras_and_refusals():
 def state_replay(tmp_path_factory) -> Path:
     """The sample's first demo's first steps through the state-only replay (pd_joint_delta_pos),
     as the converter runs it for --obs-mode policy_pointcloud."""
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     from fetchbench_ms import replay_trajectory
 
     work = tmp_path_factory.mktemp("state-replay")

@@ -1,5 +1,5 @@
 """Training on policy_pointcloud frames and deploying what was trained: the four trainers from
-one launcher (scripts/train_imitation_gpus.py, on the CPU here), the obs mode recorded in the
+one launcher (scripts/imitation/train_imitation_gpus.py, on the CPU here), the obs mode recorded in the
 checkpoint and read back by the eval methods."""
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ KIND_ARGS = {"mlp": "--hidden 32", "transformer": "--d-model 32 --layers 1 --hea
 
 
 def _script(name: str):
-    return import_script(ROOT / "scripts" / f"{name}.py")
+    return import_script(ROOT / "scripts" / "imitation" / f"{name}.py")
 
 
 @pytest.fixture(scope="module")

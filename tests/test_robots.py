@@ -260,11 +260,11 @@ def test_eval_records_the_robot(tmp_path):
 
 
 def test_robotiq_labeller_tries_franka_candidates_in_physics():
-    """The Robotiq re-tries the shipped Franka-hand candidates (grasps.robotiq): poses where
+    """The Robotiq re-tries the shipped Franka-hand candidates (grasp_labels.robotiq): poses where
     its open hand cuts the object are dropped, the rest get physics verdicts, and some of
     the Franka hand's successes hold in the Robotiq too."""
-    from fetchbench_ms.grasps.robotiq import RobotiqLabeller, collision_free, franka_candidates
-    from fetchbench_ms.grasps.store import load_grasps
+    from fetchbench_ms.grasp_labels.robotiq import RobotiqLabeller, collision_free, franka_candidates
+    from fetchbench_ms.grasp_labels.store import load_grasps
     from fetchbench_ms.objects.catalog import get_object
 
     object_id = "blob/233"

@@ -3,7 +3,7 @@
 Every script that trains, makes training data or selects refuses the test suite (by name,
 or a suite file of its tasks or objects, such as ``smoke``) with one line on stderr and exit
 status 2, before it writes anything; given train or val it gets past the guard (each case
-stops at the first error after it). ``scripts/select_checkpoint.py`` chooses the candidate
+stops at the first error after it). ``scripts/imitation/select_checkpoint.py`` chooses the candidate
 with the best val success (ties: the earlier step) and records every candidate's figures.
 """
 from __future__ import annotations
@@ -149,7 +149,7 @@ def _demos(folder: Path, suite: str, task: str | None, target: str | None = None
 
 
 def test_demo_conversion_refuses_test(tmp_path, capsys):
-    convert = _import(ROOT / "scripts/convert_demos_for_imitation.py", "convert_demos_for_imitation")
+    convert = _import(ROOT / "scripts/imitation/convert_demos_for_imitation.py", "convert_demos_for_imitation")
     train_object = _train_objects(1)[0]
     cases = [("test", "test/0001", train_object), ("train", "smoke/0003", train_object),
              ("train", "train/0001", _a_test_object())]
@@ -257,7 +257,7 @@ def _fake_evaluate(successes_by_step: dict, calls: list):
 def test_selection_picks_the_val_best_and_records_every_candidate(candidates, tmp_path):
     from fetchbench_ms.utils.io import sha256_file
 
-    select = _import(ROOT / "scripts/select_checkpoint.py", "select_checkpoint")
+    select = _import(ROOT / "scripts/imitation/select_checkpoint.py", "select_checkpoint")
     export = tmp_path / "export" / "imit_mlp.pt"
     calls: list = []
     assert select.main(["--candidates", str(candidates), "--out", str(tmp_path / "sel"),
@@ -283,7 +283,7 @@ def test_selection_picks_the_val_best_and_records_every_candidate(candidates, tm
 
 def test_selection_runs_fetchbench_eval_on_val(candidates, tmp_path, monkeypatch):
     """The default evaluator's command: `fetchbench eval` of the candidate on the val tasks."""
-    select = _import(ROOT / "scripts/select_checkpoint.py", "select_checkpoint")
+    select = _import(ROOT / "scripts/imitation/select_checkpoint.py", "select_checkpoint")
     commands = []
 
     def call(command):
@@ -306,7 +306,7 @@ def test_selection_runs_fetchbench_eval_on_val(candidates, tmp_path, monkeypatch
 
 
 def test_selection_refuses_test_and_small_val_sets(candidates, tmp_path, capsys):
-    select = _import(ROOT / "scripts/select_checkpoint.py", "select_checkpoint")
+    select = _import(ROOT / "scripts/imitation/select_checkpoint.py", "select_checkpoint")
     export = tmp_path / "imit_mlp.pt"
     for suite in ("test", "smoke", str(shipped_suite_file("test"))):
         with pytest.raises(SystemExit) as excinfo:
@@ -329,7 +329,7 @@ def test_selection_refuses_test_and_small_val_sets(candidates, tmp_path, capsys)
 
 
 def test_selection_cli_exits_2_on_test(tmp_path):
-    done = subprocess.run([sys.executable, str(ROOT / "scripts/select_checkpoint.py"), "--candidates", str(tmp_path),
+    done = subprocess.run([sys.executable, str(ROOT / "scripts/imitation/select_checkpoint.py"), "--candidates", str(tmp_path),
                            "--suite", "test", "--out", str(tmp_path / "sel")], capture_output=True, text=True,
                           timeout=120, cwd=tmp_path)
     assert done.returncode == 2
@@ -424,12 +424,12 @@ def test_bench_cgn_quality_refuses_test_unless_report_only(tmp_path, capsys):
 @pytest.fixture
 def test_objects_in_the_catalog(monkeypatch):
     """The train split as the catalog would list it if a test-split object slipped in."""
-    import fetchbench_ms.grasps
+    import fetchbench_ms.grasp_labels
     import fetchbench_ms.objects.loading
 
     ids = [*_train_objects(), _a_test_object()]
     monkeypatch.setattr(fetchbench_ms.objects.loading, "object_ids", lambda split="test": ids)
-    monkeypatch.setattr(fetchbench_ms.grasps, "objects_with_grasps", lambda: ids)
+    monkeypatch.setattr(fetchbench_ms.grasp_labels, "objects_with_grasps", lambda: ids)
 
 
 def test_cgn_training_data_refuses_test_objects(tmp_path, capsys, test_objects_in_the_catalog):

@@ -78,8 +78,8 @@ def test_a_view_is_the_evaluation_crop_and_no_label_is_a_colliding_grasp(views_m
     import gymnasium as gym
 
     import fetchbench_ms  # noqa: F401
-    from fetchbench_ms.grasping.predict import T_CGN_HAND
-    from fetchbench_ms.grasps import load_grasps
+    from fetchbench_ms.grasp_prediction.predict import T_CGN_HAND
+    from fetchbench_ms.grasp_labels import load_grasps
     from fetchbench_ms.planning.world_models import mesh_world, object_poses_base
 
     train = views_module._trainer()

@@ -692,7 +692,7 @@ def _conversion_refused(source: Path, out: Path) -> str:
     """The converter's one line for ``source``; nothing written."""
     from script_modules import import_script
 
-    convert = import_script(REPO / "scripts/convert_demos_for_imitation.py")
+    convert = import_script(REPO / "scripts/imitation/convert_demos_for_imitation.py")
     with pytest.raises(SystemExit) as excinfo:
         convert.main(["--traj-path", str(source), "--out", str(out)])
     message = excinfo.value.code

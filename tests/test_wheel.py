@@ -23,7 +23,7 @@ from pathlib import Path
 import fetchbench_ms, gymnasium as gym
 from fetchbench_ms.utils.paths import assets_root
 from fetchbench_ms.tasks.suite import shipped_suite_file, shipped_suites
-from fetchbench_ms.grasps.store import load_grasps
+from fetchbench_ms.grasp_labels.store import load_grasps
 from fetchbench_ms.policies.deploy import default_checkpoint
 package = Path(fetchbench_ms.__file__).resolve().parent
 site = Path(sys.argv[1]).resolve()

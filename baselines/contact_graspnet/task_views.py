@@ -3,12 +3,12 @@
 Each view is what ``cgn-ptd-*`` feeds the network at evaluation: the env's two cameras'
 point clouds fused in the robot-base frame (``envs.fetch_clouds`` on the reset observation:
 furniture, clutter, occlusion and robot points left out), cropped to the cube about one
-object and drawn to ``--num-points`` with ``grasping.predict.region_index`` (inference's own
+object and drawn to ``--num-points`` with ``grasp_prediction.predict.region_index`` (inference's own
 crop), mean-centred. View 0 of a task crops about the task's target (exactly what inference
 sees); further views (``--views-per-task``) crop about the other objects seen, largest first.
 
 Labels are scene-consistent, as the original's: every task object's physics-verified grasps
-(``fetchbench_ms.grasps``; at most ``--max-grasps`` per object, drawn with the task's seed)
+(``fetchbench_ms.grasp_labels``; at most ``--max-grasps`` per object, drawn with the task's seed)
 are placed at the object's pose, and a grasp whose open hand comes into the scene (the oracle
 mesh world of ``planning.world_models.mesh_world``: furniture, robot table, floor, the other
 objects; more than 1 mm deep) is dropped. Each kept grasp's two finger contacts carry it in
@@ -103,7 +103,7 @@ def hand_collides(world, T_base_hand: np.ndarray, exclude: tuple[str, ...]) -> n
 def scene_labels(task, world, T_base_objects: list[np.ndarray], max_grasps: int, rng: np.random.Generator) -> dict:
     """Finger contacts (base frame) of every object's verified grasps that are free in the
     scene, with their CGN-frame labels and widths; per object the grasps tested and kept."""
-    from fetchbench_ms.grasps import load_grasps, objects_with_grasps
+    from fetchbench_ms.grasp_labels import load_grasps, objects_with_grasps
 
     with_grasps = set(objects_with_grasps())
     contacts, labels, widths, owners, kept, total = [], [], [], [], [], []
@@ -164,7 +164,7 @@ def task_views(env, task_id: str, args: Args) -> list[dict]:
     """The views of one task (module docstring), each with only its positive points' labels."""
     from fetchbench_ms.envs import fetch_clouds
     from fetchbench_ms.envs.pointcloud import LABEL_FURNITURE, LABEL_OBJECT, _np
-    from fetchbench_ms.grasping.predict import region_index
+    from fetchbench_ms.grasp_prediction.predict import region_index
     from fetchbench_ms.planning.world_models import mesh_world, object_poses_base
 
     seed = task_seed(task_id, args.seed)

@@ -2,7 +2,7 @@
 
 One readable file in the style of CleanRL / ManiSkill's baselines: the arguments are the
 dataclass below (tyro flags), then data, model, losses, loop. The network is the package's
-(``fetchbench_ms.grasping.network.ContactGraspNet``); only training lives here.
+(``fetchbench_ms.grasp_prediction.network.ContactGraspNet``); only training lives here.
 
 Objects. Only train-split objects with verified grasps are used. A fixed, hash-based 5 %
 of them (``holdout``: sha256 of the object id) is held out: the training views never show
@@ -23,7 +23,7 @@ z-buffer "render"), world frame, z up, then crops the cube about one seen object
 them. (The first run's views, a whole 0.7 m table seen by one camera, 3x sparser, 5 % object
 points, were far from what the network sees at inference: the pretrained logits reached
 +-1e4 on them and the first steps were spent on that.) Labels come from the objects'
-physics-verified grasps (fetchbench_ms.grasps) that are collision-free in the scene
+physics-verified grasps (fetchbench_ms.grasp_labels) that are collision-free in the scene
 (``collision_free``: the open hand above the table and out of the other objects; verified on
 the object alone, most of them put the palm through the table): each grasp's two finger
 contacts (TCP +- width/2 along the closing axis); a cloud point within 5 mm of a contact is
@@ -75,7 +75,7 @@ import numpy as np
 import torch
 import tyro
 
-from fetchbench_ms.grasping.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
+from fetchbench_ms.grasp_prediction.network import GRIPPER_DEPTH, MAX_WIDTH, CGNConfig, ContactGraspNet
 from fetchbench_ms.geometry.pointops import farthest_point_sample, fps_backend, gather
 from fetchbench_ms.utils.workers import one_thread_per_spawned_worker
 
@@ -146,7 +146,7 @@ TABLE_HALF = 0.4  # m, half side of the table patch (a 0.6 m region about an obj
 # Control points of the gripper in CGN's frame (fingers along x): base, palm, finger bases, finger tips.
 CONTROL_POINTS = np.array([[0, 0, 0], [0, 0, 0.0584], [0.04, 0, 0.0584], [-0.04, 0, 0.0584],
                            [0.04, 0, GRIPPER_DEPTH], [-0.04, 0, GRIPPER_DEPTH]], dtype=np.float32)
-# panda_hand = cgn @ T_CGN_HAND (fetchbench_ms.grasping.predict), so cgn = hand @ inv(T_CGN_HAND)
+# panda_hand = cgn @ T_CGN_HAND (fetchbench_ms.grasp_prediction.predict), so cgn = hand @ inv(T_CGN_HAND)
 T_HAND_CGN = np.array([[0.0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
 
 
@@ -161,7 +161,7 @@ def holdout(object_id: str, fraction: float) -> bool:
 def train_val_objects(fraction: float) -> tuple[list[str], list[str]]:
     """(training, validation) ids: train-split objects with verified grasps, split by ``holdout``.
     A test-split object among them is refused (``tasks.splits.TestSplitRefused``)."""
-    from fetchbench_ms.grasps import objects_with_grasps
+    from fetchbench_ms.grasp_labels import objects_with_grasps
     from fetchbench_ms.objects.loading import object_ids
     from fetchbench_ms.tasks.splits import refuse_test_objects
 
@@ -219,7 +219,7 @@ def hand_points() -> np.ndarray:
     surface samples (about 2 mm apart on the fingers), what the scene-collision test checks."""
     import trimesh
 
-    from fetchbench_ms.grasps.hand import open_hand_mesh
+    from fetchbench_ms.grasp_labels.hand import open_hand_mesh
 
     mesh = open_hand_mesh()
     surface, _ = trimesh.sample.sample_surface(mesh, 2000, seed=0)
@@ -267,8 +267,8 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
     with the grasp (in CGN's frame) that each contact carries."""
     import trimesh
 
-    from fetchbench_ms.grasps import load_grasps
-    from fetchbench_ms.grasps.sampler import ConvexUnion
+    from fetchbench_ms.grasp_labels import load_grasps
+    from fetchbench_ms.grasp_labels.sampler import ConvexUnion
     from fetchbench_ms.objects.loading import load_object
 
     clouds, owners, contacts, labels, widths, hands = [], [], [], [], [], []
@@ -318,14 +318,14 @@ def make_scene(object_ids: list[str], rng: np.random.Generator) -> dict:
 
 def render_view(scene: dict, rng: np.random.Generator, num_points: int, radius: float) -> dict:
     """One labelled view of a scene, made as the network's input is made at inference
-    (fetchbench_ms.grasping.predict): what two cameras at random poses see (``CAMERAS``),
+    (fetchbench_ms.grasp_prediction.predict): what two cameras at random poses see (``CAMERAS``),
     fused, cropped to the cube about one object (``predict.region_index``: the same region
     size and the same draw of ``num_points``), mean-centred. Returns points (num_points, 3)
     float32, z up, and ``mean`` (taken out, scene frame); per point: positive (bool), grasp
     (4, 4) CGN-frame label, width, owner (object index in the scene, -1: table)."""
     from scipy.spatial import cKDTree
 
-    from fetchbench_ms.grasping.predict import region_index
+    from fetchbench_ms.grasp_prediction.predict import region_index
 
     seen = []
     for _ in range(CAMERAS):
@@ -649,7 +649,7 @@ def main(args: Args) -> dict:
     model = ContactGraspNet(config).to(args.device)
     net = model  # what the training step calls: the DDP wrapper when data-parallel
     if args.init == "pretrained" and not args.tiny:  # before the data: a missing package fails at once
-        from fetchbench_ms.grasping.predict import load_model
+        from fetchbench_ms.grasp_prediction.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
     freeze_bn = args.freeze_bn and args.init == "pretrained" and not args.tiny

@@ -2,7 +2,7 @@
 (log, checkpoint, resume, time limit), validation (held-out demos' loss; success on `val`
 suite tasks through `fetchbench eval`), the export (under the run folder: making it the
 package's checkpoint is scripts/maint/ship_imitation.py's step) and of the
-``--save-every`` candidates that ``scripts/select_checkpoint.py`` chooses from on val tasks.
+``--save-every`` candidates that ``scripts/imitation/select_checkpoint.py`` chooses from on val tasks.
 Training files of test tasks are refused before anything is written (``tasks.splits``).
 
 The trainers (``train_mlp.py``, ``train_transformer.py``, ``train_diffusion.py``, ``train_act.py``) hold their
@@ -41,7 +41,7 @@ EARLY_LOG_STEPS = (1, 2, 5, 10, 20, 50)  # logged before the first --log-every: 
 
 @dataclass
 class TrainArgs:
-    data: str = "data/imit"  # folder of *.imit.h5 training files (scripts/convert_demos_for_imitation.py)
+    data: str = "data/imit"  # folder of *.imit.h5 training files (scripts/imitation/convert_demos_for_imitation.py)
     run: str = ""  # run folder: log, checkpoint (re-running resumes); default runs/imit/<kind>
     device: str = "cuda" if torch.cuda.is_available() else "cpu"
     seed: int = 0
@@ -68,7 +68,7 @@ class TrainArgs:
     until_step: int = 0  # > 0: checkpoint and stop at this step (re-run to resume; the LR schedule spans --steps)
     new_data: bool = False
     """Resume the run's checkpoint on other data: the next shard of a dataset converted and
-    trained in several runs (scripts/convert_demos_for_imitation.py --start). Each data hash and
+    trained in several runs (scripts/imitation/convert_demos_for_imitation.py --start). Each data hash and
     the step it began at are recorded (checkpoint, export JSON)."""
     init_from: str = ""
     """Start a new run folder from an exported checkpoint (assets/checkpoints/imit_<kind>.pt or a
@@ -83,7 +83,7 @@ class TrainArgs:
     save_every: int = 0
     """> 0: every this many steps, and at the end of the schedule, export a candidate checkpoint
     (<run>/candidates/step_NNNNNNN.pt + .json, as --export writes): what
-    scripts/select_checkpoint.py chooses from on val tasks"""
+    scripts/imitation/select_checkpoint.py chooses from on val tasks"""
     export: bool = False
     """When done, export the fp16 checkpoint and its JSON (evaluate it with `fetchbench eval
     --policy-checkpoint`; scripts/maint/ship_imitation.py makes it the package's own)"""

@@ -9,7 +9,7 @@ termination BCE; AdamW with warm-up and cosine decay. The network is the package
 (``fetchbench_ms.policies.networks.MLPPolicy``); the loop, the run folder and the validation
 are ``common.py``'s.
 
-    # data: scripts/convert_demos_for_imitation.py (docs/imitation.md); the H100 run, ~10 min a
+    # data: scripts/imitation/convert_demos_for_imitation.py (docs/imitation.md); the H100 run, ~10 min a
     # call, resumed by the same command; the last call evaluates on val tasks and exports
     python baselines/imitation/train_mlp.py --data data/imit --run runs/imit/mlp --steps 30000 \\
         --time-limit 540 --export

@@ -184,7 +184,7 @@ def label_task(env, task_id: str, args: Args) -> dict:
     from fetchbench_ms.planning.collision_net import grid_to_uint8, scene_grid
     from fetchbench_ms.planning.ik import solve_ik
     from fetchbench_ms.planning.robot import panda
-    from fetchbench_ms.grasps.candidates import object_grasps, retreat, tcp_from_hand
+    from fetchbench_ms.grasp_labels.candidates import object_grasps, retreat, tcp_from_hand
     from fetchbench_ms.objects.loading import load_object
     from fetchbench_ms.planning.world_models import mesh_world, object_poses_base, remove_robot_points
 

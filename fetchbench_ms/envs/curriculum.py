@@ -225,7 +225,7 @@ def _advance_base(task: TaskSpec, advance: float) -> tuple[TaskSpec, float]:
 def _pregrasp_qpos(task: TaskSpec, distance: float) -> Optional[np.ndarray]:
     """A collision-free arm configuration (7,) with the TCP ``distance`` back from one of
     the target's annotated grasps, closest to the task's start configuration; None if none."""
-    from ..grasps.candidates import object_grasps, retreat, tcp_from_hand
+    from ..grasp_labels.candidates import object_grasps, retreat, tcp_from_hand
     from ..planning.checker import CollisionChecker
     from ..planning.ik import solve_ik
     from ..planning.robot import panda

@@ -140,12 +140,12 @@ def resolve_run(method: MethodSpec | str, retries: int = 1, grasp_model: str = "
             annotated = [m.name for m in registry().values() if m.family == "sense_plan_act" and m.grasps == "annotated"]
             raise ValueError(f"--grasp-labels applies to the annotated-grasp methods ({', '.join(annotated)}), "
                              f"not {spec.name}")
-        from ..grasps.store import GraspStore
+        from ..grasp_labels.store import GraspStore
 
         grasp_labels = str(Path(grasp_labels).resolve())
         GraspStore(grasp_labels)  # no manifest there: a clear error before any task runs
     if spec.grasps == "cgn":
-        from ..grasping import load_model
+        from ..grasp_prediction import load_model
 
         load_model(grasp_model)  # unknown or missing weights: a clear error before any task runs
     if (planner_options.get("mppi_cost") or spec.collision) == "network":

@@ -4,7 +4,7 @@ The Fetch dataset's demos (``fetchbench demos run``) store env states and ``pd_j
 actions; ManiSkill's replay tool renders them into ``compact_pointcloud`` observations with
 ``pd_joint_delta_pos`` actions (``python -m fetchbench_ms.replay_trajectory -c
 pd_joint_delta_pos -o compact_pointcloud --save-traj``): 22,528 points a frame, ~139 KB.
-5,000 trajectories of ~200 frames would be ~140 GB, so ``scripts/convert_demos_for_imitation.py``
+5,000 trajectories of ~200 frames would be ~140 GB, so ``scripts/imitation/convert_demos_for_imitation.py``
 keeps, at conversion time, only what the policies read (``POLICY_SIZES``: 1,024 scene + 512
 target + 256 robot points, farthest-point sampled within each segment, fp16, with their
 labels) plus the joint positions, the TCP pose, the arm action and the stage labels of the
@@ -506,7 +506,7 @@ def load_training_files(paths, sizes: dict | None = None) -> dict:
         files += sorted(p.glob("*.imit.h5")) if p.is_dir() else [p]
     if not files:
         raise FileNotFoundError(f"no training files (*.imit.h5) in {paths}; make them with "
-                                "scripts/convert_demos_for_imitation.py")
+                                "scripts/imitation/convert_demos_for_imitation.py")
     parts = {k: [] for k in ARRAYS}
     episodes, lengths, file_sizes, file_stride, file_mode, file_labels = [], [], None, None, None, None
     for path in files:

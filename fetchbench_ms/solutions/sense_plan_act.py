@@ -27,7 +27,7 @@ release, filter grasps by IK (collision-aware) in their own world. ``ga-mesh-tra
 (``planning.trajopt``, the paper's cuRobo rows) instead of RRTConnect. ``cgn-ptd-rrt`` (the
 paper's CGN-RRTConnect) and ``cgn-mesh-rrt`` (CGN-Mesh-RRTConnect) take the top
 Contact-GraspNet predictions on the observed target instead (``SolveConfig.grasp_model``:
-``pretrained`` or ``ours``, see ``fetchbench_ms.grasping``); ``cgn-ptd-trajopt`` (CGN-CuRobo)
+``pretrained`` or ``ours``, see ``fetchbench_ms.grasp_prediction``); ``cgn-ptd-trajopt`` (CGN-CuRobo)
 and ``cgn-mesh-trajopt`` (CGN-Mesh-CuRobo) plan those with the trajectory optimiser. ``cgn-ptd-mppi`` (the paper's CGN-Cabinet),
 ``ga-ptd-mppi`` and ``ga-mesh-mppi`` move by receding-horizon MPPI (``planning.mppi``), which
 executes while it plans; its collision cost is the learned scene-collision network on the
@@ -58,8 +58,8 @@ from ..planning.ik import solve_ik
 from ..planning.robot import robot_for_env
 from ..planning.rrt import PlanRequest
 from ..planning.timing import time_parametrize
-from ..grasping.candidates import predicted_grasps
-from ..grasps.candidates import choose_grasps, object_grasps, retreat, tcp_from_hand
+from ..grasp_prediction.candidates import predicted_grasps
+from ..grasp_labels.candidates import choose_grasps, object_grasps, retreat, tcp_from_hand
 from ..planning.world import pose_matrix
 from ..planning.world_models import T_world_base, mesh_world, object_poses_base, pointcloud_world
 from ..utils.io import sha256_bytes
@@ -96,7 +96,7 @@ class SolveConfig:
     start_tolerance: float = 0.05  # m of sphere overlap
     close_seconds: float = 1.5
     max_grasps: int = 128  # candidates drawn (annotated grasps, or antipodal stand-ins)
-    grasp_model: str = "pretrained"  # CGN methods: weight set (fetchbench_ms.grasping.GRASP_MODELS)
+    grasp_model: str = "pretrained"  # CGN methods: weight set (fetchbench_ms.grasp_prediction.GRASP_MODELS)
     cgn_grasps: int = 10  # CGN methods: the best predictions by score that go to IK (the original's top 10)
     ik_grasps: int = 24  # annotated grasps whose open hand is collision-free go to IK, at most
     ik_seeds: int = 12  # seeds per candidate (plus the current configuration)

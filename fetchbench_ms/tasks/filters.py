@@ -100,7 +100,7 @@ class FilterEnv:
         from ..planning.checker import CollisionChecker
         from ..planning.ik import solve_ik
         from ..planning.robot import robot_for_env
-        from ..grasps.candidates import object_grasps, tcp_from_hand
+        from ..grasp_labels.candidates import object_grasps, tcp_from_hand
         from ..planning.world_models import mesh_world, object_poses_base
 
         u = self.env.unwrapped

@@ -18,9 +18,9 @@ row says ``"numpy"`` (its sampler).
 
 ``quality`` renders each task's clouds, predicts grasps on the target, turns the best
 ``--top`` into the object's frame and runs them through the grasp labeller
-(``fetchbench_ms.grasps.physics``, the same trial as the annotations: close, gravity,
+(``fetchbench_ms.grasp_labels.physics``, the same trial as the annotations: close, gravity,
 shake), and measures the coverage of the target's annotated successful grasps
-(``fetchbench_ms.grasping.metrics.grasp_coverage``: those with a prediction of score
+(``fetchbench_ms.grasp_prediction.metrics.grasp_coverage``: those with a prediction of score
 >= ``--coverage-score`` whose TCP is within 2 cm and approach within 30 deg; annotated
 grasps on the unseen side count too). It is how weights and settings are compared, so it
 runs on ``val`` (the default); the test suite (or a suite of its tasks, such as ``smoke``)
@@ -56,7 +56,7 @@ def cmd_save_cloud(args) -> dict:
     """Render a task once and save its target region (what the network reads) for ``speed``."""
     from pathlib import Path
 
-    from fetchbench_ms.grasping.predict import target_region
+    from fetchbench_ms.grasp_prediction.predict import target_region
 
     env, clouds = _env_and_clouds(args.task, args.task.split("/")[0])
     env.close()
@@ -72,8 +72,8 @@ def cmd_save_cloud(args) -> dict:
 def _timing_model(name: str, device: str):
     """The weight set's network, or (when its weights are not installed) the same network
     with random weights: the cost does not depend on the weights."""
-    from fetchbench_ms.grasping import load_model
-    from fetchbench_ms.grasping.network import ContactGraspNet
+    from fetchbench_ms.grasp_prediction import load_model
+    from fetchbench_ms.grasp_prediction.network import ContactGraspNet
 
     try:
         return load_model(name, device), name
@@ -90,7 +90,7 @@ def cmd_speed(args) -> dict:
     import torch
 
     from fetchbench_ms.geometry.pointops import fps_backend
-    from fetchbench_ms.grasping.predict import predict_batch
+    from fetchbench_ms.grasp_prediction.predict import predict_batch
 
     torch.set_num_threads(args.threads)
     saved = np.load(args.cloud)
@@ -139,10 +139,10 @@ def cmd_quality(args) -> dict:
 
     from fetchbench_ms.evaluation.runner import open_suite, parse_range
     from fetchbench_ms.envs import fetch_clouds, make
-    from fetchbench_ms.grasping import predict_from_clouds
-    from fetchbench_ms.grasping.metrics import grasp_coverage
-    from fetchbench_ms.grasps import load_grasps
-    from fetchbench_ms.grasps.physics import GraspLabeller
+    from fetchbench_ms.grasp_prediction import predict_from_clouds
+    from fetchbench_ms.grasp_prediction.metrics import grasp_coverage
+    from fetchbench_ms.grasp_labels import load_grasps
+    from fetchbench_ms.grasp_labels.physics import GraspLabeller
     from fetchbench_ms.objects.loading import load_object
     from fetchbench_ms.planning.world_models import object_poses_base
 

@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from fetchbench_ms.grasps import physics
-from fetchbench_ms.grasps.build import LabelSettings, label_object
-from fetchbench_ms.grasps.store import GraspStore, default_dir
+from fetchbench_ms.grasp_labels import physics
+from fetchbench_ms.grasp_labels.build import LabelSettings, label_object
+from fetchbench_ms.grasp_labels.store import GraspStore, default_dir
 
 
 def _label_some(object_ids: list[str]) -> dict:
     """Label ``object_ids`` in one process; time sampling+physics together, as the builder runs."""
     os.environ["OMP_NUM_THREADS"] = "1"
-    from fetchbench_ms.grasps.build import object_from_source
+    from fetchbench_ms.grasp_labels.build import object_from_source
 
     settings = LabelSettings()
     assets = [object_from_source(i) for i in object_ids]  # building objects is the catalog's cost, not ours
@@ -74,7 +74,7 @@ def library(args) -> None:
     print(f"mean successful grasps per kept object: {stats['mean_successes_per_kept_object']:.1f}")
     print(f"size on disk: {size / 2**20:.2f} MiB in {sum(1 for _ in directory.iterdir())} files")
     try:
-        from fetchbench_ms.grasps.store import catalog_grasp_stats
+        from fetchbench_ms.grasp_labels.store import catalog_grasp_stats
         from fetchbench_ms.objects import catalog
 
         coverage = catalog_grasp_stats(catalog.list_objects(), directory)
@@ -92,7 +92,7 @@ def library(args) -> None:
 
 def agreement(store: GraspStore, n: int, seed: int) -> None:
     """Re-run a seeded sample of stored trials (half successes, half failures) in physics."""
-    from fetchbench_ms.grasps.build import object_from_source
+    from fetchbench_ms.grasp_labels.build import object_from_source
 
     rng = np.random.default_rng(seed)
     ids = rng.choice(store.object_ids(), size=min(n // 4, len(store.object_ids())), replace=False)

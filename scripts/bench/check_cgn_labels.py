@@ -72,9 +72,9 @@ def main() -> None:
 
     from scipy.spatial import cKDTree
 
-    from fetchbench_ms.grasping.network import GRIPPER_DEPTH, CGNConfig, ContactGraspNet
+    from fetchbench_ms.grasp_prediction.network import GRIPPER_DEPTH, CGNConfig, ContactGraspNet
     from fetchbench_ms.geometry.pointops import farthest_point_sample
-    from fetchbench_ms.grasping.predict import load_model
+    from fetchbench_ms.grasp_prediction.predict import load_model
 
     train = load_trainer()
     args = train.Args()

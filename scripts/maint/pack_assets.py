@@ -9,7 +9,7 @@ What it packs (the readers accept the old forms too; ``fetchbench_ms.utils.packe
   weights' low and high bytes) apart, xz; unpacks to the same bytes (checked before the
   ``.pt`` is removed), so the sha256 that records and the checkpoints' JSON name holds.
 - ``assets/grasps/shard_NN.npz`` -> ``shard_NN.arrays.xz`` (the same arrays, byte planes, xz;
-  ``fetchbench_ms.grasps.store``) and ``manifest.json`` -> ``manifest.json.xz`` (its JSON, xz),
+  ``fetchbench_ms.grasp_labels.store``) and ``manifest.json`` -> ``manifest.json.xz`` (its JSON, xz),
   whose entries name the new files and their sha256; nothing else in it changes.
 - ``assets/suites/<name>.json.gz`` -> ``<name>.suite.xz`` (``fetchbench_ms.tasks.suite_packed``):
   the same canonical JSON text, floats in columns; its header keeps the ``.json.gz`` file's
@@ -35,7 +35,7 @@ import numpy as np
 
 from fetchbench_ms.evaluation.results_table import packed_bytes
 from fetchbench_ms.evaluation.store import LEGACY_PACKED_RESULTS_FILE, PACKED_RESULTS_FILE, ResultsStore
-from fetchbench_ms.grasps import store as grasp_store
+from fetchbench_ms.grasp_labels import store as grasp_store
 from fetchbench_ms.objects import catalog
 from fetchbench_ms.tasks import suite_packed
 from fetchbench_ms.tasks.suite import load_suite, suite_file_sha256

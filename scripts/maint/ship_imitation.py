@@ -1,17 +1,17 @@
-"""Ship the imitation policies a training run trained (scripts/imitation_shard.sh, or one
+"""Ship the imitation policies a training run trained (scripts/imitation/imitation_shard.sh, or one
 trainer's run folder) as the package's checkpoints: ``assets/checkpoints/imit_<kind>.pt.planes.xz`` (the trainer's fp16 export,
 packed losslessly: ``fetchbench_ms.utils.packed``), ``imit_<kind>.json`` beside it (the trainer's export JSON plus the one command that
 retrains it, the converted data's manifest and the success on ``val`` tasks) and ``.log``
 (the training log).
 
-    python scripts/maint/ship_imitation.py --run build/h3 --retrain "STEPS_MLP=16000 ... bash scripts/imitation_shard.sh ..." \\
+    python scripts/maint/ship_imitation.py --run build/h3 --retrain "STEPS_MLP=16000 ... bash scripts/imitation/imitation_shard.sh ..." \\
         --val-runs build/h4/evals/val-cgn-imit-mlp-0 build/h4/evals/val-e2e-mlp-0 ...
 
 ``--run`` is the folder of the training run: ``export/imit_<kind>.{pt,json}``,
 ``logs/train_<kind>.log``, ``data/manifest.json``; or one trainer's run folder
 (``baselines/imitation/train_<kind>.py --run RUN --export``: ``RUN/export/imit_<kind>.{pt,json}``,
 its ``log.txt``, and the manifest of the data its export JSON names); an export chosen by
-``scripts/select_checkpoint.py`` keeps its ``selection`` record (every candidate's val
+``scripts/imitation/select_checkpoint.py`` keeps its ``selection`` record (every candidate's val
 figures). A val run is an eval folder (``fetchbench eval --suite val``) of one method; the
 checkpoint its records name must be the shipped one (by sha256), else it is refused; a run
 of test tasks is refused (exit 2). Without ``--run`` the val runs are added to the
@@ -158,7 +158,7 @@ def main(argv=None) -> int:
         atomic_write_text(target.with_suffix(".json"), json.dumps(meta, indent=1))
         log = run / "logs" / f"train_{kind}.log"
         shutil.copyfile(log if log.is_file() else run / "log.txt", target.with_suffix(".log"))
-        chosen = meta.get("selection")  # scripts/select_checkpoint.py's record, kept as it is
+        chosen = meta.get("selection")  # scripts/imitation/select_checkpoint.py's record, kept as it is
         print(f"{target}: step {meta['step']}, {manifest['totals']['demos']} demos, sha256 {exported[kind][:12]}, "
               f"val {[(v['method'], v['successes'], v['tasks']) for v in val[kind]]}"
               + (f"; chosen on val from {len(chosen['candidates'])} candidates" if chosen else "; no selection record"))

@@ -10,7 +10,7 @@ Layout of ``assets/grasps`` (or ``$FETCHBENCH_GRASPS_DIR``)::
 A shard holds every trial of its objects, concatenated, with ``offsets`` marking where
 each object's trials start: ``quat_wxyz`` (float16) and ``position`` (float32) of the
 ``panda_hand`` pose in the object frame, ``success`` (uint8) and ``width`` (float16, the
-finger gap measured after closing, m). See ``fetchbench_ms.grasps`` for the hand frame.
+finger gap measured after closing, m). See ``fetchbench_ms.grasp_labels`` for the hand frame.
 
 The files are packed losslessly (``utils.packed``): the manifest is its JSON, xz; a shard
 is an ``.arrays.xz`` of those arrays, except that a quaternion's w, which its unit norm

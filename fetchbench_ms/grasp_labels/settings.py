@@ -1,6 +1,6 @@
 """The settings that decide the grasp labels (``LabelSettings``): recorded in every shard
-and in the manifest, and compared on a re-run (``grasps.build``); the Robotiq's labeller
-extends them (``grasps.robotiq``)."""
+and in the manifest, and compared on a re-run (``grasp_labels.build``); the Robotiq's labeller
+extends them (``grasp_labels.robotiq``)."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field

@@ -1,10 +1,10 @@
 """Contact-GraspNet as a grasp source: its predictions on the observed target, in the object
-frame, as the ``GraspCandidates`` the annotated grasps come as (``grasps.candidates``)."""
+frame, as the ``GraspCandidates`` the annotated grasps come as (``grasp_labels.candidates``)."""
 from __future__ import annotations
 
 import numpy as np
 
-from ..grasps.candidates import GraspCandidates
+from ..grasp_labels.candidates import GraspCandidates
 
 
 def predicted_grasps(clouds, T_base_object: np.ndarray, model: str, max_grasps: int, rng: np.random.Generator,

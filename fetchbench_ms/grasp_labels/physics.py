@@ -93,7 +93,7 @@ class GraspLabeller:
         self.object_material = sapien.physx.PhysxMaterial(object_friction, object_friction, 0.0)
 
     # The floating hand: its pad links, driven finger joints and hand link, its URDF and the
-    # set-up of its finger joints (the Franka hand's here; grasps.robotiq.RobotiqLabeller's
+    # set-up of its finger joints (the Franka hand's here; grasp_labels.robotiq.RobotiqLabeller's
     # Robotiq overrides them).
     PAD_LINKS = franka.FINGER_LINKS
     DRIVEN_FINGER_JOINTS = franka.FINGER_JOINTS

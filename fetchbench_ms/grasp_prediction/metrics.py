@@ -10,7 +10,7 @@ def grasp_coverage(T_object_predicted: np.ndarray, T_object_annotated: np.ndarra
     predicted grasp ((N, 4, 4), same frame) covers: its TCP within ``max_distance`` m and its
     approach axis (hand z) within ``max_angle_deg`` (the two fingers are interchangeable, so
     the closing direction is not compared). NaN when nothing is annotated."""
-    from ..grasps.candidates import tcp_from_hand
+    from ..grasp_labels.candidates import tcp_from_hand
 
     if len(T_object_annotated) == 0:
         return float("nan")

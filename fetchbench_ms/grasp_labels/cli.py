@@ -57,7 +57,7 @@ def cmd_build(args) -> int:
     from .store import default_dir
 
     if args.hand == "robotiq_2f_85":
-        # The Robotiq re-tries the Franka labels' candidates (grasps.robotiq): its own store.
+        # The Robotiq re-tries the Franka labels' candidates (grasp_labels.robotiq): its own store.
         from .robotiq import RobotiqLabelSettings
 
         if not args.dir:
@@ -113,7 +113,7 @@ def cmd_stats(args) -> int:
 
 def add_commands(subparsers):
     """``fetchbench grasps ...``; returns its sub-commands (``predict`` is added by
-    ``grasping.cli``), and adds the grasp counts to ``fetchbench objects stats``."""
+    ``grasp_prediction.cli``), and adds the grasp counts to ``fetchbench objects stats``."""
     from ..objects import register_stats_extension
 
     register_stats_extension(_load_grasp_stats)
@@ -130,7 +130,7 @@ def add_commands(subparsers):
     p.add_argument("--targets-of", default=None, metavar="SUITE",
                    help="label the target objects of a task suite's tasks (test, val, smoke, or a suite file)")
     p.add_argument("--loader", default="fetchbench_ms.objects.catalog:get_object",
-                   help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasps.build:object_from_source needs no catalog index)")
+                   help="object id -> ObjectAsset function, 'module:function' (fetchbench_ms.grasp_labels.build:object_from_source needs no catalog index)")
     p.add_argument("--limit", type=int, default=0, help="only the first N object ids (sorted), for trials")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--hand", default="franka_hand", choices=("franka_hand", "robotiq_2f_85"),

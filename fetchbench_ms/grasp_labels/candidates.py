@@ -2,7 +2,7 @@
 object from the grasp store, or, for an object without labels there, antipodal
 candidates computed from its convex parts as a stand-in (unverified; the episode
 records which source it used). Contact-GraspNet's predictions on the observed clouds
-come as the same ``GraspCandidates`` (``grasping.candidates.predicted_grasps``).
+come as the same ``GraspCandidates`` (``grasp_prediction.candidates.predicted_grasps``).
 
 Both the annotated grasps and the stand-in are per-object assets computed ahead of time
 (the stand-in once per object and process, from a seed derived from the object id), so an
@@ -24,7 +24,7 @@ STANDIN_CANDIDATES = 128
 @dataclass(frozen=True)
 class GraspCandidates:
     T_object_hand: np.ndarray  # (N, 4, 4) panda_hand poses in the object frame
-    source: str  # "annotated", "antipodal-standin" or "cgn-<model>" (grasping.candidates)
+    source: str  # "annotated", "antipodal-standin" or "cgn-<model>" (grasp_prediction.candidates)
     index: np.ndarray | None = None  # (N,) positions in the object's full grasp list
 
 

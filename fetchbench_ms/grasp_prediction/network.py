@@ -42,7 +42,7 @@ from torch import nn
 
 from ..geometry.pointops import ball_query, farthest_point_sample, gather, knn_interpolate
 
-GRIPPER_DEPTH = 0.1034  # m, hand origin to the TCP along the approach (= fetchbench_ms.grasps.TCP_OFFSET)
+GRIPPER_DEPTH = 0.1034  # m, hand origin to the TCP along the approach (= fetchbench_ms.grasp_labels.TCP_OFFSET)
 MAX_WIDTH = 0.08  # m, the Franka hand's largest opening
 NUM_POINTS = 20000  # input points per cloud
 NUM_CONTACTS = 2048  # contact points predicted per cloud

@@ -22,8 +22,8 @@ def render_predictions_png(scene: np.ndarray, target: np.ndarray, grasps: Predic
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-    from ..grasps.hand import gripper_outline_hand
-    from ..grasps.show import save_3d_png
+    from ..grasp_labels.hand import gripper_outline_hand
+    from ..grasp_labels.show import save_3d_png
     from .predict import REGION_SIZE
 
     rng = rng if rng is not None else np.random.default_rng(0)

@@ -226,7 +226,9 @@ def stage(work: Path, name: str, body, log) -> dict:
 
 
 def shipped() -> dict:
-    """The shipped checkpoints (path or None, content sha256, JSON) of both models."""
+    """The shipped checkpoints (path or None, content sha256, JSON) of both models: read once at a
+    round's start and kept in its work folder, so that a round resumed after it shipped still
+    names what it went on from."""
     from fetchbench_ms.grasping.predict import ours_checkpoint
     from fetchbench_ms.planning.collision_net import checkpoint_path
     from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
@@ -236,7 +238,7 @@ def shipped() -> dict:
         path = packed_or_plain(plain)
         side = plain.with_suffix(".json")
         meta = json.loads(side.read_text()) if side.is_file() else {}
-        out[name] = {"path": path if path.is_file() else None, "sha256": content_sha256(path) if path.is_file() else None,
+        out[name] = {"path": str(path) if path.is_file() else None, "sha256": content_sha256(path) if path.is_file() else None,
                      "meta": meta}
     return out
 
@@ -302,14 +304,17 @@ def label_stage(args, work: Path, tasks: tuple[int, int], val: tuple[int, int], 
     return {**out, "stage_seconds": seconds}
 
 
+def repo_relative(path: str | None) -> str | None:
+    """A path in the repository as the record names it (relative to it); others as they are."""
+    return str(Path(path).relative_to(ROOT)) if path and Path(path).is_relative_to(ROOT) else path
+
+
 def train_stage(args, work: Path, ship: dict, gpus, log) -> dict:
     """Stage 2: both trainers at once, from the shipped weights, on this round's labels."""
     py = sys.executable
     cgn, net = ship["cgn"], ship["collision_net"]
     points = json.loads((work / "cgn_views" / "manifest.json").read_text())["config"]["num_points"]
     cgn_init = str(cgn["path"]) if cgn["path"] else "pretrained"
-    where = {name: str(m["path"].relative_to(ROOT)) if m["path"] and m["path"].is_relative_to(ROOT) else
-             (str(m["path"]) if m["path"] else None) for name, m in ship.items()}
     cgn_cmd = [py, "baselines/contact_graspnet/train.py", "--run", str(work / "runs/cgn"), "--views", "0",
                "--task-views", str(work / "cgn_views"), "--num-points", str(points), "--init", cgn_init,
                "--steps", str(args.cgn_steps), "--device", "cuda" if gpus else "cpu", "--workers", str(args.procs),
@@ -343,9 +348,9 @@ def train_stage(args, work: Path, ship: dict, gpus, log) -> dict:
                          "exported); run the same command to resume")
     cgn_meta = json.loads((work / "export/cgn_ours.json").read_text())
     net_meta = json.loads((work / "export/collision_net.json").read_text())
-    return {"cgn": {"init": where["cgn"] or "pretrained", "init_sha256": cgn["sha256"], "steps": cgn_meta["steps"],
+    return {"cgn": {"init": repo_relative(cgn["path"]) or "pretrained", "init_sha256": cgn["sha256"], "steps": cgn_meta["steps"],
                     "checkpoint_sha256": cgn_meta["checkpoint_sha256"], "data_sha256": cgn_meta["data_sha256"]},
-            "collision_net": {"init": where["collision_net"], "init_sha256": net["sha256"],
+            "collision_net": {"init": repo_relative(net["path"]), "init_sha256": net["sha256"],
                               "steps": net_meta["steps"], "train_data_hash": net_meta["train_data_hash"],
                               "val_data_hash": net_meta["val_data_hash"]}}
 
@@ -417,7 +422,8 @@ def ship_meta(export_json: Path, old: dict, entry: dict, model: str, number: int
     """The shipped JSON of a winner: the trainer's export JSON plus its lineage and this round's figures."""
     meta = json.loads(export_json.read_text())
     lineage = [r["round"] for r in record["rounds"] if r[model]["shipped"]] + [number]
-    meta.update({"train_tasks_seen": entry[model]["tasks_seen"],
+    meta.update({"steps": entry[model]["steps"][1], "round_steps": meta["steps"],  # the lineage's steps, the round's
+                 "train_tasks_seen": entry[model]["tasks_seen"],
                  "train_tasks_seen_note": "train-suite tasks the weights' lineage trained on: every shipped "
                                           "round's slice (scripts/grasp_round.py), plus the count its first "
                                           "checkpoint's JSON gave",
@@ -489,8 +495,8 @@ def main(argv=None) -> int:
     log = round_log(work / "round.log")
     command = shlex.join(["python", "scripts/grasp_round.py", *(argv if argv is not None else sys.argv[1:])])
     log(f"round {number}: train tasks {start}:{end}, val tasks {args.val_tasks}; {command}")
-    ship = shipped()
     t0 = time.perf_counter()
+    ship = stage(work, "shipped", shipped, log)  # (its "seconds" unused)
     labels = stage(work, "labels", lambda: label_stage(args, work, (start, end), val, gpus, log), log)
     training = stage(work, "training", lambda: train_stage(args, work, ship, gpus, log), log)
     judged = stage(work, "val", lambda: val_stage(args, work, record, ship, val, gpus, log), log)

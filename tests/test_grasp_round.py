@@ -89,6 +89,9 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     assert cgn["shipped_val"]["checkpoint_sha256"] == shipped_cgn["checkpoint_sha256"]
     assert net["val"]["n"] == net["shipped_val"]["n"] == 200 and 0 <= net["val"]["false_free_of_all"] <= 1
     assert "val score" in cgn["choice"]["why"] and not cgn["shipped"] and not net["shipped"]  # no --ship
+    # what the round went on from is kept in its work folder (a resumed round names it still)
+    kept = json.loads((work / "round_01/stages/shipped.json").read_text())
+    assert kept["cgn"]["sha256"] == cgn["init_from"]["sha256"] == shipped_cgn["checkpoint_sha256"]
 
     # The same command after a stop past the val stage: no stage runs again (same exports).
     export = work / "round_01/export"
@@ -126,4 +129,5 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     assert file_bytes(packed) == before["cgn_ours.pt"] and not load_checkpoint(packed).training
     shipped_meta = json.loads((tmp_path / "assets/checkpoints/cgn_ours.json").read_text())
     assert shipped_meta["train_tasks_seen"] == 2 and shipped_meta["rounds"] == [1]
+    assert shipped_meta["steps"] == shipped_cgn["steps"] + 1 and shipped_meta["round_steps"] == 1
     assert shipped_meta["data_manifests"]["cgn_views"]["sha256"] == labels["cgn_views"]["sha256"]

@@ -450,6 +450,13 @@ def test_trainer_stops_at_its_time_limit_resumes_and_exports_what_ours_loads(tmp
     monkeypatch.setattr(predict, "ours_checkpoint", lambda: out / "cgn_ours.pt")
     net = predict.load_model.__wrapped__("ours")
     assert net.config.centers[0] == 128 and not net.training
+    # --init with an exported file: its weights go on (its network's config): at init they
+    # score on the same val views what the export scored (fp16 weights: to rounding)
+    again = train.main(dataclasses.replace(args, run=str(tmp_path / "run2"), init=str(out / "cgn_ours.pt"), steps=1,
+                                           time_limit=0.0, export=False))
+    assert again["done"] and again["val_init"]["table_top"]["loss"] == pytest.approx(meta["val"]["loss"], rel=0.02)
+    with pytest.raises(ValueError, match="--init"):
+        train.main(dataclasses.replace(args, run=str(tmp_path / "run3"), init=str(tmp_path / "missing.pt")))
 
 
 def test_predicted_grasps_are_drawn_on_the_cloud(tmp_path):

@@ -103,7 +103,9 @@ class Args:
     lr: float = 1e-4
     lr_final: float = 1e-6  # cosine decay to this after a linear warm-up
     warmup_steps: int = 50
-    init: str = "pretrained"  # "scratch" or "pretrained" (fine-tune the cgn-pytorch weights)
+    # "scratch", "pretrained" (fine-tune the cgn-pytorch weights), "ours" (go on from the shipped
+    # assets/checkpoints/cgn_ours.pt) or the path of an exported cgn_ours.pt (packed or plain)
+    init: str = "pretrained"
     # fine-tuning keeps the pretrained BatchNorm running statistics (those layers stay in eval
     # mode; their scales and shifts still learn): statistics re-estimated on our views halve
     # the pretrained model's pose agreement with no weight changed (docs/grasping.md)
@@ -636,8 +638,9 @@ def main(args: Args) -> dict:
         log_file.flush()
 
     t_start = time.perf_counter()
-    if args.init not in ("scratch", "pretrained"):
-        raise ValueError(f"--init {args.init!r}: valid: scratch, pretrained")
+    if args.init not in ("scratch", "pretrained", "ours") and not Path(args.init).is_file() \
+            and not Path(args.init + ".planes.xz").is_file():
+        raise ValueError(f"--init {args.init!r}: valid: scratch, pretrained, ours, or an exported cgn_ours.pt file")
     log(f"call: {' '.join(sys.argv)}" + (f" ({world} processes, {dist.get_backend()})" if dist else ""))
     torch.manual_seed(args.seed)
     torch.set_num_threads(max(1, min(torch.get_num_threads(), args.workers or torch.get_num_threads())))
@@ -652,7 +655,14 @@ def main(args: Args) -> dict:
         from fetchbench_ms.grasp_prediction.predict import load_model
 
         model.load_state_dict(load_model("pretrained").state_dict())
-    freeze_bn = args.freeze_bn and args.init == "pretrained" and not args.tiny
+    elif args.init != "scratch":  # an exported checkpoint: its network's config, whatever --tiny says
+        from fetchbench_ms.grasp_prediction.predict import load_checkpoint, ours_checkpoint
+
+        model = load_checkpoint(ours_checkpoint() if args.init == "ours" else args.init).to(args.device)
+        config = model.config
+        net = model
+    # (weights that go on from the pretrained ones, ours among them, keep its BatchNorm statistics)
+    freeze_bn = args.freeze_bn and args.init != "scratch" and not (args.tiny and args.init == "pretrained")
     log(f"farthest-point sampling on {args.device}: {fps_backend(torch.device(args.device))}")
     if dist and not lead:
         dist.barrier()  # process 0 makes (or finds) the cached data first; the others read it

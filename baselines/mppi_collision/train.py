@@ -19,6 +19,11 @@ Loss per step: every checked sphere's predicted clearance against its exact clea
     # command continues; the last call exports)
     python baselines/mppi_collision/train.py --data /tmp/mppi/train --val /tmp/mppi/val --run /tmp/mppi/run \\
         --device cuda --steps 6000 --time-limit 540 --export
+    # a round (scripts/grasp_round.py): on from the shipped weights, the candidate exported
+    # beside the run, not shipped; and the shipped network judged on the same val queries
+    python baselines/mppi_collision/train.py --data R/train --val R/val --run R/run --init-from shipped --steps 2000 \
+        --export --export-path R/export/collision_net.pt
+    python baselines/mppi_collision/train.py --val R/val --judge shipped --judge-out R/val/collision_shipped.json
     # a CPU smoke run
     python baselines/mppi_collision/train.py --data /tmp/mppi/val_probe --val /tmp/mppi/val_probe --run /tmp/mppi/smoke \\
         --device cpu --steps 20 --scenes 1 --queries 256
@@ -67,6 +72,15 @@ class Args:
     export: bool = False  # when the last step is done: assets/checkpoints/collision_net.{pt,json} (and --export-dir)
     false_free_target: float = 0.02  # the decision margin is chosen on val for at most this false-free rate
     export_dir: str = ""  # also copy the checkpoint, JSON and log here
+    # the weights to go on from (a checkpoint, packed or plain: "shipped" is assets/checkpoints/
+    # collision_net.pt); its network's channels and hidden width are kept; the optimiser starts anew
+    init_from: str = ""
+    # --export writes here instead of assets/checkpoints/collision_net.pt (a candidate, not shipped)
+    export_path: str = ""
+    # judge this checkpoint on --val (every query, at clearance 0 and at its own margin), write
+    # the figures to --judge-out and exit: nothing is trained
+    judge: str = ""
+    judge_out: str = ""
 
 
 # -- data ---------------------------------------------------------------------------------
@@ -197,8 +211,40 @@ def evaluate(model: SceneCollisionNet, spheres: RobotSpheres, data: Tasks, n_que
                 cloud_distance=confusion(np.concatenate(cloud) < 0, label))
 
 
+def load_weights(path: str, device) -> SceneCollisionNet:
+    """A checkpoint's network (``"shipped"``: the package's), in train mode on ``device``."""
+    from fetchbench_ms.planning.collision_net import load_collision_net
+
+    load_collision_net.cache_clear()  # (cached per process: a file rewritten in place must be read again)
+    model = load_collision_net(None if path == "shipped" else path, "cpu")
+    return model.to(device).train()
+
+
+def judge(args: Args) -> dict:
+    """``--judge``: a checkpoint's figures on every query of ``--val``, written to ``--judge-out``."""
+    from fetchbench_ms.utils.packed import content_sha256, packed_or_plain
+
+    refuse_test_labels([args.val])
+    device = torch.device(args.device)
+    val = Tasks(args.val, device)
+    model = load_weights(args.judge, device)
+    path = packed_or_plain(checkpoint_path() if args.judge == "shipped" else Path(args.judge))
+    figures = dict(checkpoint=str(path), checkpoint_sha256=content_sha256(path), val_data_hash=val.hash,
+                   val_tasks=val.n, queries_per_task=val.k, validation=evaluate(model, RobotSpheres(device), val, val.k))
+    if args.judge_out:
+        out = Path(args.judge_out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".tmp").write_text(json.dumps(figures, indent=1))
+        out.with_suffix(".tmp").replace(out)
+    print(json.dumps(figures["validation"]["network"]), flush=True)
+    return figures
+
+
 # -- loop ---------------------------------------------------------------------------------
 def main(args: Args) -> None:
+    if args.judge:
+        judge(args)
+        return
     t_start = time.time()
     refuse_test_labels([args.data, args.val])
     run = Path(args.run)
@@ -218,7 +264,11 @@ def main(args: Args) -> None:
     if overlap:
         raise SystemExit(f"{len(overlap)} tasks are in both --data and --val, e.g. {sorted(overlap)[:3]}")
     say(f"train: {train.n} tasks x {train.k} queries (hash {train.hash[:16]}), val: {val.n} tasks x {val.k}")
-    model = SceneCollisionNet(NetConfig(tuple(args.channels), args.hidden)).to(device)
+    if args.init_from:
+        model = load_weights(args.init_from, device)
+        say(f"weights from {args.init_from} (channels {model.config.channels}, hidden {model.config.hidden})")
+    else:
+        model = SceneCollisionNet(NetConfig(tuple(args.channels), args.hidden)).to(device)
     spheres = RobotSpheres(device)
     opt = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=args.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.steps, eta_min=args.lr_final)
@@ -273,7 +323,7 @@ def main(args: Args) -> None:
     figures = evaluate(model, spheres, val, val.k, args.false_free_target)
     say(f"final val (all {val.k} queries of {val.n} tasks): {json.dumps(figures)}")
     if args.export:
-        out = checkpoint_path()
+        out = Path(args.export_path) if args.export_path else checkpoint_path()
         save_checkpoint(model, out)
         meta = dict(command="python " + " ".join(sys.argv), train_data_hash=train.hash, train_tasks=train.n,
                     queries_per_task=train.k, val_data_hash=val.hash, val_tasks=val.n, steps=step,

@@ -65,17 +65,25 @@ def load_model(name: str = "pretrained", device: str = "cpu") -> ContactGraspNet
         raise ValueError(f"unknown grasp model {name!r}; valid: {', '.join(GRASP_MODELS)}")
     if name == "pretrained":
         state = torch.load(pretrained_checkpoint(), map_location="cpu", weights_only=True)["state_dict"]
-        config = CGNConfig()
     else:
         path = packed_or_plain(ours_checkpoint())
         if not path.is_file():
             raise FileNotFoundError(f"no trained Contact-GraspNet checkpoint at {path}: make it with "
                                     "`python baselines/contact_graspnet/train.py --export` (a GPU run; "
                                     "docs/grasping-training.md), or use --grasp-model pretrained")
-        saved = torch_load(path, map_location="cpu", weights_only=True)
-        state, config = saved["state_dict"], CGNConfig(**saved.get("config", {}))
-    model = ContactGraspNet(config)
+        return load_checkpoint(path, device)
+    model = ContactGraspNet(CGNConfig())
     model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()}, strict=True)
+    return model.eval().to(device)
+
+
+def load_checkpoint(path: str | Path, device: str = "cpu") -> ContactGraspNet:
+    """The network of an exported checkpoint file (``train.py --export``'s ``cgn_ours.pt``, packed
+    or plain: fp16 weights and the network's config), strictly loaded, in eval mode."""
+    saved = torch_load(packed_or_plain(path), map_location="cpu", weights_only=True)
+    model = ContactGraspNet(CGNConfig(**saved.get("config", {})))
+    model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in saved["state_dict"].items()},
+                          strict=True)
     return model.eval().to(device)
 
 

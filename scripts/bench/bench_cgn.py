@@ -137,58 +137,25 @@ def cmd_quality(args) -> dict:
     if not args.report_only:  # comparing weights or settings: never on test tasks
         cli_guard(refuse_test, args.suite, "grasp-quality comparison (bench_cgn.py quality without --report-only)")
 
+    from fetchbench_ms.envs import make
+    from fetchbench_ms.evaluation.grasp_quality import COVERAGE_RULE, QualityJudge, summarize_quality
     from fetchbench_ms.evaluation.runner import open_suite, parse_range
-    from fetchbench_ms.envs import fetch_clouds, make
-    from fetchbench_ms.grasp_prediction import predict_from_clouds
-    from fetchbench_ms.grasp_prediction.metrics import grasp_coverage
-    from fetchbench_ms.grasp_labels import load_grasps
-    from fetchbench_ms.grasp_labels.physics import GraspLabeller
-    from fetchbench_ms.objects.loading import load_object
-    from fetchbench_ms.planning.world_models import object_poses_base
 
     torch.set_num_threads(args.threads)
     suite, _, _ = open_suite(args.suite)
     ids = list(suite.tasks)
     selection = [ids[k] for k in parse_range(args.tasks, len(ids))]
     env = make("FetchBench-v0", obs_mode="pointcloud", task_suite=args.suite, control_mode="pd_joint_pos")
+    judge = QualityJudge(env, args.top, args.coverage_score)
     rows = []
-    labeller = None
     for task_id in selection:
-        obs, _ = env.reset(options={"task_id": task_id})
-        task = env.unwrapped.tasks[0]
-        clouds = fetch_clouds(obs)
-        if len(clouds.target) == 0:
-            rows.append({"task_id": task_id, "predicted": 0})
-            continue
-        t = time.perf_counter()
-        grasps = predict_from_clouds(clouds, args.grasp_model, np.random.default_rng(0))
-        seconds = time.perf_counter() - t
-        T_base_object = object_poses_base(env)[task.target_index]
-        T_object_predicted = np.linalg.inv(T_base_object)[None] @ grasps.T_base_hand
-        T_object_hand = T_object_predicted[: args.top]
-        annotated = load_grasps(task.target.object_id).successful.T_object_hand
-        coverage = grasp_coverage(T_object_predicted[grasps.scores >= args.coverage_score], annotated)
-        if labeller is None:  # after the env: the labeller sets PhysX's global contact settings
-            labeller = GraspLabeller()
-        success = labeller.label(load_object(task.target.object_id), T_object_hand).success if len(T_object_hand) else []
-        rows.append({"task_id": task_id, "category": task.target_label, "predicted": len(grasps.scores),
-                     "success": [bool(s) for s in success], "coverage": round(coverage, 4),
-                     "seconds": round(seconds, 2)})
-        print(json.dumps(rows[-1]), flush=True)
+        rows.append(judge(task_id, args.grasp_model))
+        if rows[-1]["predicted"]:
+            print(json.dumps(rows[-1]), flush=True)
     env.close()
-    judged = [r for r in rows if r.get("success")]
-    return {
-        "suite": args.suite, "tasks": args.tasks, "grasp_model": args.grasp_model, "top": args.top,
-        "tasks_run": len(rows), "tasks_with_predictions": len(judged),
-        "precision_top1": round(float(np.mean([r["success"][0] for r in judged])), 3) if judged else None,
-        f"precision_top{args.top}": round(float(np.mean([s for r in judged for s in r["success"]])), 3) if judged else None,
-        "any_success_in_top": round(float(np.mean([any(r["success"]) for r in judged])), 3) if judged else None,
-        "coverage": round(float(np.nanmean([r["coverage"] for r in judged])), 3) if judged else None,
-        "coverage_rule": f"annotated successful grasps with a prediction of score >= {args.coverage_score} whose TCP "
-                         "is within 2 cm and approach within 30 deg",
-        "median_predict_s": round(float(np.median([r["seconds"] for r in judged])), 2) if judged else None,
-        "report_only": bool(args.report_only),
-    }
+    return {"suite": args.suite, "tasks": args.tasks, "grasp_model": args.grasp_model, "top": args.top,
+            **summarize_quality(rows, args.top), "coverage_rule": COVERAGE_RULE.format(score=args.coverage_score),
+            "report_only": bool(args.report_only)}
 
 
 def main(argv=None) -> int:

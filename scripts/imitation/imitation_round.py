@@ -47,6 +47,8 @@ import sys
 import time
 from pathlib import Path
 
+from fetchbench_ms.utils.rounds import next_tasks, no_gain_in_two, parse_slice, round_log
+
 ROOT = Path(__file__).resolve().parents[2]
 RECORD = ROOT / "results/training/imitation-rounds"
 KINDS = ("act", "transformer", "mlp", "diffusion")  # (the order the GPUs are handed out in)
@@ -72,21 +74,6 @@ def load_record(record: Path) -> dict:
         return json.loads(path.read_text())
     return {"obs_mode": OBS_MODE, "frame_stride": FRAME_STRIDE, "labels": LABELS, "suite": "train", "val": {"suite": "val"},
             "rounds": []}
-
-
-def next_tasks(record: dict, count: int) -> tuple[int, int]:
-    start = record["rounds"][-1]["tasks"][1] if record["rounds"] else 0
-    return start, start + count
-
-
-def parse_slice(text: str) -> tuple[int, int]:
-    try:
-        start, end = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise SystemExit(f"--val-tasks takes START:END (e.g. {VAL_TASKS}), got {text!r}")
-    if not 0 <= start < end:
-        raise SystemExit(f"--val-tasks {text}: START must be >= 0 and below END")
-    return start, end
 
 
 def parse_steps(text: str | None) -> dict:
@@ -148,14 +135,8 @@ def choose(candidate: dict, shipped_meta: dict, tasks: tuple[int, int]) -> dict:
 
 def plateau(record: dict) -> bool:
     """No round's best val success (of any method) above the best before it, two rounds running."""
-    best, since = -1.0, 0
-    for r in record["rounds"]:
-        top = max((v["success_rate"] for k in r["kinds"].values() for v in k["val"].values()), default=0.0)
-        if top > best:
-            best, since = top, 0
-        else:
-            since += 1
-    return since >= 2
+    return no_gain_in_two([max((v["success_rate"] for k in r["kinds"].values() for v in k["val"].values()),
+                               default=0.0) for r in record["rounds"]])
 
 
 def status(record: dict) -> str:
@@ -306,7 +287,7 @@ def main(argv=None) -> int:
     if gpus is not None and not gpus:
         p.error(f"--gpus {args.gpus!r}: GPU indices (0,1) or 'cpu'")
     steps = parse_steps(args.steps)
-    val = parse_slice(args.val_tasks)
+    val = parse_slice(args.val_tasks, "--val-tasks", VAL_TASKS)
     if val[1] - val[0] < MIN_VAL_TASKS and not args.allow_small_val:
         p.error(f"--val-tasks {args.val_tasks}: at least {MIN_VAL_TASKS} val tasks choose a checkpoint "
                 "(--allow-small-val for a test)")
@@ -317,15 +298,7 @@ def main(argv=None) -> int:
     number = len(record["rounds"]) + 1
     start, end = next_tasks(record, args.tasks)
     work = args.work / f"round_{number:02d}"
-    work.mkdir(parents=True, exist_ok=True)
-    log_file = open(work / "round.log", "a")
-
-    def log(message: str) -> None:
-        line = f"[{time.strftime('%H:%M:%S')}] {message}"
-        print(line, flush=True)
-        log_file.write(line + "\n")
-        log_file.flush()
-
+    log = round_log(work / "round.log")
     command = shlex.join(["python", "scripts/imitation/imitation_round.py", *(argv if argv is not None else sys.argv[1:])])
     log(f"round {number}: train tasks {start}:{end}; {command}")
     py = sys.executable

@@ -411,6 +411,29 @@ class PairCache:
         self.ref: torch.Tensor | None = None  # (P, C, S, 3) where each configuration was tested
         self.keys: list[torch.Tensor] = []  # per obstacle kind: sorted (p * N + n) * O + o
         self.searches = 0  # configurations searched (a count for tests and profiles)
+        self.self_ref: torch.Tensor | None = None  # (M, S, 3), for the self-collision pairs
+        self.self_key: torch.Tensor | None = None
+
+    def self_keys(self, robot: "TorchRobot", c: torch.Tensor, within: float) -> torch.Tensor:
+        """``robot.self_keys(c, within, within)`` of configurations ``c`` (M, S, 3) (and some
+        pairs beyond ``within``): a pair's distance changes by at most twice the farthest
+        move of a sphere, so pairs are searched within ``within + 2 slack``."""
+        wide = within + 2 * self.slack
+        if self.self_ref is None or self.self_ref.shape != c.shape:
+            self.self_key = robot.self_keys(c, wide, wide)
+            self.self_ref = c.clone()
+            return self.self_key
+        moved = (c - self.self_ref).norm(dim=2).amax(dim=1) > self.slack - SphereGroups.SLACK  # (M,)
+        m = torch.nonzero(moved, as_tuple=True)[0]
+        if len(m):
+            LP, W = robot.pair_valid.shape
+            new = robot.self_keys(c.index_select(0, m), wide, wide)
+            row = new // (LP * W)
+            new = (m.index_select(0, row) * LP * W) + new % (LP * W)
+            old = self.self_key[~moved.index_select(0, self.self_key // (LP * W))]
+            self.self_key = torch.cat([old, new]).sort().values
+            self.self_ref[m] = c.index_select(0, m)
+        return self.self_key
 
     def candidates(self, world: "TorchWorld", groups: SphereGroups, points: torch.Tensor, radii: torch.Tensor,
                    horizon: float) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
@@ -545,30 +568,50 @@ class TorchRobot:
         self.link_mean = torch.as_tensor(mean, device=self.device, dtype=self.dtype)
         self.link_bound_r = torch.as_tensor(bound_r, device=self.device, dtype=self.dtype)
 
-    def self_pairs(self, centers: torch.Tensor, horizon: float, within: float | None = None
-                   ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(flat configuration index into P*B, signed distance) of the self-collision sphere
-        pairs whose links' bounding spheres are within ``horizon``; with ``within``, only the
-        pairs whose own distance is below it (measured without gradients first, so that the
-        differentiable part is the few pairs that matter: the same values, in the same order)."""
-        S = centers.shape[-2]
-        c = centers.reshape(-1, S, 3)
-        flat = c.reshape(-1, 3)  # rows by one index_select each: advanced indexing's backward is slower
+    def self_keys(self, c: torch.Tensor, horizon: float, within: float | None = None) -> torch.Tensor:
+        """The self-collision sphere pairs of configurations ``c`` (M, S, 3) whose links'
+        bounding spheres are within ``horizon`` (and, with ``within``, whose own distance is
+        below it) as sorted keys ``(m * link pairs + link pair) * W + slot`` (``pair_key``)."""
+        S = c.shape[1]
+        LP, W = self.pair_valid.shape
         with torch.no_grad():
-            bound = torch.einsum("ls,nsi->nli", self.link_mean, c.detach())
+            bound = torch.einsum("ls,nsi->nli", self.link_mean, c)
             a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
             clear = (bound[:, a] - bound[:, b]).norm(dim=2) - self.link_bound_r[a] - self.link_bound_r[b]
             n, lp = torch.nonzero(clear < horizon, as_tuple=True)
             valid = self.pair_valid[lp]  # (F, W)
-            n = n[:, None].expand_as(valid)[valid]
-            sa, sb = self.pair_table[lp, :, 0][valid], self.pair_table[lp, :, 1][valid]
-            ia, ib = n * S + sa, n * S + sb
+            key = ((n * LP + lp)[:, None] * W + torch.arange(W, device=c.device))[valid]
             if within is not None:
-                d = _smooth_norm(flat.detach().index_select(0, ia) - flat.detach().index_select(0, ib)) \
+                n, sa, sb = self.pair_key(key)
+                flat = c.reshape(-1, 3)
+                d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
                     - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
-                keep = torch.nonzero(d < within, as_tuple=True)[0]
-                n, sa, sb, ia, ib = n[keep], sa[keep], sb[keep], ia[keep], ib[keep]
-        d = _smooth_norm(flat.index_select(0, ia) - flat.index_select(0, ib)) \
+                key = key[d < within]
+        return key
+
+    def pair_key(self, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(configuration, sphere a, sphere b) of ``self_keys``' keys."""
+        LP, W = self.pair_valid.shape
+        row, slot = key // W, key % W
+        lp = row % LP
+        return row // LP, self.pair_table[lp, slot, 0], self.pair_table[lp, slot, 1]
+
+    def self_pairs(self, centers: torch.Tensor, horizon: float, within: float | None = None,
+                   cache: "PairCache | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat configuration index into P*B, signed distance) of the self-collision sphere
+        pairs whose links' bounding spheres are within ``horizon``; with ``within``, only the
+        pairs whose own distance is below it (measured without gradients first, so that the
+        differentiable part is the few pairs that matter: the same values, in the same order);
+        ``cache`` (with ``within``) keeps them between calls (``PairCache``)."""
+        S = centers.shape[-2]
+        c = centers.reshape(-1, S, 3)
+        if cache is not None and within is not None:
+            key = cache.self_keys(self, c.detach(), within)
+        else:
+            key = self.self_keys(c.detach(), horizon, within)
+        n, sa, sb = self.pair_key(key)
+        flat = c.reshape(-1, 3)  # rows by one index_select each: advanced indexing's backward is slower
+        d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
             - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
         return n, d
 

@@ -147,7 +147,7 @@ class _Costs:
         # Only the pairs nearer than the cost's activation (the rest cost exactly 0), with a
         # 0.1 mm margin for float rounding.
         horizon = 0.01 - cfg.self_tolerance
-        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4)
+        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4, cache=cache)
         per_config = torch.zeros(P * B * n, device=q.device, dtype=q.dtype)
         per_config = per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
         self_cost = per_config.reshape(P, B, n).sum(2)

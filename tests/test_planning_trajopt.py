@@ -145,16 +145,22 @@ def test_ga_mesh_trajopt_runs_a_smoke_task_end_to_end(tmp_path, monkeypatch):
     assert record["success"], record["notes"]
 
 
-def test_grouped_broad_phase_gives_the_flat_costs_and_gradients(robot, worlds):
-    """The link-by-link broad phase (``SphereGroups``) drops only pairs beyond the horizon:
-    the trajectory costs and their gradients are bitwise those of the flat sphere test."""
+def _trajectory_costs(robot, worlds):
+    """The optimiser's costs (``trajopt._Costs``) of the four checkers' problems, its robot and config."""
     from fetchbench_ms.planning.trajopt import _Costs
 
     checkers = _checkers(robot, worlds)
     cfg = TrajoptConfig(device="cpu")
     tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], max_planes=cfg.max_planes)
     tr = TorchRobot(robot, checkers)
-    costs = _Costs(tr, tw, cfg, robot.q_min, robot.q_max)
+    return _Costs(tr, tw, cfg, robot.q_min, robot.q_max), tr, cfg
+
+
+def test_grouped_broad_phase_gives_the_flat_costs_and_gradients(robot, worlds):
+    """The link-by-link broad phase (``SphereGroups``) drops only pairs beyond the horizon:
+    the trajectory costs and their gradients are bitwise those of the flat sphere test."""
+    costs, tr, cfg = _trajectory_costs(robot, worlds)
+    checkers = _checkers(robot, worlds)
     rng = np.random.default_rng(3)
     traj = torch.as_tensor(np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min,
                                    robot.q_max), dtype=torch.float32)
@@ -183,3 +189,31 @@ def test_sphere_centres_link_by_link_match_the_per_sphere_transform(robot, world
     T = torch.stack([poses[link] for link in sp.links], dim=1)[:, torch.as_tensor(sp.link_index)]
     ref = torch.einsum("nsij,sj->nsi", T[..., :3, :3], torch.as_tensor(sp.centers_link)) + T[..., :3, 3]
     assert torch.allclose(centers[0].double(), ref, atol=1e-5)
+
+
+def test_pair_cache_gives_the_fresh_costs_and_gradients(robot, worlds):
+    """``PairCache`` reuses the broad phase's pairs while the spheres move less than its slack:
+    over trajectories that move by small and large steps, the costs and gradients are bitwise
+    those of a fresh broad phase, and fewer configurations are searched."""
+    from fetchbench_ms.planning.distance import PairCache
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    checkers = _checkers(robot, worlds)
+    rng = np.random.default_rng(5)
+    traj = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min, robot.q_max)
+    cache = PairCache(0.03)
+    for step in (0.0, 0.002, 0.002, 0.05, 0.001, 0.3, 0.002):
+        moved = traj.copy()
+        moved[:, :3] += rng.normal(0, step, moved[:, :3].shape)  # half the trajectories move
+        traj = np.clip(moved, robot.q_min, robot.q_max)
+        out = []
+        for c in (None, cache):
+            x = torch.as_tensor(traj, dtype=torch.float32).requires_grad_(True)
+            total, collision = costs(x, c)
+            (grad,) = torch.autograd.grad(total.sum(), x)
+            out.append((total.detach(), collision.detach(), grad))
+        assert (out[0][1] > 0).any()
+        for a, b in zip(*out):
+            assert torch.equal(a, b)
+    n = (traj.shape[2] - 1) * cfg.collision_substeps + 1
+    assert traj.shape[0] * traj.shape[1] * n < cache.searches < 7 * traj.shape[0] * traj.shape[1] * n

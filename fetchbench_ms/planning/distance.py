@@ -100,12 +100,13 @@ class _Primitives:
         return torch.where(capsule, d_capsule, d_cylinder)
 
     def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
-              groups: "SphereGroups | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
+              groups: "SphereGroups | None" = None, prepared: tuple | None = None
+              ) -> tuple[torch.Tensor, torch.Tensor]:
         """(flat point index into P*N, signed distance) of every (point, obstacle) pair whose
         bounding sphere is within ``horizon`` (+ the point's radius in ``radii`` (P, N)).
         With ``groups`` the points are tested group by group first (the same pairs, each
-        point's in ascending obstacle order, as without)."""
-        P, N, _ = points.shape
+        point's in ascending obstacle order, as without, less pairs beyond ``horizon`` by
+        their exact distance); ``prepared``: ``groups.prepare(points, radii)`` when known."""
         with torch.no_grad():
             if groups is None:
                 coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
@@ -113,7 +114,14 @@ class _Primitives:
                     coarse = coarse - radii[..., None]
                 p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
             else:
-                p, n, o = groups.candidates(points.detach(), radii, self, horizon)
+                p, n, o = groups.candidates(points.detach(), radii, self, horizon, prepared)
+        return self.pair_distances(points, p, n, o)
+
+    def pair_distances(self, points: torch.Tensor, p: torch.Tensor, n: torch.Tensor, o: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat point index into P*N, signed distance) of the pairs (point ``n`` of problem
+        ``p``, obstacle ``o``)."""
+        P, N, _ = points.shape
         pn = p * N + n
         return pn, self.exact(points.reshape(P * N, 3).index_select(0, pn), p, o)
 
@@ -272,7 +280,8 @@ class TorchWorld:
     def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
               groups: "SphereGroups | None" = None) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
         """Per obstacle kind: (flat point index or None for one value per point, distance)."""
-        out = [kind.pairs(points, horizon, radii, groups) for kind in self.kinds]
+        prepared = groups.prepare(points.detach(), radii) if groups is not None and self.kinds else None
+        out = [kind.pairs(points, horizon, radii, groups, prepared) for kind in self.kinds]
         if self.grid is not None:
             out.append((None, self.grid_distance(points).reshape(-1)))
         return out
@@ -287,13 +296,22 @@ class TorchWorld:
         return out.reshape(P, N)
 
     def penalty(self, points: torch.Tensor, radii: torch.Tensor, eta: float,
-                groups: "SphereGroups | None" = None) -> torch.Tensor:
+                groups: "SphereGroups | None" = None, cache: "PairCache | None" = None) -> torch.Tensor:
         """(P, N): sum over obstacles of ``collision_cost(distance - radius, eta)`` per sphere
-        of centre ``points`` (P, N, 3) and radius ``radii`` (P, N)."""
+        of centre ``points`` (P, N, 3) and radius ``radii`` (P, N). With ``cache`` (and
+        ``groups``), the broad phase's pairs are reused across calls (``PairCache``): the same
+        values."""
         P, N, _ = points.shape
         r = radii.reshape(-1)
         out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
-        for idx, d in self.pairs(points, eta, radii.reshape(P, N), groups):
+        if cache is not None and groups is not None:
+            pairs = [kind.pair_distances(points, *pno) for kind, pno in
+                     zip(self.kinds, cache.candidates(self, groups, points.detach(), radii.reshape(P, N), eta))]
+            if self.grid is not None:
+                pairs.append((None, self.grid_distance(points).reshape(-1)))
+        else:
+            pairs = self.pairs(points, eta, radii.reshape(P, N), groups)
+        for idx, d in pairs:
             if idx is None:
                 out = out + collision_cost(d - r, eta)
             else:
@@ -324,8 +342,24 @@ class SphereGroups:
             mean[g, m] = 1.0 / len(m)
         self.mean = torch.as_tensor(mean, device=device, dtype=dtype)
 
+    def prepare(self, points: torch.Tensor, radii: torch.Tensor | None) -> tuple[torch.Tensor, ...]:
+        """Per configuration and group of ``points`` (P, N, 3): the group's centre (P, C, G, 3),
+        each member's reach from it (P, C, G, W: distance + radius) and the largest (P, C, G);
+        what ``candidates`` needs for every obstacle kind."""
+        P, N, _ = points.shape
+        S, G = self.S, self.G
+        C = N // S
+        x = points.reshape(P, C, S, 3)
+        centre = torch.einsum("gs,pcsi->pcgi", self.mean, x)  # (P, C, G, 3)
+        flat_table = self.table.reshape(-1)
+        member = (x.index_select(2, flat_table).reshape(P, C, G, -1, 3) - centre[:, :, :, None]).norm(dim=-1)
+        if radii is not None:
+            member = member + radii.reshape(P, C, S).index_select(2, flat_table).reshape(P, C, G, -1)
+        reach = member.masked_fill(~self.valid, -FAR).amax(dim=3)  # (P, C, G)
+        return centre, member, reach
+
     def candidates(self, points: torch.Tensor, radii: torch.Tensor | None, kind: "_Primitives",
-                   horizon: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                   horizon: float, prepared: tuple | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(p, n, o) of the (point, obstacle) pairs within ``horizon`` (bounding spheres)
         whose obstacle is within ``horizon`` of the point's group sphere (exact distance),
         ordered by point, then obstacle. The pairs the second test drops are beyond
@@ -336,21 +370,18 @@ class SphereGroups:
         S, G = self.S, self.G
         C = N // S
         O = bound_c.shape[1]
-        x = points.reshape(P, C, S, 3)
-        centre = torch.einsum("gs,pcsi->pcgi", self.mean, x)  # (P, C, G, 3)
-        flat_table = self.table.reshape(-1)
-        member = (x.index_select(2, flat_table).reshape(P, C, G, -1, 3) - centre[:, :, :, None]).norm(dim=-1)
-        if radii is not None:
-            member = member + radii.reshape(P, C, S).index_select(2, flat_table).reshape(P, C, G, -1)
-        reach = member.masked_fill(~self.valid, -FAR).amax(dim=3)  # (P, C, G)
+        centre, member, reach = prepared if prepared is not None else self.prepare(points, radii)
         coarse = torch.cdist(centre.reshape(P, C * G, 3), bound_c) - bound_r[:, None, :] - reach.reshape(P, -1, 1)
         p, cg, o = torch.nonzero(coarse < horizon + self.SLACK, as_tuple=True)
         group_reach = reach.reshape(P * C * G).index_select(0, p * (C * G) + cg)
         exact = kind.exact(centre.reshape(P * C * G, 3).index_select(0, p * (C * G) + cg), p, o)
         near = exact - group_reach < horizon + self.SLACK
-        p, cg, o = p[near], cg[near], o[near]
+        p, cg, o, exact = p[near], cg[near], o[near], exact[near]
         c, g = cg // G, cg % G
-        keep = self.valid.index_select(0, g)  # (F, W)
+        # A member is as far from the obstacle as the group's centre, less its own reach
+        # (1-Lipschitz): the members beyond ``horizon`` by that bound are dropped too.
+        own = member.reshape(P * C * G, -1).index_select(0, p * (C * G) + cg)  # (F, W)
+        keep = self.valid.index_select(0, g) & (exact[:, None] - own < horizon + self.SLACK)
         pn = ((p * N + c * S)[:, None] + self.table.index_select(0, g))[keep]
         po = (p * O + o)[:, None].expand_as(keep)[keep]
         d = ((points.reshape(P * N, 3).index_select(0, pn) - bound_c.reshape(P * O, 3).index_select(0, po)).norm(dim=1)
@@ -362,6 +393,94 @@ class SphereGroups:
         key = key.sort().values
         pn, o = key // O, key % O
         return pn // N, pn % N, o
+
+
+class PairCache:
+    """The broad phase's pairs kept across calls on configurations that move a little (an
+    optimiser's iterations): found with the horizon widened by ``slack`` and reused for a
+    configuration while none of its spheres is more than ``slack`` from where it was tested.
+    A pair left out was beyond ``horizon + slack`` by its exact distance (the tests are
+    conservative, the distance 1-Lipschitz), so it is still beyond ``horizon``: its cost and
+    gradient are zero. The pairs kept are ordered as ``SphereGroups.candidates`` orders them,
+    so the summed costs and gradients are bitwise those of a fresh broad phase; only the
+    configurations that moved farther are searched again. For one set of points (the same
+    shape, groups, radii and world on every call)."""
+
+    def __init__(self, slack: float = 0.03):
+        self.slack = slack
+        self.ref: torch.Tensor | None = None  # (P, C, S, 3) where each configuration was tested
+        self.keys: list[torch.Tensor] = []  # per obstacle kind: sorted (p * N + n) * O + o
+        self.searches = 0  # configurations searched (a count for tests and profiles)
+        self.self_ref: torch.Tensor | None = None  # (M, S, 3), for the self-collision pairs
+        self.self_key: torch.Tensor | None = None
+
+    def self_keys(self, robot: "TorchRobot", c: torch.Tensor, within: float) -> torch.Tensor:
+        """``robot.self_keys(c, within, within)`` of configurations ``c`` (M, S, 3) (and some
+        pairs beyond ``within``): a pair's distance changes by at most twice the farthest
+        move of a sphere, so pairs are searched within ``within + 2 slack``."""
+        wide = within + 2 * self.slack
+        if self.self_ref is None or self.self_ref.shape != c.shape:
+            self.self_key = robot.self_keys(c, wide, wide)
+            self.self_ref = c.clone()
+            return self.self_key
+        moved = (c - self.self_ref).norm(dim=2).amax(dim=1) > self.slack - SphereGroups.SLACK  # (M,)
+        m = torch.nonzero(moved, as_tuple=True)[0]
+        if len(m):
+            LP, W = robot.pair_valid.shape
+            new = robot.self_keys(c.index_select(0, m), wide, wide)
+            row = new // (LP * W)
+            new = (m.index_select(0, row) * LP * W) + new % (LP * W)
+            old = self.self_key[~moved.index_select(0, self.self_key // (LP * W))]
+            self.self_key = torch.cat([old, new]).sort().values
+            self.self_ref[m] = c.index_select(0, m)
+        return self.self_key
+
+    def candidates(self, world: "TorchWorld", groups: SphereGroups, points: torch.Tensor, radii: torch.Tensor,
+                   horizon: float) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """Per obstacle kind of ``world``: (p, n, o) of every pair ``groups.candidates`` gives
+        within ``horizon`` (and some beyond it), ordered by point, then obstacle."""
+        P, N, _ = points.shape
+        S = groups.S
+        C = N // S
+        x = points.reshape(P, C, S, 3)
+        wide = horizon + self.slack
+        if self.ref is None or self.ref.shape != x.shape:
+            prepared = groups.prepare(points, radii)
+            found = [groups.candidates(points, radii, kind, wide, prepared) for kind in world.kinds]
+            self.keys = [(p * N + n) * kind.O + o for kind, (p, n, o) in zip(world.kinds, found)]
+            self.ref = x.clone()
+            self.searches += P * C
+            return found
+        # Float rounding of the displacement: a configuration is searched again a little early.
+        moved = (x - self.ref).norm(dim=3).amax(dim=2) > self.slack - groups.SLACK  # (P, C)
+        p_moved, c_moved = torch.nonzero(moved, as_tuple=True)
+        if len(p_moved):
+            self.searches += len(p_moved)
+            # The moved configurations, packed per problem (padding far from everything).
+            counts = torch.bincount(p_moved, minlength=P)
+            K = int(counts.max())
+            rank = torch.arange(len(p_moved), device=x.device) - (torch.cumsum(counts, 0) - counts)[p_moved]
+            sub = torch.full((P, K, S, 3), -_FAR_CENTER, device=x.device, dtype=x.dtype)
+            sub[p_moved, rank] = x[p_moved, c_moved]
+            sub_r = torch.zeros((P, K, S), device=x.device, dtype=x.dtype)
+            sub_r[p_moved, rank] = radii.reshape(P, C, S)[p_moved, c_moved]
+            config = torch.zeros((P, K), device=x.device, dtype=torch.long)
+            config[p_moved, rank] = c_moved
+            sub, sub_r = sub.reshape(P, K * S, 3), sub_r.reshape(P, K * S)
+            prepared = groups.prepare(sub, sub_r)
+            stale = moved.reshape(-1)
+            for i, kind in enumerate(world.kinds):
+                p, n, o = groups.candidates(sub, sub_r, kind, wide, prepared)
+                n = config[p, n // S] * S + n % S
+                old = self.keys[i]
+                old = old[~stale.index_select(0, old // (kind.O * S))]
+                self.keys[i] = torch.cat([old, (p * N + n) * kind.O + o]).sort().values
+            self.ref[p_moved, c_moved] = x[p_moved, c_moved]
+        out = []
+        for kind, key in zip(world.kinds, self.keys):
+            pn, o = key // kind.O, key % kind.O
+            out.append((pn // N, pn % N, o))
+        return out
 
 
 def collision_cost(d: torch.Tensor, eta: float) -> torch.Tensor:
@@ -449,19 +568,51 @@ class TorchRobot:
         self.link_mean = torch.as_tensor(mean, device=self.device, dtype=self.dtype)
         self.link_bound_r = torch.as_tensor(bound_r, device=self.device, dtype=self.dtype)
 
-    def self_pairs(self, centers: torch.Tensor, horizon: float) -> tuple[torch.Tensor, torch.Tensor]:
-        """(flat configuration index into P*B, signed distance) of the self-collision sphere
-        pairs whose links' bounding spheres are within ``horizon``."""
-        c = centers.reshape(-1, centers.shape[-2], 3)
+    def self_keys(self, c: torch.Tensor, horizon: float, within: float | None = None) -> torch.Tensor:
+        """The self-collision sphere pairs of configurations ``c`` (M, S, 3) whose links'
+        bounding spheres are within ``horizon`` (and, with ``within``, whose own distance is
+        below it) as sorted keys ``(m * link pairs + link pair) * W + slot`` (``pair_key``)."""
+        S = c.shape[1]
+        LP, W = self.pair_valid.shape
         with torch.no_grad():
-            bound = torch.einsum("ls,nsi->nli", self.link_mean, c.detach())
+            bound = torch.einsum("ls,nsi->nli", self.link_mean, c)
             a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
             clear = (bound[:, a] - bound[:, b]).norm(dim=2) - self.link_bound_r[a] - self.link_bound_r[b]
             n, lp = torch.nonzero(clear < horizon, as_tuple=True)
             valid = self.pair_valid[lp]  # (F, W)
-            n = n[:, None].expand_as(valid)[valid]
-            sa, sb = self.pair_table[lp, :, 0][valid], self.pair_table[lp, :, 1][valid]
-        d = _smooth_norm(c[n, sa] - c[n, sb]) - self.radii[sa] - self.radii[sb]
+            key = ((n * LP + lp)[:, None] * W + torch.arange(W, device=c.device))[valid]
+            if within is not None:
+                n, sa, sb = self.pair_key(key)
+                flat = c.reshape(-1, 3)
+                d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
+                    - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
+                key = key[d < within]
+        return key
+
+    def pair_key(self, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(configuration, sphere a, sphere b) of ``self_keys``' keys."""
+        LP, W = self.pair_valid.shape
+        row, slot = key // W, key % W
+        lp = row % LP
+        return row // LP, self.pair_table[lp, slot, 0], self.pair_table[lp, slot, 1]
+
+    def self_pairs(self, centers: torch.Tensor, horizon: float, within: float | None = None,
+                   cache: "PairCache | None" = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat configuration index into P*B, signed distance) of the self-collision sphere
+        pairs whose links' bounding spheres are within ``horizon``; with ``within``, only the
+        pairs whose own distance is below it (measured without gradients first, so that the
+        differentiable part is the few pairs that matter: the same values, in the same order);
+        ``cache`` (with ``within``) keeps them between calls (``PairCache``)."""
+        S = centers.shape[-2]
+        c = centers.reshape(-1, S, 3)
+        if cache is not None and within is not None:
+            key = cache.self_keys(self, c.detach(), within)
+        else:
+            key = self.self_keys(c.detach(), horizon, within)
+        n, sa, sb = self.pair_key(key)
+        flat = c.reshape(-1, 3)  # rows by one index_select each: advanced indexing's backward is slower
+        d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
+            - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
         return n, d
 
     def self_distance(self, centers: torch.Tensor, horizon: float = 0.05) -> torch.Tensor:

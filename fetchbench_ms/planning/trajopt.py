@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from .checker import CollisionChecker
-from .distance import TorchRobot, TorchWorld, collision_cost
+from .distance import PairCache, TorchRobot, TorchWorld, collision_cost
 from .rrt import PlanRequest, PlanResult, escape_start, path_valid, plan_rrtconnect
 
 
@@ -78,6 +78,9 @@ class TrajoptConfig:
     max_configs: int = 50_000  # configurations per cost evaluation of the particles, at most
     max_planes: int | None = 24  # per convex part (more are thinned: a larger, conservative polytope)
     max_verify: int = 4  # seeds checked by the exact checker per problem, best first
+    # m: the Adam steps reuse the broad phase's sphere-obstacle pairs of a configuration until
+    # one of its spheres moved this far (distance.PairCache): speed only, the costs are the same
+    broad_phase_slack: float = 0.03
     resolution: float = 0.02  # rad: dense check step, as RRTConnect's
     rrt_fallback: bool = True
     device: str | None = None  # None: default_device()
@@ -129,8 +132,9 @@ class _Costs:
         mid = a[:, :, :, None] + sub[:, None] * (b - a)[:, :, :, None]
         return torch.cat([mid.flatten(2, 3), traj[:, :, -1:]], dim=2)
 
-    def __call__(self, traj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(total cost (P, B), collision part (P, B)) of trajectories (P, B, T, 7)."""
+    def __call__(self, traj: torch.Tensor, cache: PairCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(total cost (P, B), collision part (P, B)) of trajectories (P, B, T, 7); ``cache``
+        keeps the world broad phase's pairs between calls on the same trajectories."""
         cfg, robot = self.cfg, self.robot
         P, B, T, _ = traj.shape
         q = self.dense(traj)
@@ -138,8 +142,12 @@ class _Costs:
         centers, att = robot.spheres(q.reshape(P, B * n, 7))
         S = centers.shape[2]
         radii = (robot.world_radii + robot.margin[:, None])[:, None].expand(P, B * n, S)
-        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta, robot.groups).reshape(P, B, -1).sum(2)
-        idx, d_self = robot.self_pairs(centers, 0.01 - cfg.self_tolerance)
+        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta, robot.groups, cache)
+        coll = coll.reshape(P, B, -1).sum(2)
+        # Only the pairs nearer than the cost's activation (the rest cost exactly 0), with a
+        # 0.1 mm margin for float rounding.
+        horizon = 0.01 - cfg.self_tolerance
+        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4, cache=cache)
         per_config = torch.zeros(P * B * n, device=q.device, dtype=q.dtype)
         per_config = per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
         self_cost = per_config.reshape(P, B, n).sum(2)
@@ -241,12 +249,13 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             interior = (w[..., None, None] * particles).sum(dim=2)
     # Adam, written out: torch.optim's first use in a process imports torch._dynamo (~2 s).
     m, v = torch.zeros_like(interior), torch.zeros_like(interior)
+    cache = PairCache(cfg.broad_phase_slack) if cfg.broad_phase_slack > 0 else None
     beta1, beta2, previous = 0.9, 0.999, float("inf")
     for it in range(cfg.opt_iters):
         if time.perf_counter() > deadline:
             raise _OutOfTime
         x = interior.detach().requires_grad_(True)
-        total, _ = costs(full(x))
+        total, _ = costs(full(x), cache)
         loss = total.sum()
         (grad,) = torch.autograd.grad(loss, x)
         if it % 10 == 9:  # converged: under 0.5% better than 10 iterations ago

@@ -72,7 +72,9 @@ def cspace_length(path) -> float:
     return float(np.abs(np.diff(path, axis=0)).sum()) if path is not None else float("nan")
 
 
-def run_planners(problems: list[dict], device: str, batch: int, time_limit: float) -> dict:
+def run_planners(problems: list[dict], device: str, batch: int, time_limit: float, profile=None) -> dict:
+    """Every problem by each planner; ``profile`` (a ``cProfile.Profile``) records the one-at-a-time
+    trajopt plans of the problems the straight segment does not solve."""
     from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
     from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
 
@@ -89,7 +91,11 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
 
     for p, a in zip(problems, args):
         rows["rrtconnect"].append(timed(plan_rrtconnect, *a, time_limit, start_tolerance=p["start_tolerance"]))
+        if profile is not None and rows["rrtconnect"][-1].status not in ("direct", "start_invalid"):
+            profile.enable()
         rows["trajopt"].append(timed(plan_trajopt, *a, time_limit, start_tolerance=p["start_tolerance"], config=cfg))
+        if profile is not None:
+            profile.disable()
     for i in range(0, len(args), batch):
         chunk = problems[i: i + batch]
         t, t_cpu = time.perf_counter(), time.process_time()
@@ -199,6 +205,24 @@ def summary(rows: dict, recheck: dict) -> dict:
     return out
 
 
+def write_profile(profile, path: str, rows: dict) -> None:
+    """The profile of the searched one-at-a-time trajopt plans as text: the command, the plans,
+    then cProfile's 40 largest cumulative times
+    (file names without their folders)."""
+    import io
+    import pstats
+    import sys
+
+    searched = [(r.status, round(r.cpu_time, 2)) for r, q in zip(rows["trajopt"], rows["rrtconnect"])
+                if q.status not in ("direct", "start_invalid")]
+    text = io.StringIO()
+    pstats.Stats(profile, stream=text).strip_dirs().sort_stats("cumulative").print_stats(40)
+    with open(path, "w") as f:
+        f.write(f"command: {' '.join(sys.argv)}\ntorch {torch.__version__}, {torch.get_num_threads()} threads; "
+                f"{len(searched)} plans profiled (status, CPU s under the profiler): {searched}\n")
+        f.write(text.getvalue())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--suite", default="val")
@@ -213,9 +237,14 @@ def main() -> None:
     parser.add_argument("--json", default=None, metavar="PATH",
                         help="write the figures: one object per planner (rrtconnect, trajopt, trajopt_batch), and run")
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--profile", default=None, metavar="PATH",
+                        help="write where the one-at-a-time trajopt plans of the searched problems spend their "
+                             "time (cProfile, cumulative; one worker)")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
     args = parser.parse_args()
+    if args.profile and args.workers > 1:
+        parser.error("--profile takes one worker (--workers 1)")
     if args.suite == "test":
         print("note: the test suite is for final figures; planner tuning belongs on val")
     torch.set_num_threads(args.threads)
@@ -234,7 +263,14 @@ def main() -> None:
         print(f"recorded {len(problems)} problems in {time.perf_counter() - t:.0f} s")
         if not problems:
             return
-        rows, recheck = run_planners(problems, device, args.batch, args.time_limit)
+        profile = None
+        if args.profile:
+            import cProfile
+
+            profile = cProfile.Profile()
+        rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile)
+        if profile is not None:
+            write_profile(profile, args.profile, rows)
     if args.verbose:
         for i, p in enumerate(problems):
             print(f"{p['task']} {p['kind']:<15} goals {len(p['q_goals'])}: " + "; ".join(

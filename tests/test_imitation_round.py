@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -74,6 +75,7 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     (entry,) = data["rounds"]
     assert entry["round"] == 1 and entry["tasks"] == [0, 2] and entry["small_val"]
     assert entry["demos"] >= 1 and entry["frames"] > 0 and len(entry["data_sha256"]) == 64
+    assert entry["machine"] == f"{os.cpu_count()} cores"  # a CPU round names no GPU
     mlp = entry["kinds"]["mlp"]
     # The shipped MLP reads composed_pointcloud: the round goes on from it, on its new demos.
     shipped = json.loads((ROOT / "assets/checkpoints/imit_mlp.json").read_text())

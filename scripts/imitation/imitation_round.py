@@ -2,6 +2,8 @@
 
     # a 2-GPU node (32 cores): ~20 minutes
     python scripts/imitation/imitation_round.py --work out/rounds --tasks 600 --per-task 3 --procs 32 --gpus 0,1 --ship
+    # one GPU and 16 cores, one kind: ~11 minutes
+    python scripts/imitation/imitation_round.py --work out/rounds --tasks 500 --procs 16 --gpus 0 --kinds mlp --steps mlp=5000 --ship
     # where the rounds stand: every round's data, steps and val figures, and the plateau check
     python scripts/imitation/imitation_round.py --status
     # the validation curve (val success against demos seen, per method) from the record
@@ -26,8 +28,8 @@ A round takes the next ``--tasks`` tasks of the ``train`` suite after the last r
    by ``scripts/maint/ship_imitation.py``;
 5. **record**: the round is appended to ``--record``/rounds.json: its tasks, demos, frames,
    the data's hash, the expert's rate, every kind's steps, init, val figures and whether it
-   shipped. Each round trains on its own new data from the previous weights (the data itself
-   is not kept: a round's frames are ~1.5 GB); ``demos_seen`` of a kind counts the demos of
+   shipped, and the machine it ran on. Each round trains on its own new data from the previous
+   weights (the data itself is not kept: a round's frames are ~1.5 GB); ``demos_seen`` of a kind counts the demos of
    every round its shipped lineage trained on.
 
 Every step resumes in ``--work``/round_NN (finished demos, chunks, trainer checkpoints and
@@ -101,6 +103,17 @@ def shipped(kind: str) -> tuple[Path | None, dict]:
     path = packed_or_plain(default_checkpoint(kind))
     side = default_checkpoint(kind).with_suffix(".json")
     return (path if path.is_file() else None), (json.loads(side.read_text()) if side.is_file() else {})
+
+
+def machine(gpus: list[str] | None) -> str:
+    """The machine a round ran on, for its record: cores, and the GPUs it used."""
+    cores = f"{os.cpu_count()} cores"
+    if not gpus:
+        return cores
+    import torch
+
+    names = sorted({torch.cuda.get_device_name(int(g)) for g in gpus})
+    return f"{cores}, {len(gpus)} GPU{'s' if len(gpus) > 1 else ''} ({', '.join(names)})"
 
 
 def export_complete(meta_path: Path, steps: int) -> bool:
@@ -389,7 +402,8 @@ def main(argv=None) -> int:
                                               "trajectories_per_core_hour", "conversion_frames_per_second")},
              "command": command, "val_tasks": args.val_tasks,
              "small_val": bool(args.allow_small_val and val[1] - val[0] < MIN_VAL_TASKS),
-             "seconds": {"data": round(t_data), "training": round(t_train), "val": round(t_val)}, "kinds": {}}
+             "seconds": {"data": round(t_data), "training": round(t_train), "val": round(t_val)},
+             "machine": machine(gpus), "kinds": {}}
     winners = []
     for kind in kinds:
         _, meta = shipped_now[kind]

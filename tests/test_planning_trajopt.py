@@ -217,3 +217,31 @@ def test_pair_cache_gives_the_fresh_costs_and_gradients(robot, worlds):
             assert torch.equal(a, b)
     n = (traj.shape[2] - 1) * cfg.collision_substeps + 1
     assert traj.shape[0] * traj.shape[1] * n < cache.searches < 7 * traj.shape[0] * traj.shape[1] * n
+
+
+def test_measuring_the_near_pairs_first_gives_the_same_costs_and_gradients(robot, worlds, monkeypatch):
+    """The differentiable pass over only the pairs nearer than the cost's horizon (measured
+    without gradients first, ``MEASURE_NEAR_FIRST``) gives bitwise the costs and gradients of
+    the pass over every broad-phase pair, fresh and through a ``PairCache``."""
+    from fetchbench_ms.planning import distance
+    from fetchbench_ms.planning.distance import PairCache
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    checkers = _checkers(robot, worlds)
+    rng = np.random.default_rng(6)
+    traj = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min, robot.q_max)
+    caches = {True: PairCache(0.03), False: PairCache(0.03)}
+    for step in (0.0, 0.002, 0.05):
+        traj = np.clip(traj + rng.normal(0, step, traj.shape), robot.q_min, robot.q_max)
+        for use_cache in (False, True):
+            out = []
+            for first in (True, False):
+                monkeypatch.setattr(distance, "MEASURE_NEAR_FIRST", first)
+                x = torch.as_tensor(traj, dtype=torch.float32).requires_grad_(True)
+                total, collision = costs(x, caches[first] if use_cache else None)
+                (grad,) = torch.autograd.grad(total.sum(), x)
+                out.append((total.detach(), collision.detach(), grad))
+            assert (out[0][1] > 0).any()
+            for a, b in zip(*out):
+                assert torch.equal(a, b)
+                assert torch.equal(a.view(torch.int32), b.view(torch.int32))  # zeros' signs too

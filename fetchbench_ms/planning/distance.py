@@ -40,6 +40,8 @@ GRID_EXACT_BAND = 0.04  # m: vertices this near the cloud (by the EDT) get the e
 # The grid covers the cloud only within the arm's reach (base frame, m): a scene cloud spans
 # the floor metres around, and a 1.5 cm grid over all of it took seconds to build.
 GRID_BOUNDS = ((-1.2, -1.2, -0.7), (1.2, 1.2, 1.5))
+NEAR_MARGIN = 1e-4  # m: pairs are measured with gradients up to this beyond the cost's horizon (rounding)
+MEASURE_NEAR_FIRST = True  # the differentiable pass only over pairs that cost something (False: for tests)
 _FAR_CENTER = 1e3  # padding obstacles sit here with a zero bounding radius: never near
 
 
@@ -107,15 +109,33 @@ class _Primitives:
         With ``groups`` the points are tested group by group first (the same pairs, each
         point's in ascending obstacle order, as without, less pairs beyond ``horizon`` by
         their exact distance); ``prepared``: ``groups.prepare(points, radii)`` when known."""
+        return self.pair_distances(points, *self.candidates(points, horizon, radii, groups, prepared))
+
+    def candidates(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
+                   groups: "SphereGroups | None" = None, prepared: tuple | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(p, n, o) of the pairs ``pairs`` measures, ordered by point, then obstacle."""
         with torch.no_grad():
             if groups is None:
                 coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
                 if radii is not None:
                     coarse = coarse - radii[..., None]
-                p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
-            else:
-                p, n, o = groups.candidates(points.detach(), radii, self, horizon, prepared)
-        return self.pair_distances(points, p, n, o)
+                return torch.nonzero(coarse < horizon, as_tuple=True)
+            return groups.candidates(points.detach(), radii, self, horizon, prepared)
+
+    def near(self, points: torch.Tensor, radii: torch.Tensor, horizon: float, p: torch.Tensor, n: torch.Tensor,
+             o: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The pairs (p, n, o) whose exact distance, less the point's radius in ``radii``
+        (P, N), is below ``horizon`` (+ ``NEAR_MARGIN`` for float rounding), in their order:
+        measured without gradients, so that the differentiable pass (and its backward) is
+        the few pairs that cost something. The pairs left out cost exactly 0 with a zero
+        gradient, and a sum that skips them is bitwise the sum over all (x + 0 = x, and the
+        sums start at +0)."""
+        with torch.no_grad():
+            pn, d = self.pair_distances(points.detach(), p, n, o)
+            keep = torch.nonzero(d - radii.reshape(-1).index_select(0, pn) < horizon + NEAR_MARGIN,
+                                 as_tuple=True)[0]
+        return p.index_select(0, keep), n.index_select(0, keep), o.index_select(0, keep)
 
     def pair_distances(self, points: torch.Tensor, p: torch.Tensor, n: torch.Tensor, o: torch.Tensor
                        ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -304,9 +324,15 @@ class TorchWorld:
         P, N, _ = points.shape
         r = radii.reshape(-1)
         out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
-        if cache is not None and groups is not None:
-            pairs = [kind.pair_distances(points, *pno) for kind, pno in
-                     zip(self.kinds, cache.candidates(self, groups, points.detach(), radii.reshape(P, N), eta))]
+        if (cache is not None and groups is not None) or points.requires_grad:
+            if cache is not None and groups is not None:
+                found = cache.candidates(self, groups, points.detach(), radii.reshape(P, N), eta)
+            else:
+                prepared = groups.prepare(points.detach(), radii.reshape(P, N)) if groups is not None else None
+                found = [kind.candidates(points, eta, radii.reshape(P, N), groups, prepared) for kind in self.kinds]
+            if points.requires_grad and MEASURE_NEAR_FIRST:  # differentiate only the pairs that cost
+                found = [kind.near(points, radii, eta, *pno) for kind, pno in zip(self.kinds, found)]
+            pairs = [kind.pair_distances(points, *pno) for kind, pno in zip(self.kinds, found)]
             if self.grid is not None:
                 pairs.append((None, self.grid_distance(points).reshape(-1)))
         else:
@@ -606,14 +632,21 @@ class TorchRobot:
         S = centers.shape[-2]
         c = centers.reshape(-1, S, 3)
         if cache is not None and within is not None:
-            key = cache.self_keys(self, c.detach(), within)
+            n, sa, sb = self.pair_key(cache.self_keys(self, c.detach(), within))
+            if c.requires_grad and MEASURE_NEAR_FIRST:  # the cache's pairs reach farther than ``within``
+                with torch.no_grad():
+                    keep = torch.nonzero(self._pair_distance(c.detach(), n, sa, sb) < within, as_tuple=True)[0]
+                n, sa, sb = n.index_select(0, keep), sa.index_select(0, keep), sb.index_select(0, keep)
         else:
-            key = self.self_keys(c.detach(), horizon, within)
-        n, sa, sb = self.pair_key(key)
+            n, sa, sb = self.pair_key(self.self_keys(c.detach(), horizon, within))
+        return n, self._pair_distance(c, n, sa, sb)
+
+    def _pair_distance(self, c: torch.Tensor, n: torch.Tensor, sa: torch.Tensor, sb: torch.Tensor) -> torch.Tensor:
+        """Signed distances of sphere ``sa`` to sphere ``sb`` of configuration ``n`` of ``c`` (M, S, 3)."""
+        S = c.shape[1]
         flat = c.reshape(-1, 3)  # rows by one index_select each: advanced indexing's backward is slower
-        d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
+        return _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
             - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
-        return n, d
 
     def self_distance(self, centers: torch.Tensor, horizon: float = 0.05) -> torch.Tensor:
         """(P, B) smallest self-collision sphere-pair distance (>= ``horizon`` where no

@@ -201,20 +201,22 @@ def test_pair_cache_gives_the_fresh_costs_and_gradients(robot, worlds):
     checkers = _checkers(robot, worlds)
     rng = np.random.default_rng(5)
     traj = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min, robot.q_max)
-    cache = PairCache(0.03)
+    cache, unfiltered = PairCache(0.03), PairCache(0.03)
+    unfiltered.exact_filter = False  # pairs within the widened horizon by their bounding spheres only
     for step in (0.0, 0.002, 0.002, 0.05, 0.001, 0.3, 0.002):
         moved = traj.copy()
         moved[:, :3] += rng.normal(0, step, moved[:, :3].shape)  # half the trajectories move
         traj = np.clip(moved, robot.q_min, robot.q_max)
         out = []
-        for c in (None, cache):
+        for c in (None, cache, unfiltered):
             x = torch.as_tensor(traj, dtype=torch.float32).requires_grad_(True)
             total, collision = costs(x, c)
             (grad,) = torch.autograd.grad(total.sum(), x)
             out.append((total.detach(), collision.detach(), grad))
         assert (out[0][1] > 0).any()
-        for a, b in zip(*out):
-            assert torch.equal(a, b)
+        for a, b, c in zip(*out):
+            assert torch.equal(a, b) and torch.equal(a, c)
+        assert sum(map(len, cache.keys)) < sum(map(len, unfiltered.keys))
     n = (traj.shape[2] - 1) * cfg.collision_substeps + 1
     assert traj.shape[0] * traj.shape[1] * n < cache.searches < 7 * traj.shape[0] * traj.shape[1] * n
 

@@ -439,6 +439,7 @@ class PairCache:
         self.searches = 0  # configurations searched (a count for tests and profiles)
         self.self_ref: torch.Tensor | None = None  # (M, S, 3), for the self-collision pairs
         self.self_key: torch.Tensor | None = None
+        self.exact_filter = True  # keep only the pairs within the widened horizon by their exact distance
 
     def self_keys(self, robot: "TorchRobot", c: torch.Tensor, within: float) -> torch.Tensor:
         """``robot.self_keys(c, within, within)`` of configurations ``c`` (M, S, 3) (and some
@@ -461,6 +462,12 @@ class PairCache:
             self.self_ref[m] = c.index_select(0, m)
         return self.self_key
 
+    def _near(self, kind: _Primitives, points, radii, wide: float, p, n, o):
+        """The pairs nearer than ``wide`` by their exact distance (``_Primitives.near``): a
+        pair beyond it stays beyond ``horizon`` until a sphere moves ``slack`` (the distance
+        is 1-Lipschitz), so the cache keeps fewer pairs to measure every call."""
+        return kind.near(points, radii, wide, p, n, o) if self.exact_filter else (p, n, o)
+
     def candidates(self, world: "TorchWorld", groups: SphereGroups, points: torch.Tensor, radii: torch.Tensor,
                    horizon: float) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
         """Per obstacle kind of ``world``: (p, n, o) of every pair ``groups.candidates`` gives
@@ -472,7 +479,8 @@ class PairCache:
         wide = horizon + self.slack
         if self.ref is None or self.ref.shape != x.shape:
             prepared = groups.prepare(points, radii)
-            found = [groups.candidates(points, radii, kind, wide, prepared) for kind in world.kinds]
+            found = [self._near(kind, points, radii, wide, *groups.candidates(points, radii, kind, wide, prepared))
+                     for kind in world.kinds]
             self.keys = [(p * N + n) * kind.O + o for kind, (p, n, o) in zip(world.kinds, found)]
             self.ref = x.clone()
             self.searches += P * C
@@ -496,7 +504,7 @@ class PairCache:
             prepared = groups.prepare(sub, sub_r)
             stale = moved.reshape(-1)
             for i, kind in enumerate(world.kinds):
-                p, n, o = groups.candidates(sub, sub_r, kind, wide, prepared)
+                p, n, o = self._near(kind, sub, sub_r, wide, *groups.candidates(sub, sub_r, kind, wide, prepared))
                 n = config[p, n // S] * S + n % S
                 old = self.keys[i]
                 old = old[~stale.index_select(0, old // (kind.O * S))]

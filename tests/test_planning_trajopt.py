@@ -224,7 +224,8 @@ def test_pair_cache_gives_the_fresh_costs_and_gradients(robot, worlds):
 def test_measuring_the_near_pairs_first_gives_the_same_costs_and_gradients(robot, worlds, monkeypatch):
     """The differentiable pass over only the pairs nearer than the cost's horizon (measured
     without gradients first, ``MEASURE_NEAR_FIRST``) gives bitwise the costs and gradients of
-    the pass over every broad-phase pair, fresh and through a ``PairCache``."""
+    the pass over every broad-phase pair, fresh and through a ``PairCache``; without
+    gradients (the particles' costs) the costs are bitwise the same too."""
     from fetchbench_ms.planning import distance
     from fetchbench_ms.planning.distance import PairCache
 
@@ -247,3 +248,6 @@ def test_measuring_the_near_pairs_first_gives_the_same_costs_and_gradients(robot
             for a, b in zip(*out):
                 assert torch.equal(a, b)
                 assert torch.equal(a.view(torch.int32), b.view(torch.int32))  # zeros' signs too
+        with torch.no_grad():  # the particles' costs: the distances the search measured, the same values
+            total, collision = costs(torch.as_tensor(traj, dtype=torch.float32))
+        assert torch.equal(total, out[0][0]) and torch.equal(collision, out[0][1])

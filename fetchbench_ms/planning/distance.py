@@ -606,8 +606,14 @@ class TorchRobot:
         """The self-collision sphere pairs of configurations ``c`` (M, S, 3) whose links'
         bounding spheres are within ``horizon`` (and, with ``within``, whose own distance is
         below it) as sorted keys ``(m * link pairs + link pair) * W + slot`` (``pair_key``)."""
+        return self._self_keys(c, horizon, within)[0]
+
+    def _self_keys(self, c: torch.Tensor, horizon: float, within: float | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``self_keys`` and, with ``within``, the kept pairs' distances (measured without gradients)."""
         S = c.shape[1]
         LP, W = self.pair_valid.shape
+        d = None
         with torch.no_grad():
             bound = torch.einsum("ls,nsi->nli", self.link_mean, c)
             a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
@@ -620,8 +626,9 @@ class TorchRobot:
                 flat = c.reshape(-1, 3)
                 d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
                     - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
-                key = key[d < within]
-        return key
+                near = d < within
+                key, d = key[near], d[near]
+        return key, d
 
     def pair_key(self, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(configuration, sphere a, sphere b) of ``self_keys``' keys."""
@@ -645,6 +652,9 @@ class TorchRobot:
                 with torch.no_grad():
                     keep = torch.nonzero(self._pair_distance(c.detach(), n, sa, sb) < within, as_tuple=True)[0]
                 n, sa, sb = n.index_select(0, keep), sa.index_select(0, keep), sb.index_select(0, keep)
+        elif within is not None and not c.requires_grad:  # the distances the search measured
+            key, d = self._self_keys(c, horizon, within)
+            return self.pair_key(key)[0], d
         else:
             n, sa, sb = self.pair_key(self.self_keys(c.detach(), horizon, within))
         return n, self._pair_distance(c, n, sa, sb)

@@ -201,19 +201,53 @@ def test_pair_cache_gives_the_fresh_costs_and_gradients(robot, worlds):
     checkers = _checkers(robot, worlds)
     rng = np.random.default_rng(5)
     traj = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min, robot.q_max)
-    cache = PairCache(0.03)
+    cache, unfiltered = PairCache(0.03), PairCache(0.03)
+    unfiltered.exact_filter = False  # pairs within the widened horizon by their bounding spheres only
     for step in (0.0, 0.002, 0.002, 0.05, 0.001, 0.3, 0.002):
         moved = traj.copy()
         moved[:, :3] += rng.normal(0, step, moved[:, :3].shape)  # half the trajectories move
         traj = np.clip(moved, robot.q_min, robot.q_max)
         out = []
-        for c in (None, cache):
+        for c in (None, cache, unfiltered):
             x = torch.as_tensor(traj, dtype=torch.float32).requires_grad_(True)
             total, collision = costs(x, c)
             (grad,) = torch.autograd.grad(total.sum(), x)
             out.append((total.detach(), collision.detach(), grad))
         assert (out[0][1] > 0).any()
-        for a, b in zip(*out):
-            assert torch.equal(a, b)
+        for a, b, c in zip(*out):
+            assert torch.equal(a, b) and torch.equal(a, c)
+        assert sum(map(len, cache.keys)) < sum(map(len, unfiltered.keys))
     n = (traj.shape[2] - 1) * cfg.collision_substeps + 1
     assert traj.shape[0] * traj.shape[1] * n < cache.searches < 7 * traj.shape[0] * traj.shape[1] * n
+
+
+def test_measuring_the_near_pairs_first_gives_the_same_costs_and_gradients(robot, worlds, monkeypatch):
+    """The differentiable pass over only the pairs nearer than the cost's horizon (measured
+    without gradients first, ``MEASURE_NEAR_FIRST``) gives bitwise the costs and gradients of
+    the pass over every broad-phase pair, fresh and through a ``PairCache``; without
+    gradients (the particles' costs) the costs are bitwise the same too."""
+    from fetchbench_ms.planning import distance
+    from fetchbench_ms.planning.distance import PairCache
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    checkers = _checkers(robot, worlds)
+    rng = np.random.default_rng(6)
+    traj = np.clip(Q_DEFAULT + rng.normal(0, 0.6, (len(checkers), 6, 12, 7)), robot.q_min, robot.q_max)
+    caches = {True: PairCache(0.03), False: PairCache(0.03)}
+    for step in (0.0, 0.002, 0.05):
+        traj = np.clip(traj + rng.normal(0, step, traj.shape), robot.q_min, robot.q_max)
+        for use_cache in (False, True):
+            out = []
+            for first in (True, False):
+                monkeypatch.setattr(distance, "MEASURE_NEAR_FIRST", first)
+                x = torch.as_tensor(traj, dtype=torch.float32).requires_grad_(True)
+                total, collision = costs(x, caches[first] if use_cache else None)
+                (grad,) = torch.autograd.grad(total.sum(), x)
+                out.append((total.detach(), collision.detach(), grad))
+            assert (out[0][1] > 0).any()
+            for a, b in zip(*out):
+                assert torch.equal(a, b)
+                assert torch.equal(a.view(torch.int32), b.view(torch.int32))  # zeros' signs too
+        with torch.no_grad():  # the particles' costs: the distances the search measured, the same values
+            total, collision = costs(torch.as_tensor(traj, dtype=torch.float32))
+        assert torch.equal(total, out[0][0]) and torch.equal(collision, out[0][1])

@@ -40,6 +40,8 @@ GRID_EXACT_BAND = 0.04  # m: vertices this near the cloud (by the EDT) get the e
 # The grid covers the cloud only within the arm's reach (base frame, m): a scene cloud spans
 # the floor metres around, and a 1.5 cm grid over all of it took seconds to build.
 GRID_BOUNDS = ((-1.2, -1.2, -0.7), (1.2, 1.2, 1.5))
+NEAR_MARGIN = 1e-4  # m: pairs are measured with gradients up to this beyond the cost's horizon (rounding)
+MEASURE_NEAR_FIRST = True  # the differentiable pass only over pairs that cost something (False: for tests)
 _FAR_CENTER = 1e3  # padding obstacles sit here with a zero bounding radius: never near
 
 
@@ -107,15 +109,33 @@ class _Primitives:
         With ``groups`` the points are tested group by group first (the same pairs, each
         point's in ascending obstacle order, as without, less pairs beyond ``horizon`` by
         their exact distance); ``prepared``: ``groups.prepare(points, radii)`` when known."""
+        return self.pair_distances(points, *self.candidates(points, horizon, radii, groups, prepared))
+
+    def candidates(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
+                   groups: "SphereGroups | None" = None, prepared: tuple | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(p, n, o) of the pairs ``pairs`` measures, ordered by point, then obstacle."""
         with torch.no_grad():
             if groups is None:
                 coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
                 if radii is not None:
                     coarse = coarse - radii[..., None]
-                p, n, o = torch.nonzero(coarse < horizon, as_tuple=True)
-            else:
-                p, n, o = groups.candidates(points.detach(), radii, self, horizon, prepared)
-        return self.pair_distances(points, p, n, o)
+                return torch.nonzero(coarse < horizon, as_tuple=True)
+            return groups.candidates(points.detach(), radii, self, horizon, prepared)
+
+    def near(self, points: torch.Tensor, radii: torch.Tensor, horizon: float, p: torch.Tensor, n: torch.Tensor,
+             o: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The pairs (p, n, o) whose exact distance, less the point's radius in ``radii``
+        (P, N), is below ``horizon`` (+ ``NEAR_MARGIN`` for float rounding), in their order:
+        measured without gradients, so that the differentiable pass (and its backward) is
+        the few pairs that cost something. The pairs left out cost exactly 0 with a zero
+        gradient, and a sum that skips them is bitwise the sum over all (x + 0 = x, and the
+        sums start at +0)."""
+        with torch.no_grad():
+            pn, d = self.pair_distances(points.detach(), p, n, o)
+            keep = torch.nonzero(d - radii.reshape(-1).index_select(0, pn) < horizon + NEAR_MARGIN,
+                                 as_tuple=True)[0]
+        return p.index_select(0, keep), n.index_select(0, keep), o.index_select(0, keep)
 
     def pair_distances(self, points: torch.Tensor, p: torch.Tensor, n: torch.Tensor, o: torch.Tensor
                        ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -304,9 +324,15 @@ class TorchWorld:
         P, N, _ = points.shape
         r = radii.reshape(-1)
         out = torch.zeros(P * N, device=points.device, dtype=points.dtype)
-        if cache is not None and groups is not None:
-            pairs = [kind.pair_distances(points, *pno) for kind, pno in
-                     zip(self.kinds, cache.candidates(self, groups, points.detach(), radii.reshape(P, N), eta))]
+        if (cache is not None and groups is not None) or points.requires_grad:
+            if cache is not None and groups is not None:
+                found = cache.candidates(self, groups, points.detach(), radii.reshape(P, N), eta)
+            else:
+                prepared = groups.prepare(points.detach(), radii.reshape(P, N)) if groups is not None else None
+                found = [kind.candidates(points, eta, radii.reshape(P, N), groups, prepared) for kind in self.kinds]
+            if points.requires_grad and MEASURE_NEAR_FIRST:  # differentiate only the pairs that cost
+                found = [kind.near(points, radii, eta, *pno) for kind, pno in zip(self.kinds, found)]
+            pairs = [kind.pair_distances(points, *pno) for kind, pno in zip(self.kinds, found)]
             if self.grid is not None:
                 pairs.append((None, self.grid_distance(points).reshape(-1)))
         else:
@@ -413,6 +439,7 @@ class PairCache:
         self.searches = 0  # configurations searched (a count for tests and profiles)
         self.self_ref: torch.Tensor | None = None  # (M, S, 3), for the self-collision pairs
         self.self_key: torch.Tensor | None = None
+        self.exact_filter = True  # keep only the pairs within the widened horizon by their exact distance
 
     def self_keys(self, robot: "TorchRobot", c: torch.Tensor, within: float) -> torch.Tensor:
         """``robot.self_keys(c, within, within)`` of configurations ``c`` (M, S, 3) (and some
@@ -435,6 +462,12 @@ class PairCache:
             self.self_ref[m] = c.index_select(0, m)
         return self.self_key
 
+    def _near(self, kind: _Primitives, points, radii, wide: float, p, n, o):
+        """The pairs nearer than ``wide`` by their exact distance (``_Primitives.near``): a
+        pair beyond it stays beyond ``horizon`` until a sphere moves ``slack`` (the distance
+        is 1-Lipschitz), so the cache keeps fewer pairs to measure every call."""
+        return kind.near(points, radii, wide, p, n, o) if self.exact_filter else (p, n, o)
+
     def candidates(self, world: "TorchWorld", groups: SphereGroups, points: torch.Tensor, radii: torch.Tensor,
                    horizon: float) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
         """Per obstacle kind of ``world``: (p, n, o) of every pair ``groups.candidates`` gives
@@ -446,7 +479,8 @@ class PairCache:
         wide = horizon + self.slack
         if self.ref is None or self.ref.shape != x.shape:
             prepared = groups.prepare(points, radii)
-            found = [groups.candidates(points, radii, kind, wide, prepared) for kind in world.kinds]
+            found = [self._near(kind, points, radii, wide, *groups.candidates(points, radii, kind, wide, prepared))
+                     for kind in world.kinds]
             self.keys = [(p * N + n) * kind.O + o for kind, (p, n, o) in zip(world.kinds, found)]
             self.ref = x.clone()
             self.searches += P * C
@@ -470,7 +504,7 @@ class PairCache:
             prepared = groups.prepare(sub, sub_r)
             stale = moved.reshape(-1)
             for i, kind in enumerate(world.kinds):
-                p, n, o = groups.candidates(sub, sub_r, kind, wide, prepared)
+                p, n, o = self._near(kind, sub, sub_r, wide, *groups.candidates(sub, sub_r, kind, wide, prepared))
                 n = config[p, n // S] * S + n % S
                 old = self.keys[i]
                 old = old[~stale.index_select(0, old // (kind.O * S))]
@@ -572,8 +606,14 @@ class TorchRobot:
         """The self-collision sphere pairs of configurations ``c`` (M, S, 3) whose links'
         bounding spheres are within ``horizon`` (and, with ``within``, whose own distance is
         below it) as sorted keys ``(m * link pairs + link pair) * W + slot`` (``pair_key``)."""
+        return self._self_keys(c, horizon, within)[0]
+
+    def _self_keys(self, c: torch.Tensor, horizon: float, within: float | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``self_keys`` and, with ``within``, the kept pairs' distances (measured without gradients)."""
         S = c.shape[1]
         LP, W = self.pair_valid.shape
+        d = None
         with torch.no_grad():
             bound = torch.einsum("ls,nsi->nli", self.link_mean, c)
             a, b = self.link_pairs[:, 0], self.link_pairs[:, 1]
@@ -586,8 +626,9 @@ class TorchRobot:
                 flat = c.reshape(-1, 3)
                 d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
                     - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
-                key = key[d < within]
-        return key
+                near = d < within
+                key, d = key[near], d[near]
+        return key, d
 
     def pair_key(self, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(configuration, sphere a, sphere b) of ``self_keys``' keys."""
@@ -606,14 +647,24 @@ class TorchRobot:
         S = centers.shape[-2]
         c = centers.reshape(-1, S, 3)
         if cache is not None and within is not None:
-            key = cache.self_keys(self, c.detach(), within)
+            n, sa, sb = self.pair_key(cache.self_keys(self, c.detach(), within))
+            if c.requires_grad and MEASURE_NEAR_FIRST:  # the cache's pairs reach farther than ``within``
+                with torch.no_grad():
+                    keep = torch.nonzero(self._pair_distance(c.detach(), n, sa, sb) < within, as_tuple=True)[0]
+                n, sa, sb = n.index_select(0, keep), sa.index_select(0, keep), sb.index_select(0, keep)
+        elif within is not None and not c.requires_grad:  # the distances the search measured
+            key, d = self._self_keys(c, horizon, within)
+            return self.pair_key(key)[0], d
         else:
-            key = self.self_keys(c.detach(), horizon, within)
-        n, sa, sb = self.pair_key(key)
+            n, sa, sb = self.pair_key(self.self_keys(c.detach(), horizon, within))
+        return n, self._pair_distance(c, n, sa, sb)
+
+    def _pair_distance(self, c: torch.Tensor, n: torch.Tensor, sa: torch.Tensor, sb: torch.Tensor) -> torch.Tensor:
+        """Signed distances of sphere ``sa`` to sphere ``sb`` of configuration ``n`` of ``c`` (M, S, 3)."""
+        S = c.shape[1]
         flat = c.reshape(-1, 3)  # rows by one index_select each: advanced indexing's backward is slower
-        d = _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
+        return _smooth_norm(flat.index_select(0, n * S + sa) - flat.index_select(0, n * S + sb)) \
             - self.radii.index_select(0, sa) - self.radii.index_select(0, sb)
-        return n, d
 
     def self_distance(self, centers: torch.Tensor, horizon: float = 0.05) -> torch.Tensor:
         """(P, B) smallest self-collision sphere-pair distance (>= ``horizon`` where no

@@ -56,7 +56,7 @@ import sys
 import time
 from pathlib import Path
 
-from fetchbench_ms.utils.rounds import next_tasks, no_gain_in_two as plateau, parse_slice, round_log
+from fetchbench_ms.utils.rounds import answer_report, next_tasks, no_gain_in_two as plateau, parse_slice, round_log
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "results/training/grasp-rounds"
@@ -461,16 +461,7 @@ def main(argv=None) -> int:
     p.add_argument("--ship", action="store_true", help="write the winners to assets/checkpoints/ (else only report)")
     args = p.parse_args(argv)
     record = load_record(args.record)
-    if args.costs:
-        print(costs(record, args.cores))
-        return 0
-    if args.status:
-        print(status(record))
-        return 0
-    if args.plot:
-        if not record["rounds"]:
-            raise SystemExit(f"error: {args.record / 'rounds.json'}: no round recorded, nothing to plot")
-        plot(record, args.plot)
+    if answer_report(args, record, lambda: costs(record, args.cores), status, plot):
         return 0
     if args.work is None:
         raise SystemExit("error: --work is needed to run a round (or --status / --plot / --costs)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import time
 from pathlib import Path
+from typing import Callable
 
 
 def next_tasks(record: dict, count: int) -> tuple[int, int]:
@@ -45,3 +46,20 @@ def round_log(path: Path):
         log_file.flush()
 
     return log
+
+
+def answer_report(args, record: dict, costs: Callable[[], str], status: Callable[[dict], str],
+                  plot: Callable[[dict, Path], None]) -> bool:
+    """Answer ``--costs``, ``--status`` or ``--plot`` (the commands' read-only modes) from the
+    record; False when none was asked for and a round is to run."""
+    if args.costs:
+        print(costs())
+    elif args.status:
+        print(status(record))
+    elif args.plot:
+        if not record["rounds"]:
+            raise SystemExit(f"error: {args.record / 'rounds.json'}: no round recorded, nothing to plot")
+        plot(record, args.plot)
+    else:
+        return False
+    return True

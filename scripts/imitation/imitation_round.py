@@ -49,7 +49,7 @@ import sys
 import time
 from pathlib import Path
 
-from fetchbench_ms.utils.rounds import next_tasks, no_gain_in_two, parse_slice, round_log
+from fetchbench_ms.utils.rounds import answer_report, next_tasks, no_gain_in_two, parse_slice, round_log
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORD = ROOT / "results/training/imitation-rounds"
@@ -277,17 +277,8 @@ def main(argv=None) -> int:
     p.add_argument("--allow-small-val", action="store_true", help="fewer val tasks (tests; recorded as such)")
     p.add_argument("--ship", action="store_true", help="write the winners to assets/checkpoints/ (else only report)")
     args = p.parse_args(argv)
-    if args.costs:
-        print(costs_block())
-        return 0
     record = load_record(args.record)
-    if args.status:
-        print(status(record))
-        return 0
-    if args.plot:
-        if not record["rounds"]:
-            raise SystemExit(f"{args.record / 'rounds.json'}: no round recorded, nothing to plot")
-        plot(record, args.plot)
+    if answer_report(args, record, costs_block, status, plot):
         return 0
     if args.work is None:
         p.error("--work is needed to run a round (or --status / --plot)")

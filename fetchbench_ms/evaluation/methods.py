@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from ..method_spec import IMPROVEMENTS, PANDA_ONLY, MethodSpec, RunSpec, load, method_spec, registry
+from .worker_caches import release_between_tasks
 
 #: Objects of the tasks an env id samples from seeds (``--env ID --episodes N``): those
 #: runs are evaluations, so test objects, as the suites use. The envs' own default is the
@@ -278,6 +279,7 @@ class TaskRunner:
             self.close()
             record = error_record(item, "exception", f"{type(error).__name__}: {error}", traceback.format_exc())
         self.method_started = self.current_item = None
+        release_between_tasks()  # the torch planners' per-task blocks: see worker_caches
         record.update(task_id=item.task_id, seed=item.seed, env_id=item.env_id, method=self.method.name,
                       wall_time=round(time.perf_counter() - t, 2))
         # Every record names the run's pipeline variant and options (error records too).

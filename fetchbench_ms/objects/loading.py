@@ -20,7 +20,15 @@ def object_ids(split: str = "test") -> list[str]:
     return sorted(r.object_id for r in catalog.list_objects(split=split))
 
 
-@functools.lru_cache(maxsize=None)
+#: Objects a process keeps loaded. A task holds about 15, and a long evaluation goes through
+#: the whole split (748 test objects, 5,219 train), so an unbounded cache would end up
+#: holding the split (0.1-1 MB an object). 256 keeps well over a task's worth and the objects
+#: that recur across a suite's tasks; one evicted is rebuilt in ~30 ms, the same asset
+#: (``catalog.get_object`` checks its geometry against the index's fingerprint).
+LOADED_OBJECTS_KEPT = 256
+
+
+@functools.lru_cache(maxsize=LOADED_OBJECTS_KEPT)
 def load_object(object_id: str) -> ObjectAsset:
     """The ``ObjectAsset`` for ``object_id`` (cached: assets are immutable)."""
     return catalog.get_object(object_id)

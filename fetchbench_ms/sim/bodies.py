@@ -66,7 +66,13 @@ class ObjectFiles:
     rgba: tuple[float, float, float, float]
 
 
-@functools.lru_cache(maxsize=None)
+#: Objects whose file records a process keeps (a few hundred bytes each; a miss reads one
+#: small JSON file): more than the 748 test objects, so an evaluation never re-reads one,
+#: while a run over the 5,219 train objects stays bounded.
+OBJECT_FILES_KEPT = 1024
+
+
+@functools.lru_cache(maxsize=OBJECT_FILES_KEPT)
 def object_files(object_id: str) -> ObjectFiles:
     """The mesh files of ``object_id``, remembered in memory and on disk (next to the
     mesh files, under the catalog's version), so building a task's objects into a scene
@@ -111,7 +117,15 @@ def _object_rgba(asset) -> tuple:
     return tuple(float(c) for c in rgba)
 
 
-@functools.lru_cache(maxsize=None)
+#: Render materials a process keeps, by colour. Procedural and blob objects each have their
+#: own colour, so unbounded this grows by about a material per object a task builds (with
+#: visuals: the camera obs modes), each holding renderer memory (the GPU's, on a GPU node).
+#: 256 covers many tasks' objects; an evicted one that a built scene still uses lives on with
+#: that scene, and a new one of the same colour renders the same.
+RENDER_MATERIALS_KEPT = 256
+
+
+@functools.lru_cache(maxsize=RENDER_MATERIALS_KEPT)
 def _render_material(rgba: tuple):
     # Cached: creating a RenderMaterial costs ~40 ms on a CPU (lavapipe) renderer.
     return sapien.render.RenderMaterial(base_color=list(rgba), roughness=0.6, metallic=0.0)

@@ -1,0 +1,111 @@
+"""Memory of one evaluation worker over a run: RSS (and CUDA memory on a GPU) after each task.
+
+Runs the tasks one after another in this process exactly as a worker of `fetchbench eval` does
+(``evaluation.methods.TaskRunner``: one env kept across tasks, one torch thread), and prints
+the first and last tasks' figures with the sizes of the caches a worker keeps across tasks
+(``evaluation.worker_caches``):
+
+    python scripts/bench/bench_worker_memory.py --method ga-mesh-trajopt --suite val --tasks 0:40 \\
+        --json results/planning/worker-memory-cpu-val40.json
+
+RSS is the process's resident memory (VmRSS); on a GPU, ``cuda_allocated_mb`` is what live
+tensors hold and ``cuda_reserved_mb`` what torch's caching allocator holds from the device
+(the renderer's memory is not in either: see nvidia-smi).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def cuda_mb() -> dict:
+    import torch
+
+    if not torch.cuda.is_initialized():
+        return {}
+    return {"cuda_allocated_mb": round(torch.cuda.memory_allocated() / 2**20, 1),
+            "cuda_reserved_mb": round(torch.cuda.memory_reserved() / 2**20, 1)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--method", default="ga-mesh-trajopt")
+    parser.add_argument("--pipeline", choices=("paper", "ours"), default="paper")
+    parser.add_argument("--suite", default="val", help="task suite: test, val, smoke, or a suite file")
+    parser.add_argument("--tasks", default="0:40", help="START:END slice of the suite's tasks")
+    parser.add_argument("--json", default=None, metavar="PATH", help="write every task's figures here")
+    args = parser.parse_args()
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    from fetchbench_ms.evaluation.methods import TaskRunner, resolve_run
+    from fetchbench_ms.evaluation.runner import open_suite, parse_range, suite_items
+    from fetchbench_ms.evaluation.worker_caches import cache_sizes
+    from fetchbench_ms.method_spec import IMPROVEMENTS
+
+    try:
+        suite, _, _ = open_suite(args.suite)
+        items = suite_items(suite, parse_range(args.tasks, len(suite.tasks)))
+        run = resolve_run(args.method, improvements=IMPROVEMENTS if args.pipeline == "ours" else ())
+    except (ValueError, KeyError, FileNotFoundError) as error:  # the message names what is valid
+        parser.error(str(error).strip("'\""))
+
+    torch.set_num_threads(1)  # as a worker (evaluation.local)
+    runner = TaskRunner(run)
+    rows = []
+    start = time.perf_counter()
+    try:
+        for item in items:
+            record = runner(item)
+            rows.append({"task_id": item.task_id, "success": record["success"], "failure": record.get("failure"),
+                         "wall_time": record["wall_time"], "rss_mb": round(rss_mb(), 1), **cuda_mb(),
+                         "caches": {c.name: c.size for c in cache_sizes()}})
+            print(f"{len(rows):4d} {item.task_id}  rss {rows[-1]['rss_mb']:7.1f} MB  "
+                  + "".join(f"{k[:-3]} {v:.1f} MB  " for k, v in rows[-1].items() if k.startswith("cuda"))
+                  + f"{record['wall_time']:.1f} s", flush=True)
+    finally:
+        runner.close()
+    if not rows:
+        sys.exit("no task ran")
+    first, last = rows[0], rows[-1]
+    bounds = {c.name: c.bound for c in cache_sizes()}
+    print(f"\n{args.method} ({args.pipeline}), {args.suite} {args.tasks}: {len(rows)} tasks in "
+          f"{time.perf_counter() - start:.0f} s on {run_device()}")
+    print(f"RSS after the first task {first['rss_mb']:.0f} MB, after the last {last['rss_mb']:.0f} MB, "
+          f"largest {max(r['rss_mb'] for r in rows):.0f} MB")
+    for key in ("cuda_allocated_mb", "cuda_reserved_mb"):
+        if key in last:
+            print(f"{key}: first {first.get(key, 0.0):.1f}, last {last[key]:.1f}, "
+                  f"largest {max(r.get(key, 0.0) for r in rows):.1f}")
+    print("caches at the end (entries / bound): "
+          + ", ".join(f"{name} {size}/{bounds[name]}" for name, size in last["caches"].items()))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"method": args.method, "pipeline": args.pipeline, "suite": args.suite, "tasks": args.tasks,
+                       "device": run_device(), "torch_threads": torch.get_num_threads(),
+                       "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
+                       "cache_bounds": bounds, "per_task": rows}, f, indent=1)
+            f.write("\n")
+        print(f"wrote {args.json}")
+
+
+def run_device() -> str:
+    from fetchbench_ms.planning.trajopt import default_device
+
+    return f"trajopt on {default_device()}, {os.cpu_count()} CPU cores"
+
+
+if __name__ == "__main__":
+    main()

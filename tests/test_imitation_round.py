@@ -40,6 +40,17 @@ def test_the_choice_compares_the_methods_the_shipped_one_was_judged_in(rounds):
     assert rounds.choose(candidate, {}, tasks)["ships"]
 
 
+def test_a_missing_shipped_checkpoint_stops_the_round_instead_of_shipping_unjudged(rounds, tmp_path, monkeypatch):
+    # Every kind ships with the package: without its checkpoint the choice has nothing to
+    # compare with, and shipping the candidate unjudged would replace a better one.
+    import fetchbench_ms.policies.deploy as deploy
+
+    assert rounds.shipped("act")[0].is_file()
+    monkeypatch.setattr(deploy, "default_checkpoint", lambda kind: tmp_path / f"imit_{kind}.pt")
+    with pytest.raises(SystemExit, match="imit_act.json is missing"):
+        rounds.shipped("act")
+
+
 def test_a_plateau_is_two_rounds_without_a_better_val_success(rounds):
     def entry(rate):
         return {"kinds": {"mlp": {"val": {"e2e-mlp": {"success_rate": rate}}}}}

@@ -95,14 +95,19 @@ def run(command: list[str], log) -> None:
         raise SystemExit(f"stopped: exit {code} from {shlex.join(command[:3])} ...; run the same command to resume")
 
 
-def shipped(kind: str) -> tuple[Path | None, dict]:
-    """The shipped checkpoint of a kind (or None) and its JSON."""
+def shipped(kind: str) -> tuple[Path, dict]:
+    """The shipped checkpoint of a kind and its JSON."""
     from fetchbench_ms.policies.deploy import default_checkpoint
     from fetchbench_ms.utils.packed import packed_or_plain
 
     path = packed_or_plain(default_checkpoint(kind))
     side = default_checkpoint(kind).with_suffix(".json")
-    return (path if path.is_file() else None), (json.loads(side.read_text()) if side.is_file() else {})
+    if not path.is_file() or not side.is_file():
+        # The package ships every kind: a missing one is a broken tree, and treating it as
+        # "nothing shipped" would ship any candidate without comparing it.
+        raise SystemExit(f"{path} or {side.name} is missing: the round compares each kind's candidate with its "
+                         f"shipped checkpoint (restore assets/checkpoints/imit_{kind}.*)")
+    return path, json.loads(side.read_text())
 
 
 def machine(gpus: list[str] | None) -> str:
@@ -322,7 +327,7 @@ def main(argv=None) -> int:
     inits, flags = {}, {}
     for kind in kinds:
         path, meta = shipped(kind)
-        init = path if path is not None and checkpoint_obs_mode(path) == OBS_MODE else None
+        init = path if checkpoint_obs_mode(path) == OBS_MODE else None
         first = int(meta.get("step", 0)) if init else 0
         inits[kind] = {"path": str(init.relative_to(ROOT)) if init else None, "step": first,
                        "sha256": meta.get("checkpoint_sha256") if init else None,
@@ -355,7 +360,7 @@ def main(argv=None) -> int:
              for kind in kinds for method in methods(kind)]
     shipped_now = {kind: shipped(kind) for kind in kinds}
     evals += [(kind, method, None, work / "val-shipped" / method) for kind in kinds for method in methods(kind)
-              if shipped_now[kind][0] is not None and val_successes(shipped_now[kind][1], method, val) is None]
+              if val_successes(shipped_now[kind][1], method, val) is None]
     # Twice --procs workers in all: the runs' costs differ (an end-to-end run on compact_pointcloud
     # is the slowest), and the slow ones keep the cores busy once the fast ones have ended.
     workers = max(1, 2 * args.procs // len(evals))

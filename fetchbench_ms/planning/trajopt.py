@@ -53,18 +53,18 @@ def default_device() -> str:
 @dataclass
 class TrajoptConfig:
     """The optimiser's work, in counts: the same on every device (the benchmark's rows must
-    not depend on whether a GPU was there). About 1-3 s a problem on one CPU core."""
+    not depend on whether a GPU was there). About 1 s a problem on one CPU core."""
 
     n_waypoints: int = 24  # including start and goal
-    seeds: int = 16  # per problem: the straight line to each goal, then random via points
+    seeds: int = 8  # per problem: the straight line to each goal, then random via points
     via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
-    collision_substeps: int = 3  # collision cost at waypoints and between them
+    collision_substeps: int = 2  # collision cost at waypoints and between them
     check_substeps: int = 8  # the spheres' verdict on the result, before the exact check
     mppi_iters: int = 3
     mppi_particles: int = 8  # per seed
     mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
     mppi_temperature: float = 0.1
-    opt_iters: int = 80
+    opt_iters: int = 40
     converged: float = 0.005  # stop early when 10 iterations improve the summed cost less than this
     lr: float = 0.04
     eta: float = 0.03  # m: activation distance of the collision cost

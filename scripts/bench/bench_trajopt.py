@@ -72,13 +72,15 @@ def cspace_length(path) -> float:
     return float(np.abs(np.diff(path, axis=0)).sum()) if path is not None else float("nan")
 
 
-def run_planners(problems: list[dict], device: str, batch: int, time_limit: float, profile=None) -> dict:
+def run_planners(problems: list[dict], device: str, batch: int, time_limit: float, profile=None,
+                 overrides: dict | None = None) -> dict:
     """Every problem by each planner; ``profile`` (a ``cProfile.Profile``) records the one-at-a-time
-    trajopt plans of the problems the straight segment does not solve."""
+    trajopt plans of the problems the straight segment does not solve; ``overrides``: ``TrajoptConfig``
+    fields."""
     from fetchbench_ms.planning.rrt import densify, plan_rrtconnect
     from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt, plan_trajopt_batch
 
-    cfg = TrajoptConfig.for_device(device)
+    cfg = TrajoptConfig.for_device(device, **(overrides or {}))
     args = [(p["checker"], p["q_start"], p["q_goals"]) for p in problems]
     plan_trajopt(*args[0], time_limit=time_limit, config=cfg)  # warm-up (CUDA context, caches)
     rows = {"rrtconnect": [], "trajopt": [], f"trajopt batch {batch}": []}
@@ -116,12 +118,12 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
 def _bench_slice(job: tuple) -> tuple:
     """One worker's share (``--workers``): record and plan the problems of a task slice;
     the checkers stay here (they hold the worlds), the rows travel back."""
-    suite, tasks, world, full, device, batch, time_limit, threads = job
+    suite, tasks, world, full, device, batch, time_limit, threads, overrides = job
     torch.set_num_threads(threads)
     problems = record_problems(suite, tasks, world, full)
     if not problems:
         return [], {}, {}
-    rows, recheck = run_planners(problems, device, batch, time_limit)
+    rows, recheck = run_planners(problems, device, batch, time_limit, overrides=overrides)
     return [{k: v for k, v in p.items() if k != "checker"} for p in problems], rows, recheck
 
 
@@ -137,7 +139,7 @@ def bench_parallel(args, device: str) -> tuple:
     ids = parse_range(args.tasks, len(open_suite(args.suite)[0].tasks))
     bounds = np.linspace(0, len(ids), args.workers + 1).round().astype(int)
     jobs = [(args.suite, f"{ids[a]}:{ids[b - 1] + 1}", args.world, args.full, device, args.batch, args.time_limit,
-             args.threads) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+             args.threads, config_overrides(args.config)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     problems, rows, recheck = [], {}, {}
     with mp.get_context("spawn").Pool(len(jobs)) as pool:
         for part_problems, part_rows, part_recheck in pool.imap(_bench_slice, jobs):
@@ -205,6 +207,23 @@ def summary(rows: dict, recheck: dict) -> dict:
     return out
 
 
+def config_overrides(items: list[str]) -> dict:
+    """``--config NAME=VALUE`` items as ``TrajoptConfig`` fields (values parsed as Python literals)."""
+    import ast
+    from dataclasses import fields
+
+    from fetchbench_ms.planning.trajopt import TrajoptConfig
+
+    names = {f.name for f in fields(TrajoptConfig)}
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in names:
+            raise SystemExit(f"unknown TrajoptConfig field {name!r}; valid: {', '.join(sorted(names))}")
+        out[name] = ast.literal_eval(value)
+    return out
+
+
 def write_profile(profile, path: str, rows: dict) -> None:
     """The profile of the searched one-at-a-time trajopt plans as text: the command, the plans,
     then cProfile's 40 largest cumulative times
@@ -240,6 +259,8 @@ def main() -> None:
     parser.add_argument("--profile", default=None, metavar="PATH",
                         help="write where the one-at-a-time trajopt plans of the searched problems spend their "
                              "time (cProfile, cumulative; one worker)")
+    parser.add_argument("--config", action="append", default=[], metavar="NAME=VALUE",
+                        help="a TrajoptConfig field for this run (repeatable), e.g. --config seeds=16")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
     args = parser.parse_args()
@@ -268,7 +289,8 @@ def main() -> None:
             import cProfile
 
             profile = cProfile.Profile()
-        rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile)
+        rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile,
+                                     config_overrides(args.config))
         if profile is not None:
             write_profile(profile, args.profile, rows)
     if args.verbose:
@@ -285,6 +307,7 @@ def main() -> None:
             json.dump(dict(summary(rows, recheck), run=dict(
                 command=" ".join(sys.argv), suite=args.suite, tasks=args.tasks, world=args.world, full=args.full,
                 device=device, batch=args.batch, threads=torch.get_num_threads(), torch=torch.__version__,
+                config=config_overrides(args.config),
                 problems=len(problems))), f, indent=1)
 
 

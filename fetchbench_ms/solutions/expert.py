@@ -105,11 +105,14 @@ class Demo:
 
     success: bool
     failure: str | None  # sense_plan_act.FAILURE_CLASSES, or "not_retrieved" (success never held)
+    reason: str | None  # finer: sense_plan_act.FAILURE_REASONS (a planner's ":status" added), or "not_retrieved"
     last_step: tuple | None  # the last env.step result
     grasp_id: int | None  # the executed grasp's index in the object's annotated-grasp list
     stages: np.ndarray  # (steps,) int8 index into STAGES, one per env.step
     cspace_length: float  # rad, all 9 joints
     computation_time: float  # s of planning, IK and world building
+    notes: list = dataclasses.field(default_factory=list)  # what the try did (sense_plan_act's notes)
+    checks: int = 0  # collision checks its plans spent
 
     @property
     def steps(self) -> int:
@@ -145,14 +148,18 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     failure = _attempt(env, spec, state, rng, tried if tried is not None else set())
     if failure is None:
         failure = _confirm(env, state, confirm_steps)
+        state.reason = failure
     return Demo(
         success=failure is None,
         failure=failure,
+        reason=None if failure is None else (state.reason or failure),
         last_step=state.last_step,
         grasp_id=state.grasp_id,
         stages=np.array([STAGES.index(s) for s in state.stage_log], dtype=np.int8),
         cspace_length=state.cspace_length,
         computation_time=state.computation_time,
+        notes=state.notes,
+        checks=config.plan_checks_total - state.checks_left,
     )
 
 

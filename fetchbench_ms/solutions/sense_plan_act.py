@@ -77,6 +77,17 @@ PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval
 #: approach, close the gripper, retrieve (lift, back out, carry to free space).
 STAGES = ("approach", "close", "retrieve")
 GRASP_ORDERS = ("random", "clearance")
+#: Why a try failed, one step finer than its failure class (``EpisodeState.reason``):
+#: ``no_untried_grasp`` every candidate was tried before; ``no_free_grasp`` the open hand
+#: collides at every candidate's pre-grasp or grasp; ``no_pregrasp_ik`` no collision-free IK at
+#: any free candidate's pre-grasp; ``no_approach`` no candidate with an IK has a free straight
+#: approach; ``pregrasp_plan:STATUS`` / ``retrieval_plan:STATUS`` the planner failed
+#: (``planning.rrt.STATUSES``); ``not_grasped`` the gripper closed on nothing (or the target
+#: slipped on the lift); ``retrieval_no_ik`` no collision-free IK at the free-space pose with
+#: the object; ``retrieval_no_budget`` the episode's collision checks were spent;
+#: ``target_not_seen`` (point-cloud grasp sources) the cameras see no target.
+FAILURE_REASONS = ("no_untried_grasp", "no_free_grasp", "no_pregrasp_ik", "no_approach", "pregrasp_plan",
+                   "not_grasped", "retrieval_no_ik", "retrieval_no_budget", "retrieval_plan", "target_not_seen")
 
 
 @dataclass
@@ -184,6 +195,7 @@ class EpisodeState:
     last_step: tuple | None = None  # the last env.step result (via_env_step only)
     grasp_id: int | None = None  # the executed grasp's index in the object's grasp list
     last_arm_target: np.ndarray | None = None  # the last commanded arm joint targets
+    reason: str | None = None  # why the try failed, finer than its class (FAILURE_REASONS)
 
     def timed(self, fn, *args, **kwargs):
         t = time.perf_counter()
@@ -335,6 +347,7 @@ def _grasp_candidates(env, spec: MethodSpec, state: EpisodeState, rng, tried: se
     if len(clouds.target) == 0:
         # The cameras do not see the target: Contact-GraspNet has nothing to predict on.
         state.notes.append("target not seen by the cameras")
+        state.reason = "target_not_seen"
         return None
     # Fresh ids for this try's predictions: never among the grasps tried before.
     return state.timed(predicted_grasps, clouds, T_base_object, cfg.grasp_model, cfg.max_grasps, rng,
@@ -375,11 +388,13 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     sensed = _sense(env, spec, state)
     grasps = _untried_grasps(env, spec, state, rng, tried, sensed)
     if grasps is None:
+        state.reason = state.reason or "no_untried_grasp"
         return "no_grasp_candidate"
     open_checker = CollisionChecker(robot, sensed.world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin)
     grasps = _free_grasps(spec, state, grasps, open_checker, near_target)
     if not grasps.ids:
+        state.reason = "no_free_grasp"
         return "no_grasp_candidate"
     failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, near_target)
     if failure is not None:
@@ -391,6 +406,7 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     if cfg.retrieval is not None:
         return cfg.retrieval(env, state, ex)
     if not _lift(env, state, ex, robot, tcp_error):
+        state.reason = "not_grasped"
         return "grasp_failure"
     carry, world, finger = _carry_checker(env, state, ex, rng, robot, sensed, grasps.T_grasp_tcp[chosen])
     _clear_support(state, ex, robot, world, finger, carry)
@@ -504,8 +520,10 @@ def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", r
         if plan.success or (state.checks_left <= 0 and spec.planner.budgeted):
             break
     if plan is None:
+        state.reason = "no_approach" if best_pre else "no_pregrasp_ik"
         return "no_grasp_candidate", None, None
     if not plan.success:
+        state.reason = f"pregrasp_plan:{plan.status}"
         return _plan_failure(plan), None, None
     chosen, _, approach_path = goal_set[plan.goal_index]
     return None, chosen, approach_path
@@ -611,11 +629,13 @@ def _plan_retrieval(spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, 
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     if len(goals) == 0 or (state.checks_left <= 0 and spec.planner.budgeted):
         state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning budget left")
+        state.reason = "retrieval_no_ik" if len(goals) == 0 else "retrieval_no_budget"
         return "motion_planning_failure"
     plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], spec)
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.n_checked} checks "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
+        state.reason = f"retrieval_plan:{plan.status}"
         return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None

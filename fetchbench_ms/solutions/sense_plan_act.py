@@ -135,6 +135,12 @@ class SolveConfig:
     settle_steps: int = 6  # control steps holding a path's end before the next motion
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
+    # The straight approach from the pre-grasp to the grasp (the target left out), and the open
+    # hand at the grasp in the candidates' filter, may overlap the world by this much (m): the
+    # spheres' own margin (2 mm on the fingers, 3 on the hand, 4 elsewhere) makes a finger that
+    # clears the board under the target by a hair count as a collision. 0: the spheres are the
+    # robot (the baselines).
+    approach_tolerance: float = 0.0
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
     # "random": the seeded order of choose_grasps (the baselines: no verified grasp is better
     # than another); "clearance": the open hand's clearance at pre-grasp and grasp, largest
@@ -392,11 +398,13 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
         return "no_grasp_candidate"
     open_checker = CollisionChecker(robot, sensed.world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin)
+    approach_checker = (near_target if not cfg.approach_tolerance else
+                        CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin - cfg.approach_tolerance))
     grasps = _free_grasps(spec, state, grasps, open_checker, near_target)
     if not grasps.ids:
         state.reason = "no_free_grasp"
         return "no_grasp_candidate"
-    failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, near_target)
+    failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, approach_checker)
     if failure is not None:
         return failure
     state.phases["pregrasp_plan"] = True
@@ -448,8 +456,10 @@ def _free_grasps(spec: MethodSpec, state: EpisodeState, grasps: Grasps, open_che
     ones first."""
     cfg = state.config
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
+    # At the grasp the hand is where the straight approach ends: it gets the approach's tolerance.
     clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(grasps.T_pre_tcp @ to_hand),
-                                               near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)))
+                                               near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)
+                                               + cfg.approach_tolerance))
     annotated = spec.grasps == "annotated"
     free = clearance > cfg.margin
     order = np.flatnonzero(free) if (annotated or cfg.uses("cgn_filter")) else np.arange(len(clearance))
@@ -475,13 +485,13 @@ def _pregrasp_configurations(env, state: EpisodeState, rng, grasps: Grasps, open
 
 
 def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, grasps: Grasps, open_checker,
-                   near_target) -> tuple[str | None, int | None, np.ndarray | None]:
+                   approach_checker) -> tuple[str | None, int | None, np.ndarray | None]:
     """IK for the pre-grasps, then the planner to a goal set of them (each with its straight
-    approach path); the robot moves to the pre-grasp. Returns (failure class or None, the
+    approach path, checked with ``approach_checker``); the robot moves to the pre-grasp. Returns (failure class or None, the
     chosen candidate's row, its approach path)."""
     cfg, robot = state.config, robot_for_env(env)
     q_now = ex.q
-    memo = (_candidate_memo(env.unwrapped.tasks[0], q_now, object_poses_base(env), rng) if cfg.reuse_candidates
+    memo = (_candidate_memo(env.unwrapped.tasks[0], q_now, object_poses_base(env), rng, cfg) if cfg.reuse_candidates
             else None)
     best_pre = _pregrasp_configurations(env, state, rng, grasps, open_checker, q_now, memo)
     # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
@@ -499,7 +509,7 @@ def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", r
                 else:
                     T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
                     path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4),
-                                       near_target)
+                                       approach_checker)
                     if memo is not None:
                         memo.approach[keep[i]] = path
                 if path is not None:
@@ -656,10 +666,10 @@ class CandidateMemo:
 _MEMO: list = [None]  # the process's memo (one env, one task at a time)
 
 
-def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng) -> CandidateMemo:
-    """The memo of this start (``SolveConfig.reuse_candidates``); another start empties it."""
+def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng, config: SolveConfig) -> CandidateMemo:
+    """The memo of this start and config (``SolveConfig.reuse_candidates``); another empties it."""
     key = (task.to_json(), np.asarray(q_now).tobytes(), b"".join(np.asarray(T).tobytes() for T in T_base_objects),
-           repr(rng.bit_generator.state))
+           repr(rng.bit_generator.state), repr(config))
     if _MEMO[0] is None or _MEMO[0].key != key:
         _MEMO[0] = CandidateMemo(key)
     return _MEMO[0]

@@ -82,3 +82,20 @@ def test_balls_fitted_in_the_object_frame_cover_the_object_in_the_hand():
         vertices = part.vertices @ T_hand_object[:3, :3].T + T_hand_object[:3, 3]
         d = np.linalg.norm(vertices[:, None] - balls.centers_hand[None], axis=2) - balls.radii[None]
         assert (d.min(axis=1) <= 1e-9).all()  # every vertex inside a ball
+
+
+def test_tasks_without_a_trajectory_count_under_the_furthest_stage_they_failed_at():
+    from pathlib import Path
+
+    from script_modules import import_script
+
+    bench = import_script(Path(__file__).resolve().parents[1] / "scripts/bench/bench_demos.py")
+    summaries = [
+        {"successes": 0, "reasons": {"no_approach": 1, "retrieval_plan:budget": 2}},
+        {"successes": 0, "reasons": {"no_free_grasp": 1, "no_pregrasp_ik": 1}},
+        {"successes": 0, "reasons": {"not_retrieved": 1, "retrieval_plan:budget": 1}},
+        {"successes": 1, "reasons": {"no_approach": 1}},  # has a trajectory: not counted
+        {"successes": 0, "reasons": {"no_pregrasp_ik": 1}},
+    ]
+    assert bench.tasks_without_demo_by_reason(summaries) == {
+        "no_pregrasp_ik": 2, "not_retrieved": 1, "retrieval_plan:budget": 1}

@@ -86,8 +86,9 @@ GRASP_ORDERS = ("random", "clearance")
 #: slipped on the lift); ``retrieval_no_ik`` no collision-free IK at the free-space pose with
 #: the object; ``retrieval_no_budget`` the episode's collision checks were spent;
 #: ``target_not_seen`` (point-cloud grasp sources) the cameras see no target.
-FAILURE_REASONS = ("no_untried_grasp", "no_free_grasp", "no_pregrasp_ik", "no_approach", "pregrasp_plan",
-                   "not_grasped", "retrieval_no_ik", "retrieval_no_budget", "retrieval_plan", "target_not_seen")
+#: In the pipeline's order (the expert adds ``not_retrieved`` after them).
+FAILURE_REASONS = ("target_not_seen", "no_untried_grasp", "no_free_grasp", "no_pregrasp_ik", "no_approach",
+                   "pregrasp_plan", "not_grasped", "retrieval_no_ik", "retrieval_no_budget", "retrieval_plan")
 
 
 @dataclass

@@ -129,6 +129,7 @@ def main(argv=None) -> int:
         # their first try's reason
         "failure_reasons": {k: sum(s.get("reasons", {}).get(k, 0) for s in tried) for k in
                             sorted({k for s in tried for k in s.get("reasons", {})})},
+        "tasks_without_demo_by_reason": tasks_without_demo_by_reason(tried),
     }
     if new:
         busy = sum(s["wall_time"] for s in new)  # worker-seconds of the tasks made in this run
@@ -149,6 +150,21 @@ def main(argv=None) -> int:
         write_result(result, Path(args.record))
     convert(path, args, result, result_path)
     return 0
+
+
+def tasks_without_demo_by_reason(summaries: list[dict]) -> dict:
+    """Tasks without a trajectory, by the furthest stage of the pipeline any of their tries
+    failed at (solutions.sense_plan_act.FAILURE_REASONS, in order, then "not_retrieved"; a
+    planner's status after a colon)."""
+    from fetchbench_ms.solutions.sense_plan_act import FAILURE_REASONS
+
+    order = (*FAILURE_REASONS, "not_retrieved")
+    out: dict = {}
+    for s in summaries:
+        if s["successes"] == 0 and s.get("reasons"):
+            furthest = max(s["reasons"], key=lambda r: order.index(r.split(":")[0]))
+            out[furthest] = out.get(furthest, 0) + 1
+    return dict(sorted(out.items()))
 
 
 def write_result(result: dict, result_path: Path) -> None:

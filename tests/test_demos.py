@@ -16,7 +16,7 @@ import fetchbench_ms  # noqa: F401
 from fetchbench_ms.cli import main
 from fetchbench_ms.demos.generate import DemoJob, done_parts, merge, parts_dir, suite_task_ids
 from fetchbench_ms.solutions.expert import EXPERTS, solve, stage_end_flags
-from fetchbench_ms.solutions.sense_plan_act import STAGES
+from fetchbench_ms.solutions.sense_plan_act import FAILURE_REASONS, STAGES
 
 SUITE = "train"  # the demonstrations' suite (train-split tasks)
 ENV_ID = "FetchBench-v0"
@@ -55,6 +55,11 @@ def test_files_are_maniskill_trajectories_with_stage_labels(demos):
     assert data["fetchbench"]["expert"] == EXPERTS["fast"].to_json()  # the expert configuration that made them
     part = next(parts_dir(demos.parents[2], ENV_ID, "trajectory").glob("task_*.json"))
     assert json.loads(part.read_text())["fetchbench"]["expert"]["name"] == "fast"
+    for summary in done_parts(parts_dir(demos.parents[2], ENV_ID, "trajectory")).values():
+        # every failed try has a class and a finer reason (solutions.sense_plan_act.FAILURE_REASONS)
+        assert sum(summary["reasons"].values()) == sum(summary["failures"].values()) == \
+            summary["tries"] - summary["successes"]
+        assert all(r.split(":")[0] in FAILURE_REASONS + ("not_retrieved",) for r in summary["reasons"])
     eps = data["episodes"]
     assert len(eps) == 3 and all(e["success"] for e in eps)
     ids = suite_task_ids(ENV_ID, SUITE)

@@ -26,6 +26,42 @@ def test_fast_and_reference_experts():
         expert_spec("quick")
 
 
+def test_fast2_is_fast_with_the_approach_tolerance_and_records_it():
+    fast, fast2 = EXPERTS["fast"], EXPERTS["fast2"]
+    assert dict(fast2.solve) == {**dict(fast.solve), "approach_tolerance": 0.002}
+    assert fast2.max_failures_in_a_row == fast.max_failures_in_a_row
+    assert SolveConfig().approach_tolerance == 0.0 and fast.config().approach_tolerance == 0.0
+    recorded = json.loads(json.dumps(fast2.to_json()))
+    assert recorded["name"] == "fast2" and recorded["solve"]["approach_tolerance"] == 0.002
+    assert "approach_tolerance" not in fast.to_json()["solve"]  # fast's recorded settings are unchanged
+
+
+def _first_try(expert: str, seed: int):
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.demos.generate import suite_task_ids
+    from fetchbench_ms.solutions.expert import solve_demo
+
+    task_id = suite_task_ids("FetchBench-v0", "train")[seed]
+    env = gym.make("FetchBench-v0", obs_mode="none", control_mode="pd_joint_pos", task_suite="train",
+                   render_backend="none", reward_mode="none")
+    try:
+        return solve_demo(env, seed, reset_options={"task_id": task_id}, tried=set(),
+                          config=expert_spec(expert).config())
+    finally:
+        env.close()
+
+
+def test_a_finger_that_clears_the_board_by_a_hair_is_tried_by_fast2():
+    """train/1509 (a drawer): fast finds no free straight approach (the spheres overlap the world
+    by under 0.1 mm) and says why; fast2's 2 mm tolerance approaches, grasps and retrieves."""
+    fast = _first_try("fast", 1509)
+    assert (fast.success, fast.failure, fast.reason) == (False, "no_grasp_candidate", "no_approach")
+    fast2 = _first_try("fast2", 1509)
+    assert fast2.success and fast2.reason is None and fast2.steps > 0
+
+
 def test_a_job_recorded_before_experts_had_names_is_the_reference_one():
     old = {k: v for k, v in DemoJob().__dict__.items() if k != "expert"}
     assert DemoJob.from_json(old) == {**old, "expert": "reference"}
@@ -46,3 +82,20 @@ def test_balls_fitted_in_the_object_frame_cover_the_object_in_the_hand():
         vertices = part.vertices @ T_hand_object[:3, :3].T + T_hand_object[:3, 3]
         d = np.linalg.norm(vertices[:, None] - balls.centers_hand[None], axis=2) - balls.radii[None]
         assert (d.min(axis=1) <= 1e-9).all()  # every vertex inside a ball
+
+
+def test_tasks_without_a_trajectory_count_under_the_furthest_stage_they_failed_at():
+    from pathlib import Path
+
+    from script_modules import import_script
+
+    bench = import_script(Path(__file__).resolve().parents[1] / "scripts/bench/bench_demos.py")
+    summaries = [
+        {"successes": 0, "reasons": {"no_approach": 1, "retrieval_plan:budget": 2}},
+        {"successes": 0, "reasons": {"no_free_grasp": 1, "no_pregrasp_ik": 1}},
+        {"successes": 0, "reasons": {"not_retrieved": 1, "retrieval_plan:budget": 1}},
+        {"successes": 1, "reasons": {"no_approach": 1}},  # has a trajectory: not counted
+        {"successes": 0, "reasons": {"no_pregrasp_ik": 1}},
+    ]
+    assert bench.tasks_without_demo_by_reason(summaries) == {
+        "no_pregrasp_ik": 2, "not_retrieved": 1, "retrieval_plan:budget": 1}

@@ -177,7 +177,7 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
     task = env.unwrapped.task_suite.get(task_id)
     tried: set = set()
     summary = dict(seed=seed, task_id=task_id, scene_type=task.scene_type, category=task.target_label,
-                   tries=0, successes=0, frames=0, failures={})
+                   tries=0, successes=0, frames=0, failures={}, reasons={})
     t0, cpu0 = time.perf_counter(), time.process_time()
     failures_in_a_row = 0
     for _ in range(job.max_tries):
@@ -207,6 +207,7 @@ def run_task(job: DemoJob, parts: Path, seed: int, task_id: str) -> dict:
             if job.save_video:
                 rec.flush_video(save=False)
             summary["failures"][demo.failure] = summary["failures"].get(demo.failure, 0) + 1
+            summary["reasons"][demo.reason] = summary["reasons"].get(demo.reason, 0) + 1
         if summary["successes"] >= job.per_task or len(tried) == n_tried:
             break  # enough, or the try executed no new grasp: another would do the same
         if failures_in_a_row and failures_in_a_row == expert.max_failures_in_a_row:

@@ -41,7 +41,32 @@ def pose_matrix(position, quat_wxyz=(1.0, 0.0, 0.0, 0.0)) -> np.ndarray:
     return T
 
 
-class BoxSet:
+def _box_gap(lo: np.ndarray, hi: np.ndarray, center: np.ndarray, radius: float) -> float:
+    """A lower bound of the distance from any point in the box [lo, hi] to any point of a
+    set whose members' bounding spheres all lie in the ball (``center``, ``radius``)."""
+    return float(np.linalg.norm(np.maximum(np.maximum(lo - center, center - hi), 0.0))) - radius
+
+
+def bounding_ball(bound_center: torch.Tensor, bound_radius: torch.Tensor) -> tuple[np.ndarray, float]:
+    """A ball holding every member's bounding sphere (the centres' box centre)."""
+    if len(bound_center) == 0:
+        return np.zeros(3), 0.0
+    center = (bound_center.amin(dim=0) + bound_center.amax(dim=0)) / 2
+    return center.numpy(), float(((bound_center - center).norm(dim=1) + bound_radius).max())
+
+
+class _BoundAll:
+    """``bound_all``: the set's one bounding ball, from its members' (computed once)."""
+
+    @property
+    def bound_all(self) -> tuple[np.ndarray, float]:
+        cached = self.__dict__.get("_bound_all")
+        if cached is None:
+            cached = self.__dict__["_bound_all"] = bounding_ball(self.bound_center, self.bound_radius)
+        return cached
+
+
+class BoxSet(_BoundAll):
     """Oriented boxes, exact signed distance."""
 
     def __init__(self, T_base_box: np.ndarray, half_size: np.ndarray):
@@ -65,7 +90,7 @@ class BoxSet:
         return outside + inside
 
 
-class CylinderSet:
+class CylinderSet(_BoundAll):
     """Capped cylinders (axis = local z) or capsules, exact signed distance."""
 
     def __init__(self, T_base_cyl: np.ndarray, radius, half_length, capsule: bool = False):
@@ -91,7 +116,7 @@ class CylinderSet:
         return d.clamp(min=0).norm(dim=1) + d.amax(dim=1).clamp(max=0)
 
 
-class ConvexSet:
+class ConvexSet(_BoundAll):
     """Convex parts as half-spaces n.x <= d: distance = max_k (n_k.x - d_k).
 
     Exact inside and on faces; outside near edges and corners it is below the true
@@ -185,12 +210,19 @@ class CollisionWorld:
             raise KeyError(f"unknown world groups {sorted(unknown)}; valid: {', '.join(self.groups)}")
         points = torch.as_tensor(points_base, dtype=torch.float64).reshape(-1, 3)
         out = torch.full((len(points),), FAR, dtype=torch.float64)
+        # The points' bounding box: a set whose members' bounding spheres are all farther than
+        # the horizon from it (with room for rounding) has no pair the broad phase keeps, so it
+        # is skipped whole; the answer is the same to the bit.
+        lo, hi = (points.amin(dim=0).numpy(), points.amax(dim=0).numpy()) if len(points) else (None, None)
         for name, sets in self.groups.items():
             if name in exclude:
                 continue
             for obstacle_set in sets:
                 if isinstance(obstacle_set, PointCloudField):
                     out = torch.minimum(out, obstacle_set.distance(points, horizon))
+                    continue
+                bound_all = getattr(obstacle_set, "bound_all", None)
+                if lo is not None and bound_all is not None and _box_gap(lo, hi, *bound_all) > horizon + 1e-6:
                     continue
                 # Broad phase: bounding spheres within the horizon.
                 coarse = torch.cdist(points, obstacle_set.bound_center) - obstacle_set.bound_radius

@@ -83,12 +83,16 @@ class ExpertSpec:
 #:   (an untouched object's convex set while it moved < 0.5 mm; the target's balls fitted once
 #:   in its own frame), and when no pre-grasp plan reaches the best 8 candidates, plans to the
 #:   next 8 (up to 24) within the episode's collision-check budget; 3 settle steps after a
-#:   motion instead of 6; a task is given up after 3 failed tries in a row.
+#:   motion instead of 6; a task is given up after 3 failed tries in a row;
+#: - ``fast2``: ``fast``, and the straight approach (the target left out) and the open hand at
+#:   the grasp may overlap the world by 2 mm (``SolveConfig.approach_tolerance``: the finger
+#:   spheres' own margin), so a grasp whose fingers clear the support by a hair is tried.
+_FAST = (("pregrasp_goal_sets", 3), ("world_pose_tolerance", 5e-4), ("attachment_per_object", True),
+         ("settle_steps", 3), ("reuse_candidates", True))
 EXPERTS = {
     "reference": ExpertSpec("reference"),
-    "fast": ExpertSpec("fast", solve=(("pregrasp_goal_sets", 3), ("world_pose_tolerance", 5e-4),
-                                      ("attachment_per_object", True), ("settle_steps", 3),
-                                      ("reuse_candidates", True)), max_failures_in_a_row=3),
+    "fast": ExpertSpec("fast", solve=_FAST, max_failures_in_a_row=3),
+    "fast2": ExpertSpec("fast2", solve=_FAST + (("approach_tolerance", 0.002),), max_failures_in_a_row=3),
 }
 DEFAULT_EXPERT = "fast"
 
@@ -105,11 +109,14 @@ class Demo:
 
     success: bool
     failure: str | None  # sense_plan_act.FAILURE_CLASSES, or "not_retrieved" (success never held)
+    reason: str | None  # finer: sense_plan_act.FAILURE_REASONS (a planner's ":status" added), or "not_retrieved"
     last_step: tuple | None  # the last env.step result
     grasp_id: int | None  # the executed grasp's index in the object's annotated-grasp list
     stages: np.ndarray  # (steps,) int8 index into STAGES, one per env.step
     cspace_length: float  # rad, all 9 joints
     computation_time: float  # s of planning, IK and world building
+    notes: list = dataclasses.field(default_factory=list)  # what the try did (sense_plan_act's notes)
+    checks: int = 0  # collision checks its plans spent
 
     @property
     def steps(self) -> int:
@@ -145,14 +152,18 @@ def solve_demo(env, seed: int | None = None, *, reset: bool = True, reset_option
     failure = _attempt(env, spec, state, rng, tried if tried is not None else set())
     if failure is None:
         failure = _confirm(env, state, confirm_steps)
+        state.reason = failure
     return Demo(
         success=failure is None,
         failure=failure,
+        reason=None if failure is None else (state.reason or failure),
         last_step=state.last_step,
         grasp_id=state.grasp_id,
         stages=np.array([STAGES.index(s) for s in state.stage_log], dtype=np.int8),
         cspace_length=state.cspace_length,
         computation_time=state.computation_time,
+        notes=state.notes,
+        checks=config.plan_checks_total - state.checks_left,
     )
 
 

@@ -77,6 +77,18 @@ PHASES = ("ik_found", "pregrasp_plan", "approach_reached", "grasped", "retrieval
 #: approach, close the gripper, retrieve (lift, back out, carry to free space).
 STAGES = ("approach", "close", "retrieve")
 GRASP_ORDERS = ("random", "clearance")
+#: Why a try failed, one step finer than its failure class (``EpisodeState.reason``):
+#: ``no_untried_grasp`` every candidate was tried before; ``no_free_grasp`` the open hand
+#: collides at every candidate's pre-grasp or grasp; ``no_pregrasp_ik`` no collision-free IK at
+#: any free candidate's pre-grasp; ``no_approach`` no candidate with an IK has a free straight
+#: approach; ``pregrasp_plan:STATUS`` / ``retrieval_plan:STATUS`` the planner failed
+#: (``planning.rrt.STATUSES``); ``not_grasped`` the gripper closed on nothing (or the target
+#: slipped on the lift); ``retrieval_no_ik`` no collision-free IK at the free-space pose with
+#: the object; ``retrieval_no_budget`` the episode's collision checks were spent;
+#: ``target_not_seen`` (point-cloud grasp sources) the cameras see no target.
+#: In the pipeline's order (the expert adds ``not_retrieved`` after them).
+FAILURE_REASONS = ("target_not_seen", "no_untried_grasp", "no_free_grasp", "no_pregrasp_ik", "no_approach",
+                   "pregrasp_plan", "not_grasped", "retrieval_no_ik", "retrieval_no_budget", "retrieval_plan")
 
 
 @dataclass
@@ -124,6 +136,12 @@ class SolveConfig:
     settle_steps: int = 6  # control steps holding a path's end before the next motion
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
+    # The straight approach from the pre-grasp to the grasp (the target left out), and the open
+    # hand at the grasp in the candidates' filter, may overlap the world by this much (m): the
+    # spheres' own margin (2 mm on the fingers, 3 on the hand, 4 elsewhere) makes a finger that
+    # clears the board under the target by a hair count as a collision. 0: the spheres are the
+    # robot (the baselines).
+    approach_tolerance: float = 0.0
     retries: int = 1  # tries in all (FetchBench's "--retries 5" = 5)
     # "random": the seeded order of choose_grasps (the baselines: no verified grasp is better
     # than another); "clearance": the open hand's clearance at pre-grasp and grasp, largest
@@ -184,6 +202,7 @@ class EpisodeState:
     last_step: tuple | None = None  # the last env.step result (via_env_step only)
     grasp_id: int | None = None  # the executed grasp's index in the object's grasp list
     last_arm_target: np.ndarray | None = None  # the last commanded arm joint targets
+    reason: str | None = None  # why the try failed, finer than its class (FAILURE_REASONS)
 
     def timed(self, fn, *args, **kwargs):
         t = time.perf_counter()
@@ -335,6 +354,7 @@ def _grasp_candidates(env, spec: MethodSpec, state: EpisodeState, rng, tried: se
     if len(clouds.target) == 0:
         # The cameras do not see the target: Contact-GraspNet has nothing to predict on.
         state.notes.append("target not seen by the cameras")
+        state.reason = "target_not_seen"
         return None
     # Fresh ids for this try's predictions: never among the grasps tried before.
     return state.timed(predicted_grasps, clouds, T_base_object, cfg.grasp_model, cfg.max_grasps, rng,
@@ -375,13 +395,17 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     sensed = _sense(env, spec, state)
     grasps = _untried_grasps(env, spec, state, rng, tried, sensed)
     if grasps is None:
+        state.reason = state.reason or "no_untried_grasp"
         return "no_grasp_candidate"
     open_checker = CollisionChecker(robot, sensed.world, exclude=(), margin=cfg.margin)
     near_target = CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin)
+    approach_checker = (near_target if not cfg.approach_tolerance else
+                        CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin - cfg.approach_tolerance))
     grasps = _free_grasps(spec, state, grasps, open_checker, near_target)
     if not grasps.ids:
+        state.reason = "no_free_grasp"
         return "no_grasp_candidate"
-    failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, near_target)
+    failure, chosen, approach_path = _plan_pregrasp(env, spec, state, ex, rng, grasps, open_checker, approach_checker)
     if failure is not None:
         return failure
     state.phases["pregrasp_plan"] = True
@@ -391,6 +415,7 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     if cfg.retrieval is not None:
         return cfg.retrieval(env, state, ex)
     if not _lift(env, state, ex, robot, tcp_error):
+        state.reason = "not_grasped"
         return "grasp_failure"
     carry, world, finger = _carry_checker(env, state, ex, rng, robot, sensed, grasps.T_grasp_tcp[chosen])
     _clear_support(state, ex, robot, world, finger, carry)
@@ -432,8 +457,10 @@ def _free_grasps(spec: MethodSpec, state: EpisodeState, grasps: Grasps, open_che
     ones first."""
     cfg = state.config
     to_hand = np.linalg.inv(tcp_from_hand(np.eye(4)))
+    # At the grasp the hand is where the straight approach ends: it gets the approach's tolerance.
     clearance = state.timed(lambda: np.minimum(open_checker.hand_clearance(grasps.T_pre_tcp @ to_hand),
-                                               near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)))
+                                               near_target.hand_clearance(grasps.T_grasp_tcp @ to_hand)
+                                               + cfg.approach_tolerance))
     annotated = spec.grasps == "annotated"
     free = clearance > cfg.margin
     order = np.flatnonzero(free) if (annotated or cfg.uses("cgn_filter")) else np.arange(len(clearance))
@@ -459,13 +486,13 @@ def _pregrasp_configurations(env, state: EpisodeState, rng, grasps: Grasps, open
 
 
 def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, grasps: Grasps, open_checker,
-                   near_target) -> tuple[str | None, int | None, np.ndarray | None]:
+                   approach_checker) -> tuple[str | None, int | None, np.ndarray | None]:
     """IK for the pre-grasps, then the planner to a goal set of them (each with its straight
-    approach path); the robot moves to the pre-grasp. Returns (failure class or None, the
+    approach path, checked with ``approach_checker``); the robot moves to the pre-grasp. Returns (failure class or None, the
     chosen candidate's row, its approach path)."""
     cfg, robot = state.config, robot_for_env(env)
     q_now = ex.q
-    memo = (_candidate_memo(env.unwrapped.tasks[0], q_now, object_poses_base(env), rng) if cfg.reuse_candidates
+    memo = (_candidate_memo(env.unwrapped.tasks[0], q_now, object_poses_base(env), rng, cfg) if cfg.reuse_candidates
             else None)
     best_pre = _pregrasp_configurations(env, state, rng, grasps, open_checker, q_now, memo)
     # Approach: Cartesian line from each pre-grasp to 4 cm x 1.05 along the approach.
@@ -483,7 +510,7 @@ def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", r
                 else:
                     T_end = retreat(T_pre_tcp[i], -cfg.pregrasp_distance * cfg.approach_overshoot)
                     path = state.timed(_follow_cartesian, robot, q_pre, _cartesian_waypoints(T_pre_tcp[i], T_end, 4),
-                                       near_target)
+                                       approach_checker)
                     if memo is not None:
                         memo.approach[keep[i]] = path
                 if path is not None:
@@ -504,8 +531,10 @@ def _plan_pregrasp(env, spec: MethodSpec, state: EpisodeState, ex: "Executor", r
         if plan.success or (state.checks_left <= 0 and spec.planner.budgeted):
             break
     if plan is None:
+        state.reason = "no_approach" if best_pre else "no_pregrasp_ik"
         return "no_grasp_candidate", None, None
     if not plan.success:
+        state.reason = f"pregrasp_plan:{plan.status}"
         return _plan_failure(plan), None, None
     chosen, _, approach_path = goal_set[plan.goal_index]
     return None, chosen, approach_path
@@ -611,11 +640,13 @@ def _plan_retrieval(spec: MethodSpec, state: EpisodeState, ex: "Executor", rng, 
     goals = state.timed(_retrieval_goals, robot, carry, ex.q, rng)
     if len(goals) == 0 or (state.checks_left <= 0 and spec.planner.budgeted):
         state.notes.append("retrieval: no IK goal" if len(goals) == 0 else "retrieval: no planning budget left")
+        state.reason = "retrieval_no_ik" if len(goals) == 0 else "retrieval_no_budget"
         return "motion_planning_failure"
     plan = _plan_and_move(state, ex, rng, carry, ex.q, goals[: cfg.goal_set_size], spec)
     state.notes.append(f"retrieval goals {len(goals)}; plan {plan.status} {plan.n_checked} checks "
                        f"{plan.planning_time:.2f}s" + (" (start escaped)" if plan.start_escaped else ""))
     if not plan.success:
+        state.reason = f"retrieval_plan:{plan.status}"
         return _plan_failure(plan)
     state.phases["retrieval_plan"] = True
     return None
@@ -636,10 +667,10 @@ class CandidateMemo:
 _MEMO: list = [None]  # the process's memo (one env, one task at a time)
 
 
-def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng) -> CandidateMemo:
-    """The memo of this start (``SolveConfig.reuse_candidates``); another start empties it."""
+def _candidate_memo(task, q_now: np.ndarray, T_base_objects: list, rng, config: SolveConfig) -> CandidateMemo:
+    """The memo of this start and config (``SolveConfig.reuse_candidates``); another empties it."""
     key = (task.to_json(), np.asarray(q_now).tobytes(), b"".join(np.asarray(T).tobytes() for T in T_base_objects),
-           repr(rng.bit_generator.state))
+           repr(rng.bit_generator.state), repr(config))
     if _MEMO[0] is None or _MEMO[0].key != key:
         _MEMO[0] = CandidateMemo(key)
     return _MEMO[0]

@@ -60,6 +60,7 @@ def main(argv=None) -> int:
     ap.add_argument("--env-id", default="FetchBench-v0")
     ap.add_argument("--suite", default="train")
     ap.add_argument("--tasks", type=int, default=20)
+    ap.add_argument("--start", type=int, default=0, help="first task (episode seed): tasks START .. START+TASKS-1")
     ap.add_argument("--procs", type=int, default=2)
     ap.add_argument("--per-task", type=int, default=5)
     ap.add_argument("--expert", default="fast", help="the expert's configuration (solutions.expert.EXPERTS)")
@@ -81,7 +82,8 @@ def main(argv=None) -> int:
     from fetchbench_ms.demos.generate import TIMING_FILE, done_parts, parts_dir
     from fetchbench_ms.demos.stats import demo_stats, format_stats
 
-    name = args.traj_name or f"{args.suite}-{args.tasks}-{args.expert}"
+    name = args.traj_name or (f"{args.suite}-{args.tasks}-{args.expert}" if not args.start
+                              else f"{args.suite}{args.start}-{args.tasks}-{args.expert}-pt{args.per_task}")
     parts = parts_dir(args.out, args.env_id, name)
     path = parts.parent / f"{name}.h5"
     result_path = Path(args.out) / f"bench-{name}{'-convert' if args.convert_only else ''}.json"
@@ -95,6 +97,8 @@ def main(argv=None) -> int:
     cmd = [sys.executable, "-m", "fetchbench_ms", "demos", "run", "-e", args.env_id, "--task-suite", args.suite,
            "-n", str(args.tasks), "--record-dir", args.out, "--traj-name", name, "--num-procs", str(args.procs),
            "--per-task", str(args.per_task), "--expert", args.expert, "--no-progress"]
+    if args.start:
+        cmd += ["--start-seed", str(args.start)]
     subprocess.run(cmd, check=True)
     wall = time.perf_counter() - t0
     done = done_parts(parts)
@@ -106,12 +110,12 @@ def main(argv=None) -> int:
                 timing[record["seed"]] = record
     new = [timing[seed] for seed in done if seed not in before and seed in timing]
     stats = demo_stats(path)
-    tried = [done[s] for s in sorted(done)][: args.tasks]
+    tried = [done[s] for s in sorted(done) if args.start <= s < args.start + args.tasks]
     trajectories = sum(s["successes"] for s in tried)
     frames = sum(s["frames"] for s in tried)
     result = {
         "command": "python scripts/bench/bench_demos.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-        "suite": args.suite, "env_id": args.env_id, "tasks": len(tried), "procs": args.procs,
+        "suite": args.suite, "env_id": args.env_id, "start": args.start, "tasks": len(tried), "procs": args.procs,
         "per_task": args.per_task, "expert": args.expert,
         "tasks_with_demo": round(sum(s["successes"] > 0 for s in tried) / max(1, len(tried)), 4),
         "trajectories": trajectories, "frames": frames,
@@ -121,6 +125,11 @@ def main(argv=None) -> int:
         "mean_cspace_length": stats["mean_cspace_length"],
         "failures": {k: sum(s["failures"].get(k, 0) for s in tried) for k in
                      sorted({k for s in tried for k in s["failures"]})},
+        # finer (solutions.sense_plan_act.FAILURE_REASONS), and the tasks without a trajectory by
+        # their first try's reason
+        "failure_reasons": {k: sum(s.get("reasons", {}).get(k, 0) for s in tried) for k in
+                            sorted({k for s in tried for k in s.get("reasons", {})})},
+        "tasks_without_demo_by_reason": tasks_without_demo_by_reason(tried),
     }
     if new:
         busy = sum(s["wall_time"] for s in new)  # worker-seconds of the tasks made in this run
@@ -141,6 +150,21 @@ def main(argv=None) -> int:
         write_result(result, Path(args.record))
     convert(path, args, result, result_path)
     return 0
+
+
+def tasks_without_demo_by_reason(summaries: list[dict]) -> dict:
+    """Tasks without a trajectory, by the furthest stage of the pipeline any of their tries
+    failed at (solutions.sense_plan_act.FAILURE_REASONS, in order, then "not_retrieved"; a
+    planner's status after a colon)."""
+    from fetchbench_ms.solutions.sense_plan_act import FAILURE_REASONS
+
+    order = (*FAILURE_REASONS, "not_retrieved")
+    out: dict = {}
+    for s in summaries:
+        if s["successes"] == 0 and s.get("reasons"):
+            furthest = max(s["reasons"], key=lambda r: order.index(r.split(":")[0]))
+            out[furthest] = out.get(furthest, 0) + 1
+    return dict(sorted(out.items()))
 
 
 def write_result(result: dict, result_path: Path) -> None:

@@ -268,6 +268,8 @@ def main(argv=None) -> int:
     p.add_argument("--work", type=Path, default=None, help="work folder (round_NN/ inside; re-running resumes)")
     p.add_argument("--tasks", type=int, default=600, help="train tasks this round takes, after the last round's")
     p.add_argument("--per-task", type=int, default=3, help="expert trajectories a task at most")
+    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "reference"),
+                   help="the expert's configuration (solutions.expert.EXPERTS; default fast)")
     p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert, replay and eval processes")
     p.add_argument("--gpus", default="0,1", help="GPU indices the trainers take in turn, or 'cpu'")
     p.add_argument("--kinds", default=",".join(KINDS), help=f"policy kinds, comma-separated, of {', '.join(KINDS)}")
@@ -314,7 +316,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     # 1. data
     run([py, "scripts/imitation/build_imitation_data.py", "--root", str(work), "--tasks", f"{start}:{end}",
-         "--per-task", str(args.per_task), "--procs", str(args.procs), "--obs-mode", OBS_MODE,
+         "--per-task", str(args.per_task), "--expert", args.expert, "--procs", str(args.procs), "--obs-mode", OBS_MODE,
          "--frame-stride", str(FRAME_STRIDE), "--labels", LABELS, "--chunk", str(args.chunk), "--device", "cpu" if gpus is None else "cuda",
          "--render-gpus", str(1 if gpus is None else len(gpus))], log)
     t_data = time.perf_counter() - t0

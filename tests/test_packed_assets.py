@@ -29,7 +29,7 @@ PT_SHA256 = {
     "collision_net": "bf1c9be6e2f09e95a7c01478a735064aff67d2326cb185accb93d64e12d9f973",
     "imit_act": "1ea55247db12a728bb5be2328227136d80555b2cb1061e1aa3659783bf842f7a",
     "imit_diffusion": "9c3a6598835ea9701446ba3a6f740b0cca1d883d658d19011687979c4a6be823",
-    "imit_mlp": "4ea07c8b5e7f2efd500ddd054f1128a71ff9f3a1617df6897a8ae78397dc568b",
+    "imit_mlp": "f09e9488070a94ee35cdbcaa0b404633e20a684a5baa5917720c867f9cf69952",
     "imit_transformer": "c9f433c681f8e2f449a39415392bd30132eea1e53f6edfd365d280c13ba6ee2d",
 }
 #: Per shipped suite: the sha256 inside it (of its canonical JSON) and that of the .json.gz file

@@ -209,8 +209,11 @@ class _AdamLoop:
         saved = [t.clone() for t in self._state()]
         side = torch.cuda.Stream()
         side.wait_stream(torch.cuda.current_stream())
-        with torch.cuda.stream(side):  # warm-up: autograd and the allocator see the shapes once
-            self.block(CHECK_EVERY, check=True)
+        # Warm-up (autograd's and the libraries' lazy set-up must not happen during capture):
+        # one iteration with the test is every kernel the block launches; ten would cost as
+        # much as the eager block, once per problem batch.
+        with torch.cuda.stream(side):
+            self.block(1, check=True)
         torch.cuda.current_stream().wait_stream(side)
         graph = torch.cuda.CUDAGraph()
         with torch.cuda.graph(graph):

@@ -251,3 +251,97 @@ def test_measuring_the_near_pairs_first_gives_the_same_costs_and_gradients(robot
         with torch.no_grad():  # the particles' costs: the distances the search measured, the same values
             total, collision = costs(torch.as_tensor(traj, dtype=torch.float32))
         assert torch.equal(total, out[0][0]) and torch.equal(collision, out[0][1])
+
+
+def test_fixed_shape_costs_give_the_sparse_costs_and_gradients(robot, worlds):
+    """``trajopt_graph.FixedShapeCosts`` (no pair lists: the shapes a CUDA graph replays)
+    gives the sparse costs and gradients up to float rounding on all four worlds (boxes and
+    convex parts, a point cloud, a carried object), with no link over the obstacle cap."""
+    from fetchbench_ms.planning.trajopt_graph import FixedShapeCosts
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    fixed = FixedShapeCosts(costs.robot, costs.world, cfg, costs.q_min, costs.q_max, max_obstacles=16)
+    rng = np.random.default_rng(7)
+    traj = torch.as_tensor(np.clip(Q_DEFAULT + rng.normal(0, 0.6, (4, 6, 12, 7)), robot.q_min, robot.q_max),
+                           dtype=torch.float32)
+    out = []
+    for c in (costs, fixed):
+        x = traj.clone().requires_grad_(True)
+        total, collision = c(x)
+        (grad,) = torch.autograd.grad(total.sum(), x)
+        out.append((total.detach(), collision.detach(), grad))
+    assert (out[0][1] > 0).any(dim=1).all()  # every world's trajectories touch something
+    for a, b in zip(*out):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6 * float(a.abs().max()))
+    assert fixed.over_cap.tolist() == [0, 0, 0, 0]
+    # Wilder trajectories bring links near two obstacles of a kind: a cap of one counts them
+    # (and drops pairs: the cost is not higher), a cap of two has room for them (the same cost).
+    wild = torch.as_tensor(np.clip(Q_DEFAULT + np.random.default_rng(7).normal(0, 1.0, traj.shape), robot.q_min,
+                                   robot.q_max), dtype=torch.float32)
+    out = []
+    for cap in (1, 2):
+        capped = FixedShapeCosts(costs.robot, costs.world, cfg, costs.q_min, costs.q_max, max_obstacles=cap)
+        with torch.no_grad():
+            out.append((capped(wild)[1], capped.over_cap))
+    with torch.no_grad():
+        _, reference = costs(wild)
+    assert out[0][1].sum() > 0 and (out[0][0] <= reference + 1e-3).all() and not torch.allclose(out[0][0], reference)
+    assert out[1][1].sum() == 0 and torch.allclose(out[1][0], reference, rtol=1e-5)
+
+
+SMALL = dict(n_waypoints=12, seeds=4, opt_iters=25, collision_substeps=2, rrt_fallback=False, device="cpu")
+
+
+def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
+    """The fixed-shape Adam loop (blocks of ten iterations, the convergence test on the
+    device; on CUDA it is replayed as a graph) plans the shelf problem as the default sparse
+    loop does: the same seed and goal, the same waypoints up to float rounding. With
+    ``cuda_graph`` on a CPU it runs the same loop uncaptured: bitwise the same plan."""
+    checker, _, goals = shelf_problem
+    sparse = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(**SMALL))
+    fixed = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(fixed_shape=True, **SMALL))
+    graph = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(cuda_graph=True, **SMALL))
+    assert sparse.status == fixed.status == "solved" and fixed.goal_index == sparse.goal_index
+    assert len(fixed.path) == len(sparse.path) and np.allclose(fixed.path, sparse.path, atol=1e-3)
+    assert graph.status == "solved" and np.array_equal(graph.path, fixed.path)
+
+
+def test_fixed_shape_loop_stops_at_the_sparse_loops_convergence_test(robot, worlds):
+    """``_AdamLoop`` over the sparse costs takes the sparse loop's steps: it stops at the same
+    convergence test (a block of ten converged leaves the state before its last step) and
+    ends at the same trajectories up to float rounding (its bias corrections are float32
+    tensors, the sparse loop's Python floats)."""
+    from fetchbench_ms.planning import trajopt_graph
+    from fetchbench_ms.planning.trajopt_graph import _AdamLoop
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    rng = np.random.default_rng(8)
+    traj = torch.as_tensor(np.clip(Q_DEFAULT + rng.normal(0, 0.3, (4, 3, 10, 7)), robot.q_min, robot.q_max),
+                           dtype=torch.float32)
+    start, goal, interior = traj[:, :, :1], traj[:, :, -1:], traj[:, :, 1:-1]
+    for converged, iters in ((0.005, 45), (1.0, 45)):  # 1.0: the second test (iteration 19) stops
+        cfg.converged, cfg.opt_iters = converged, iters
+        loop = _AdamLoop(costs, interior, start, goal, cfg)
+        loop.costs.over_cap = torch.zeros(4, dtype=torch.long)
+        blocks = []
+        original = loop.block
+        loop.block = lambda n, check: (blocks.append(n), original(n, check))
+        got = loop.run(False, lambda: None)
+        # The sparse loop, as trajopt._optimise writes it.
+        x_ref, m, v, previous, ran = interior.clone(), 0 * interior, 0 * interior, float("inf"), iters
+        for it in range(iters):
+            x = x_ref.detach().requires_grad_(True)
+            total, _ = costs(torch.cat([start, x, goal], dim=2))
+            (grad,) = torch.autograd.grad(total.sum(), x)
+            if it % 10 == 9:
+                if float(total.detach().sum()) > (1 - converged) * previous:
+                    ran = it + 1  # iterations evaluated; the last one's step not taken
+                    break
+                previous = float(total.detach().sum())
+            m = 0.9 * m + 0.1 * grad
+            v = 0.999 * v + 0.001 * grad * grad
+            step = cfg.lr * (m / (1 - 0.9 ** (it + 1))) / ((v / (1 - 0.999 ** (it + 1))).sqrt() + 1e-8)
+            x_ref = torch.minimum(torch.maximum(x_ref - step, costs.q_min), costs.q_max)
+        assert sum(blocks) == ran and (converged < 1 or ran == 20)
+        assert torch.allclose(got, x_ref, atol=1e-4)
+        assert trajopt_graph.CHECK_EVERY == 10

@@ -558,6 +558,9 @@ class TorchRobot:
         self.P = len(checkers)
         self.finger = torch.as_tensor([c.finger for c in checkers], **dd)
         self.margin = torch.as_tensor([c.margin for c in checkers], **dd)
+        # Gripper joint values (P, G), once: computing them reads the finger openings back to
+        # the host (not capturable in a CUDA graph, and a sync per call on a GPU).
+        self.gripper = robot.gripper_q(self.finger)
         world_mask = torch.stack([c.world_mask for c in checkers]).to(self.device)
         self.world_radii = torch.where(world_mask, self.radii, torch.full_like(self.radii, -1.0))  # (P, S)
         self._init_self_pairs(robot)
@@ -573,7 +576,7 @@ class TorchRobot:
         """Robot sphere centres (P, B, S, 3) and carried-object centres (P, B, M, 3) or None,
         for configurations ``q`` (P, B, 7)."""
         P, B, _ = q.shape
-        gripper = self.robot.gripper_q(self.finger).to(q)  # (P, G)
+        gripper = self.gripper.to(q)  # (P, G)
         G = gripper.shape[1]
         poses = self.fk.forward(torch.cat([q, gripper[:, None].expand(P, B, G)], dim=2).reshape(P * B, 7 + G))
         T = torch.stack([poses[l] for l in self.links], dim=1)  # (PB, L, 4, 4)

@@ -157,6 +157,9 @@ class UrdfTreeFK:
         x, y, z = axes.T
         zero = torch.zeros_like(x)
         self._K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], 1).reshape(-1, 3, 3)  # cross matrices
+        # The transforms' bottom row, made once: a tensor built from a list in ``forward`` is a
+        # host-to-device copy, which a CUDA graph cannot capture.
+        self._bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
         self.joint_child = {j.name: j.child for j in order}
 
     def joint_axis(self, names: tuple[str, ...]) -> torch.Tensor:
@@ -172,6 +175,7 @@ class UrdfTreeFK:
         out._q_index = self._q_index.to(device)
         out._axes, out._K = self._axes.to(device, dtype), self._K.to(device, dtype)
         out._prismatic = self._prismatic.to(device)
+        out._bottom = self._bottom.to(device, dtype)
         return out
 
     def forward(self, q_full: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -184,7 +188,7 @@ class UrdfTreeFK:
         R = eye3 + s * self._K + (1 - c) * (self._K @ self._K)
         R = torch.where(self._prismatic[None, :, None, None], eye3, R)
         t = torch.where(self._prismatic[None, :, None], v[..., None] * self._axes, torch.zeros((), **dd))
-        bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], **dd).expand(B, len(self._axes), 1, 4)
+        bottom = self._bottom.to(**dd).expand(B, len(self._axes), 1, 4)
         motion = torch.cat([torch.cat([R, t[..., None]], dim=3), bottom], dim=2)
         poses = {self.root_link: torch.eye(4, **dd).expand(B, 4, 4)}
         for j, T_origin in zip(self.joints, self._T):

@@ -91,6 +91,11 @@ class TrajoptConfig:
     broad_phase_slack: float = 0.03
     resolution: float = 0.02  # rad: dense check step, as RRTConnect's
     rrt_fallback: bool = True
+    # The Adam loop over fixed-shape tensors (``trajopt_graph``): no pair lists, one host read
+    # per convergence test; costs equal to the default's up to float rounding, not bitwise.
+    fixed_shape: bool = False
+    cuda_graph: bool = False  # fixed_shape, with its blocks replayed as a CUDA graph (on CUDA only)
+    max_obstacles: int = 16  # fixed_shape: nearest obstacles of each kind per robot link
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0
@@ -150,19 +155,12 @@ class _Costs:
         centers, att = robot.spheres(q.reshape(P, B * n, 7))
         S = centers.shape[2]
         radii = (robot.world_radii + robot.margin[:, None])[:, None].expand(P, B * n, S)
-        coll = self.world.penalty(centers.reshape(P, -1, 3), radii, cfg.eta, robot.groups, cache)
-        coll = coll.reshape(P, B, -1).sum(2)
-        # Only the pairs nearer than the cost's activation (the rest cost exactly 0), with a
-        # 0.1 mm margin for float rounding.
-        horizon = 0.01 - cfg.self_tolerance
-        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4, cache=cache)
-        per_config = torch.zeros(P * B * n, device=q.device, dtype=q.dtype)
-        per_config = per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
-        self_cost = per_config.reshape(P, B, n).sum(2)
+        coll = self.world_penalty(centers.reshape(P, -1, 3), radii, cache).reshape(P, B, -1).sum(2)
+        self_cost = self.self_penalty(centers, cache).reshape(P, B, n).sum(2)
         if att is not None:
             M = att.shape[2]
             r_att = (robot.att_r + robot.margin[:, None])[:, None].expand(P, B * n, M)
-            coll = coll + self.world.penalty(att.reshape(P, -1, 3), r_att, cfg.eta).reshape(P, B, -1).sum(2)
+            coll = coll + self.attached_penalty(att.reshape(P, -1, 3), r_att).reshape(P, B, -1).sum(2)
             d_arm = robot.attachment_arm_distance(centers, att)
             self_cost = self_cost + collision_cost(d_arm, 0.01).reshape(P, B, -1).sum(2)
         # Normalise by the samples per trajectory so weights do not depend on its length.
@@ -177,6 +175,27 @@ class _Costs:
                   + cfg.w_jerk * (jerk ** 2).sum((2, 3)) * h ** 5)
         collision = cfg.w_collision * coll + cfg.w_self * self_cost
         return collision + cfg.w_limits * limits + smooth, collision
+
+    # The world and self-collision parts, per sphere or configuration: the sparse pair lists
+    # of ``distance.py`` here (fast on a CPU); ``trajopt_graph.FixedShapeCosts`` overrides
+    # them with fixed-shape tensors (no host syncs, capturable in a CUDA graph).
+    def world_penalty(self, centers: torch.Tensor, radii: torch.Tensor, cache: PairCache | None) -> torch.Tensor:
+        """(P, N) collision cost of the robot's spheres (P, N, 3) of radii (P, N)."""
+        return self.world.penalty(centers, radii, self.cfg.eta, self.robot.groups, cache)
+
+    def attached_penalty(self, att: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
+        """(P, N) collision cost of the carried object's spheres (P, N, 3)."""
+        return self.world.penalty(att, radii, self.cfg.eta)
+
+    def self_penalty(self, centers: torch.Tensor, cache: PairCache | None) -> torch.Tensor:
+        """(P * B * n,) self-collision cost per configuration of sphere centres (P, B * n, S, 3)."""
+        # Only the pairs nearer than the cost's activation (the rest cost exactly 0), with a
+        # 0.1 mm margin for float rounding.
+        cfg, robot = self.cfg, self.robot
+        horizon = 0.01 - cfg.self_tolerance
+        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4, cache=cache)
+        per_config = torch.zeros(centers.shape[0] * centers.shape[1], device=centers.device, dtype=centers.dtype)
+        return per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
 
 
 def _problem_seed(pr: _Problem, seed: int) -> int:
@@ -255,11 +274,23 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)
             interior = (w[..., None, None] * particles).sum(dim=2)
+    sparse_iters = cfg.opt_iters
+    if cfg.fixed_shape or cfg.cuda_graph:
+        from .trajopt_graph import optimise_fixed_shape
+
+        def check_time():
+            if time.perf_counter() > deadline:
+                raise _OutOfTime
+
+        interior, over_cap = optimise_fixed_shape(costs, interior, start, goal, cfg, check_time)
+        for pr, n in zip(problems, over_cap.tolist()):
+            pr.extras["over_cap"] = n
+        sparse_iters = 0  # done: the sparse loop below is the default's
     # Adam, written out: torch.optim's first use in a process imports torch._dynamo (~2 s).
     m, v = torch.zeros_like(interior), torch.zeros_like(interior)
     cache = PairCache(cfg.broad_phase_slack) if cfg.broad_phase_slack > 0 else None
     beta1, beta2, previous = 0.9, 0.999, float("inf")
-    for it in range(cfg.opt_iters):
+    for it in range(sparse_iters):
         if time.perf_counter() > deadline:
             raise _OutOfTime
         x = interior.detach().requires_grad_(True)

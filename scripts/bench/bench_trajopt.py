@@ -220,7 +220,8 @@ def config_overrides(items: list[str]) -> dict:
         name, _, value = item.partition("=")
         if name not in names:
             raise SystemExit(f"unknown TrajoptConfig field {name!r}; valid: {', '.join(sorted(names))}")
-        out[name] = ast.literal_eval(value)
+        out[name] = {"true": True, "false": False}.get(value.lower()) if value.lower() in ("true", "false") \
+            else ast.literal_eval(value)
     return out
 
 
@@ -260,7 +261,8 @@ def main() -> None:
                         help="write where the one-at-a-time trajopt plans of the searched problems spend their "
                              "time (cProfile, cumulative; one worker)")
     parser.add_argument("--config", action="append", default=[], metavar="NAME=VALUE",
-                        help="a TrajoptConfig field for this run (repeatable), e.g. --config seeds=16")
+                        help="a TrajoptConfig field for this run (repeatable), e.g. --config seeds=16; "
+                             "--config cuda_graph=true: the fixed-shape loop replayed as a CUDA graph")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
     args = parser.parse_args()

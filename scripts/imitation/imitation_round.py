@@ -240,11 +240,19 @@ def plot(record: dict, out: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for kind in KINDS:
-        for method, style in zip(methods(kind), ("-o", "--s")):
-            xs = [r["kinds"][kind]["demos_seen"] for r in record["rounds"] if kind in r["kinds"]]
-            ys = [r["kinds"][kind]["val"][method]["success_rate"] for r in record["rounds"] if kind in r["kinds"]]
-            if xs:
-                ax.plot(xs, ys, style, label=method)
+        for method, (line, marker) in zip(methods(kind), (("-", "o"), ("--", "s"))):
+            runs = [r["kinds"][kind] for r in record["rounds"] if kind in r["kinds"]]
+            if not runs:
+                continue
+            # a candidate joins the point of the checkpoint it went on from; one from scratch stands alone
+            at = {k["demos_seen"]: k["val"][method]["success_rate"] for k in runs}
+            colour = ax.plot([k["demos_seen"] for k in runs], [k["val"][method]["success_rate"] for k in runs],
+                             marker, linestyle="none", label=method)[0].get_color()
+            for k in runs:
+                parent = k["init_from"]["demos_seen"] if k["init_from"].get("path") else None
+                if parent in at:
+                    ax.plot([parent, k["demos_seen"]], [at[parent], k["val"][method]["success_rate"]], line,
+                            color=colour)
     ax.set_xlabel("demonstrations seen by the checkpoint's lineage")
     ax.set_ylabel(f"val success ({record['val'].get('tasks', VAL_TASKS)})")
     ax.set_title(f"Imitation rounds ({record['obs_mode']}, frame stride {record['frame_stride']})")

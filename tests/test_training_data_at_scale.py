@@ -118,6 +118,43 @@ def test_a_view_is_the_evaluation_crop_and_no_label_is_a_colliding_grasp(views_m
     env.close()
 
 
+@pytest.mark.slow  # ~1 min: every grasp of a task's objects against its world, twice
+def test_the_hand_test_in_clusters_gives_the_flat_tests_verdicts(views_module):
+    """hand_collides tests the hand's points in clusters of nearby points (a faster broad
+    phase); over every verified grasp of train/0000's objects it answers as the flat test of
+    the annotation's hand points does, and collisions and free grasps both occur."""
+    import gymnasium as gym
+
+    import fetchbench_ms  # noqa: F401
+    from fetchbench_ms.grasp_labels import load_grasps
+    from fetchbench_ms.planning.world_models import mesh_world, object_poses_base
+
+    local = views_module._trainer().hand_points()
+    ordered = views_module._hand_points()
+    assert len(ordered) % 2 ** views_module.HAND_CLUSTER_DEPTH == 0
+    assert np.array_equal(np.unique(ordered, axis=0), np.unique(local, axis=0))  # the same points, reordered
+    runs = ordered.reshape(2 ** views_module.HAND_CLUSTER_DEPTH, -1, 3)
+    run_radius = np.linalg.norm(runs - runs.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+    assert run_radius.max() < 0.5 * np.linalg.norm(local - local.mean(axis=0), axis=1).max()  # runs are compact
+    env = gym.make("FetchBench-v0", obs_mode="pointcloud", task_suite="train", control_mode="pd_joint_pos")
+    env.reset(seed=0, options={"task_id": "train/0000"})
+    world = mesh_world(env)
+    task = env.unwrapped.tasks[0]
+    verdicts = 0
+    for k, (placement, T_base_object) in enumerate(zip(task.objects, object_poses_base(env))):
+        T_base_hand = T_base_object[None] @ load_grasps(placement.object_id).successful.T_object_hand
+        group = ("target" if k == task.target_index else f"object:{k}",)
+        points = np.einsum("nij,kj->nki", T_base_hand[:, :3, :3], local) + T_base_hand[:, None, :3, 3]
+        flat = (world.distance(points.reshape(-1, 3), 0.01, group).numpy().reshape(len(T_base_hand), -1)
+                < -views_module.COLLISION_DEPTH).any(axis=1)
+        clustered = views_module.hand_collides(world, T_base_hand, group)
+        assert np.array_equal(clustered, flat), placement.object_id
+        verdicts += len(flat)
+        hits = int(flat.sum()) if k == 0 else hits + int(flat.sum())
+    assert 0 < hits < verdicts
+    env.close()
+
+
 def test_test_tasks_and_test_objects_are_refused_before_anything_is_written(views_module, tmp_path, monkeypatch):
     from fetchbench_ms.tasks import splits
 

@@ -37,6 +37,7 @@ are refused before anything is written.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -84,6 +85,31 @@ def _trainer():
     return sys.modules["cgn_train"]
 
 
+HAND_CLUSTER_DEPTH = 4  # the hand's points in 2**4 clusters for the scene test's broad phase
+
+
+@functools.lru_cache(maxsize=1)
+def _hand_points() -> np.ndarray:
+    """The open hand's test points (``train.hand_points``: surface samples with a fixed seed),
+    made once and ordered into 2**HAND_CLUSTER_DEPTH equal runs of nearby points (halved at the
+    median of the longest side, recursively; the last point repeated to make the halves equal):
+    each run is one cluster of ``world.distance``'s broad phase. Order and repeats change
+    nothing of what ``hand_collides`` answers (any point too deep)."""
+    points = _trainer().hand_points()
+    runs = 2 ** HAND_CLUSTER_DEPTH
+    points = np.concatenate([points, np.repeat(points[-1:], -len(points) % runs, axis=0)])
+
+    def split(block: np.ndarray, depth: int) -> list[np.ndarray]:
+        if depth == 0:
+            return [block]
+        axis = int(np.argmax(block.max(axis=0) - block.min(axis=0)))
+        order = np.argsort(block[:, axis], kind="stable")
+        half = len(block) // 2
+        return split(block[order[:half]], depth - 1) + split(block[order[half:]], depth - 1)
+
+    return np.concatenate(split(points, HAND_CLUSTER_DEPTH))
+
+
 def task_seed(task_id: str, seed: int) -> int:
     return int(hashlib.sha256(f"cgn-views|{task_id}|{seed}".encode()).hexdigest()[:8], 16)
 
@@ -92,11 +118,13 @@ def task_seed(task_id: str, seed: int) -> int:
 def hand_collides(world, T_base_hand: np.ndarray, exclude: tuple[str, ...]) -> np.ndarray:
     """(N,) whether the open hand at each pose ((N, 4, 4), base frame) reaches more than
     ``COLLISION_DEPTH`` into ``world`` (groups ``exclude`` left out: the grasped object)."""
-    local = _trainer().hand_points()
+    local = _hand_points()
     if len(T_base_hand) == 0:
         return np.zeros(0, dtype=bool)
     points = np.einsum("nij,kj->nki", T_base_hand[:, :3, :3], local) + T_base_hand[:, None, :3, 3]
-    distance = world.distance(points.reshape(-1, 3), horizon=0.01, exclude=exclude).numpy()
+    # clusters of nearby hand points: most are near few obstacles (world.distance's cluster broad phase)
+    distance = world.distance(points.reshape(-1, 3), horizon=0.01, exclude=exclude,
+                              cluster_size=len(local) >> HAND_CLUSTER_DEPTH).numpy()
     return (distance.reshape(len(T_base_hand), -1) < -COLLISION_DEPTH).any(axis=1)
 
 

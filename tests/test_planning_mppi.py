@@ -113,6 +113,36 @@ def test_labels_are_the_checkers_clearances(robot, shelf):
     assert (label.min(1) < 0).any() and (label.min(1) >= 0).any()
 
 
+def test_labels_from_plane_count_buckets_are_those_of_one_world(robot, shelf, monkeypatch):
+    """The labeller measures convex parts in torch worlds by plane count (``plane_buckets``):
+    every obstacle lands in exactly one bucket, and the clearances are those of one world
+    padded to the largest part, to the bit."""
+    from fetchbench_ms.planning.world import ConvexSet
+
+    world, _, _, goals = shelf
+    rng = np.random.default_rng(4)
+    mixed = CollisionWorld(groups={name: list(sets) for name, sets in world.groups.items()})
+    hulls = []
+    for k, n in enumerate((8, 60, 300, 900)):  # hulls of ~10 to a few hundred planes
+        T = np.eye(4)
+        T[:3, 3] = (0.55 + 0.08 * k, -0.25 + 0.15 * k, 0.15)
+        hulls.append(trimesh.Trimesh(rng.normal(0, 0.04, (n, 3))).convex_hull.apply_transform(T))
+    mixed.add("objects", ConvexSet(hulls))
+    counts = mixed.groups["objects"][0].plane_counts()
+    buckets = labelling.plane_buckets(mixed)
+    assert len(buckets) >= 3 and len(np.unique(np.searchsorted(labelling.PLANE_BUCKETS, counts))) >= 3
+    assert sorted(c for b in buckets for s in b.groups.get("objects", []) for c in s.plane_counts()) == sorted(counts)
+    q = np.concatenate([np.clip(Q_DEFAULT + rng.normal(0, 0.6, (80, 7)), robot.q_min, robot.q_max), goals])
+    bucketed = labelling.Labeller(mixed, (), 0.04, None, False).clearance(q)
+    monkeypatch.setattr(labelling, "plane_buckets", lambda w: [w])
+    one = labelling.Labeller(mixed, (), 0.04, None, False).clearance(q)
+    assert np.array_equal(bucketed, one)
+    hulls_only = CollisionWorld()
+    hulls_only.add("objects", mixed.groups["objects"][0])
+    near_hulls = labelling.Labeller(hulls_only, (), 0.04, None, False).clearance(q) < labelling.MM_RANGE[1] / 1000
+    assert near_hulls.sum() > 50  # the hulls' own clearances were among those compared
+
+
 def test_tiny_network_learns_the_shelf(robot, tiny_net):
     net, grid, held_out, before, after, _ = tiny_net
     assert after < 0.8 * before, (before, after)

@@ -23,9 +23,10 @@ world, held by one of its annotated grasps, its convex parts as ``checker.Attach
 spheres in the hand frame (their clearances are labelled too), the fingers not checked
 (as the retrieval's checker).
 
-Costs (one process): rendering a task ~1.5 s, grid 0.9 s, IK ~0.8 s, labels ~3 ms per query
-on the CPU (every convex plane of the scanned objects; a GPU does them much faster:
-``--device cuda``).
+Costs (one process): rendering a task ~1.5 s, grid 0.9 s, IK ~0.8 s, then the labels (every
+convex plane of the scanned objects, parts grouped by plane count: ``plane_buckets``; a task
+in all 3.5 CPU s on one core, ``scripts/bench/bench_round_labels.py --labeller collision``;
+``--device cuda`` computes the labels on a GPU).
 
 Each task's file is a shard: written whole under a temporary name and renamed, with fixed
 zip metadata (``utils.io.npz_bytes``: the same seed and flags give the same bytes on one
@@ -91,6 +92,35 @@ def _boundary(q_free: np.ndarray, q_hit: np.ndarray, label_fn, steps: int = 4) -
     return 0.5 * (a + b)
 
 
+#: Convex parts go to the torch worlds of ``plane_buckets`` by plane count, at most these many.
+PLANE_BUCKETS = (16, 32, 64, 128, 256)
+
+
+def plane_buckets(world):
+    """``world`` as a few worlds that hold all its obstacles between them: the first the
+    boxes, cylinders and the convex parts of at most ``PLANE_BUCKETS[0]`` planes, each further
+    one the parts of the next plane-count range. A torch world pads every convex part to the
+    largest plane count among them (a scanned object's hull has up to ~370 planes, the mean
+    part ~30), so one world a range does several times less work; the minimum over them is
+    the same distance to the bit (a padding plane never binds, and the minimum of the same
+    values is the same in any order)."""
+    from fetchbench_ms.planning.world import CollisionWorld, ConvexSet
+
+    edges = (0,) + PLANE_BUCKETS + (np.inf,)
+    buckets = [CollisionWorld() for _ in edges[1:]]
+    for name, sets in world.groups.items():
+        for obstacle_set in sets:
+            if not isinstance(obstacle_set, ConvexSet):
+                buckets[0].add(name, obstacle_set)
+                continue
+            counts = obstacle_set.plane_counts()
+            for bucket, lo, hi in zip(buckets, edges[:-1], edges[1:]):
+                index = np.flatnonzero((counts > lo) & (counts <= hi))
+                if len(index):
+                    bucket.add(name, obstacle_set.subset(index))
+    return [b for b in buckets if b.groups]
+
+
 class Labeller:
     """Exact sphere clearances of configurations in one world (base frame)."""
 
@@ -104,7 +134,8 @@ class Labeller:
         self.torch = torch
         self.robot = panda()
         self.device = torch.device(device)
-        self.world = TorchWorld([world], [exclude], self.device, torch.float32, max_planes=None)
+        self.worlds = [TorchWorld([w], [exclude], self.device, torch.float32, max_planes=None)
+                       for w in plane_buckets(world)]
         self.spheres = RobotSpheres(self.device)
         checked = ~self.spheres.finger_mask.cpu().numpy() if carry else np.ones(ARM_SPHERES, bool)
         self.checked = np.concatenate([checked, np.full(ATT_SPHERES, attachment is not None)])
@@ -131,8 +162,9 @@ class Labeller:
                 r = self.radii.repeat(len(part))
                 d = torch.full((c.shape[1],), 10.0, device=self.device)
                 # Only obstacles whose bounding sphere comes within the label range of a sphere.
-                for idx, dist in self.world.pairs(c, horizon, r[None]):
-                    d = torch.minimum(d, dist) if idx is None else d.scatter_reduce(0, idx, dist, reduce="amin")
+                for world in self.worlds:
+                    for idx, dist in world.pairs(c, horizon, r[None]):
+                        d = torch.minimum(d, dist) if idx is None else d.scatter_reduce(0, idx, dist, reduce="amin")
                 out.append((d - r).reshape(len(part), -1).double().cpu().numpy())
         d = np.concatenate(out) if out else np.zeros((0, len(self.checked)))
         return np.where(self.checked, d, np.inf)

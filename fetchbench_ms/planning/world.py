@@ -181,6 +181,20 @@ class ConvexSet(_BoundAll):
     def __len__(self):
         return len(self.planes)
 
+    def plane_counts(self) -> np.ndarray:
+        """(parts,) each part's planes without the padding."""
+        return (self.planes[:, :, 3] < 1e8).sum(dim=1).numpy()
+
+    def subset(self, index) -> "ConvexSet":
+        """The parts ``index``, padded only to their own largest plane count (the same
+        distances: a padding plane never binds)."""
+        index = np.asarray(index, dtype=int)
+        part = ConvexSet.__new__(ConvexSet)
+        k = max(int(self.plane_counts()[index].max()) if len(index) else 1, 1)
+        part.planes = self.planes[index, :k].clone()
+        part.bound_center, part.bound_radius = self.bound_center[index].clone(), self.bound_radius[index].clone()
+        return part
+
     def exact(self, points, idx_p, idx_o):
         P = self.planes[idx_o]  # (n, K, 4)
         return (torch.einsum("nkj,nj->nk", P[..., :3], points[idx_p]) - P[..., 3]).amax(dim=1)

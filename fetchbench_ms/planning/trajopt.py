@@ -96,6 +96,10 @@ class TrajoptConfig:
     fixed_shape: bool = False
     cuda_graph: bool = False  # fixed_shape, with its blocks replayed as a CUDA graph (on CUDA only)
     max_obstacles: int = 16  # fixed_shape: nearest obstacles of each kind per robot link
+    # cuda_graph: worlds padded to these many boxes, cylinders, convex parts (a kind with more:
+    # to the next multiple, its own graph), so that problems share one captured loop
+    graph_capacity: tuple[int, int, int] = (32, 8, 64)
+    graph_cache: int = 4  # cuda_graph: captured loops kept (by shape), least recently used dropped
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0
@@ -242,6 +246,14 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
                        max_planes=cfg.max_planes)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
     costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
+    fixed = None
+    if cfg.fixed_shape or cfg.cuda_graph:  # the warm start and Adam over fixed shapes: no host syncs
+        from .trajopt_graph import fixed_shape_costs
+
+        fixed, over_capacity = fixed_shape_costs(costs, cfg)
+        for pr in problems:
+            pr.extras["over_capacity"] = over_capacity
+    warm_costs = fixed if fixed is not None else costs
     seeds, goal_of = _seeds(problems, cfg, robot_model.q_min, robot_model.q_max)
     P, S, T, _ = seeds.shape
     traj = torch.as_tensor(seeds, **dd)
@@ -269,22 +281,24 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             # In pieces of at most ``max_configs`` configurations: the pair tensors of a
             # large batch would not fit a GPU at once.
             per_traj = P * ((T - 1) * cfg.collision_substeps + 1)
-            c = torch.cat([costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)], dim=1)
+            c = torch.cat([warm_costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)],
+                          dim=1)
             c = c.reshape(P, S, N)
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)
             interior = (w[..., None, None] * particles).sum(dim=2)
     sparse_iters = cfg.opt_iters
-    if cfg.fixed_shape or cfg.cuda_graph:
+    if fixed is not None:
         from .trajopt_graph import optimise_fixed_shape
 
         def check_time():
             if time.perf_counter() > deadline:
                 raise _OutOfTime
 
-        interior, over_cap = optimise_fixed_shape(costs, interior, start, goal, cfg, check_time)
-        for pr, n in zip(problems, over_cap.tolist()):
-            pr.extras["over_cap"] = n
+        warm_over_cap = fixed.over_cap.clone()
+        interior, over_cap, how = optimise_fixed_shape(fixed, interior, start, goal, cfg, check_time)
+        for pr, n, w in zip(problems, over_cap.tolist(), warm_over_cap.tolist()):
+            pr.extras.update(over_cap=n, over_cap_warm=w, loop=how)
         sparse_iters = 0  # done: the sparse loop below is the default's
     # Adam, written out: torch.optim's first use in a process imports torch._dynamo (~2 s).
     m, v = torch.zeros_like(interior), torch.zeros_like(interior)
@@ -333,6 +347,35 @@ def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float) -> 
     return path[keep]
 
 
+def _segment(q_from: np.ndarray, q_to: np.ndarray, resolution: float) -> np.ndarray:
+    """The configurations ``CollisionChecker.motion_valid`` checks on a straight segment."""
+    n = max(2, int(np.ceil(np.abs(q_to - q_from).max() / resolution)) + 1)
+    return q_from + np.linspace(0.0, 1.0, n)[:, None] * (q_to - q_from)
+
+
+def shortcut_batched(checker: CollisionChecker, path: np.ndarray, resolution: float) -> np.ndarray:
+    """``shortcut``'s waypoints, with each kept waypoint's candidate segments checked in one
+    ``valid`` call (one per kept waypoint instead of one per candidate tried): the same
+    choice (the farthest valid candidate), more configurations checked (``n_checked``
+    counts candidates ``shortcut`` would not have tried)."""
+    keep, i, last = [0], 0, len(path) - 1
+    while i < last:
+        span = last - i
+        tried = [j for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4}, reverse=True) if j > i + 1]
+        j = i + 1
+        if tried:
+            segments = [_segment(path[i], path[k], resolution) for k in tried]
+            ok = checker.valid(np.concatenate(segments))
+            ends = np.cumsum([len(q) for q in segments])
+            for k, a, b in zip(tried, ends - [len(q) for q in segments], ends):
+                if ok[a:b].all():
+                    j = k
+                    break
+        keep.append(j)
+        i = j
+    return path[keep]
+
+
 def _prepare(checker, q_start, q_goals, start_tolerance, resolution) -> _Problem:
     """Start escape, valid goals and the direct segment, as plan_rrtconnect does them."""
     t0, n0 = time.perf_counter(), checker.n_checked
@@ -370,7 +413,9 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
     checker = pr.checker
     for i in order[: cfg.max_verify]:
         if path_valid(checker, traj[i], cfg.resolution):
-            path = shortcut(checker, traj[i], cfg.resolution)
+            # The fixed-shape modes check each kept waypoint's shortcut candidates at once.
+            path = (shortcut_batched if cfg.fixed_shape or cfg.cuda_graph else shortcut)(checker, traj[i],
+                                                                                        cfg.resolution)
             pr.result = PlanResult("solved", np.concatenate([pr.prefix, path]), time.perf_counter() - pr.t0,
                                    checker.n_checked - pr.n0, int(pr.goal_ids[goal_of[i]]),
                                    start_escaped=len(pr.prefix) > 0, planner="trajopt")
@@ -453,4 +498,4 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
 
 
 __all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose",
-           "shortcut"]
+           "shortcut", "shortcut_batched"]

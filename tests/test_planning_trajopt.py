@@ -428,34 +428,3 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     assert cache.counts["evicted"] >= 2
     cache.clear()
 
-
-def test_batched_shortcut_keeps_the_sequential_shortcuts_waypoints(robot, shelf_problem):
-    """``shortcut_batched`` (a kept waypoint's candidate segments in one ``valid`` call, the
-    fixed-shape modes' verification) keeps the waypoints ``shortcut`` keeps (one
-    ``motion_valid`` per candidate tried), on paths into the shelf where some candidates
-    collide and some do not, in fewer checker calls."""
-    from fetchbench_ms.planning.trajopt import shortcut, shortcut_batched
-
-    checker, _, goals = shelf_problem
-    rng = np.random.default_rng(5)
-    s = np.linspace(0, 1, 16)[:, None]
-    kept, calls = [], {"sequential": 0, "batched": 0}
-    original = checker.valid
-    for k in range(8):
-        goal = goals[k % len(goals)]
-        via = np.clip(0.5 * (Q_DEFAULT + goal) + rng.normal(0, 0.6, 7), robot.q_min, robot.q_max)
-        path = Q_DEFAULT + s * (goal - Q_DEFAULT) + 4 * s * (1 - s) * (via - 0.5 * (Q_DEFAULT + goal))
-        out = {}
-        for name, fn in (("sequential", shortcut), ("batched", shortcut_batched)):
-            def counted(q, name=name):
-                calls[name] += 1
-                return original(q)
-            checker.valid = counted
-            try:
-                out[name] = fn(checker, path, 0.02)
-            finally:
-                del checker.valid
-        assert np.array_equal(out["sequential"], out["batched"])
-        kept.append(len(out["batched"]))
-    assert min(kept) < 16 and max(kept) > 3  # some candidates valid (shortcuts taken), some refused
-    assert calls["batched"] < calls["sequential"]

@@ -347,35 +347,6 @@ def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float) -> 
     return path[keep]
 
 
-def _segment(q_from: np.ndarray, q_to: np.ndarray, resolution: float) -> np.ndarray:
-    """The configurations ``CollisionChecker.motion_valid`` checks on a straight segment."""
-    n = max(2, int(np.ceil(np.abs(q_to - q_from).max() / resolution)) + 1)
-    return q_from + np.linspace(0.0, 1.0, n)[:, None] * (q_to - q_from)
-
-
-def shortcut_batched(checker: CollisionChecker, path: np.ndarray, resolution: float) -> np.ndarray:
-    """``shortcut``'s waypoints, with each kept waypoint's candidate segments checked in one
-    ``valid`` call (one per kept waypoint instead of one per candidate tried): the same
-    choice (the farthest valid candidate), more configurations checked (``n_checked``
-    counts candidates ``shortcut`` would not have tried)."""
-    keep, i, last = [0], 0, len(path) - 1
-    while i < last:
-        span = last - i
-        tried = [j for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4}, reverse=True) if j > i + 1]
-        j = i + 1
-        if tried:
-            segments = [_segment(path[i], path[k], resolution) for k in tried]
-            ok = checker.valid(np.concatenate(segments))
-            ends = np.cumsum([len(q) for q in segments])
-            for k, a, b in zip(tried, ends - [len(q) for q in segments], ends):
-                if ok[a:b].all():
-                    j = k
-                    break
-        keep.append(j)
-        i = j
-    return path[keep]
-
-
 def _prepare(checker, q_start, q_goals, start_tolerance, resolution) -> _Problem:
     """Start escape, valid goals and the direct segment, as plan_rrtconnect does them."""
     t0, n0 = time.perf_counter(), checker.n_checked
@@ -413,9 +384,7 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
     checker = pr.checker
     for i in order[: cfg.max_verify]:
         if path_valid(checker, traj[i], cfg.resolution):
-            # The fixed-shape modes check each kept waypoint's shortcut candidates at once.
-            path = (shortcut_batched if cfg.fixed_shape or cfg.cuda_graph else shortcut)(checker, traj[i],
-                                                                                        cfg.resolution)
+            path = shortcut(checker, traj[i], cfg.resolution)
             pr.result = PlanResult("solved", np.concatenate([pr.prefix, path]), time.perf_counter() - pr.t0,
                                    checker.n_checked - pr.n0, int(pr.goal_ids[goal_of[i]]),
                                    start_escaped=len(pr.prefix) > 0, planner="trajopt")
@@ -498,4 +467,4 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
 
 
 __all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose",
-           "shortcut", "shortcut_batched"]
+           "shortcut"]

@@ -357,7 +357,8 @@ def test_fixed_shape_warm_start_moves_the_seeds_as_the_sparse_one(robot, shelf_p
 
     checker, _, goals = shelf_problem
     out = {}
-    for name, extra in (("sparse", {}), ("fixed", dict(fixed_shape=True)), ("padded", dict(cuda_graph=True))):
+    padded = dict(cuda_graph=True, graph_capacity=(16, 4, 8))
+    for name, extra in (("sparse", {}), ("fixed", dict(fixed_shape=True)), ("padded", padded)):
         cfg = TrajoptConfig(**dict(SMALL, opt_iters=0, mppi_iters=3), **extra)
         pr = _prepare(checker, Q_DEFAULT, goals, 0.0, cfg.resolution)
         assert pr.result is None
@@ -390,7 +391,7 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     other = goals[cluttered.valid(goals)][::-1]
     assert len(other) and not any(cluttered.motion_valid(q_other, g) for g in other)
     first, second = (checker, Q_DEFAULT, goals), (cluttered, q_other, other)
-    cfg = TrajoptConfig(cuda_graph=True, graph_cache=2, **SMALL)
+    cfg = TrajoptConfig(cuda_graph=True, graph_cache=2, graph_capacity=(16, 4, 8), **SMALL)
     cache = trajopt_graph.graph_cache(cfg.graph_cache)
     cache.clear()
     n0 = dict(cache.counts)
@@ -421,10 +422,15 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     b_fixed = plan_trajopt_batch([second], config=TrajoptConfig(fixed_shape=True, **SMALL))[0]
     assert b_fixed.goal_index == b.goal_index and len(b_fixed.path) == len(b.path)
     assert np.allclose(b_fixed.path, b.path, atol=1e-3)
-    # Bounded: three shapes through a cache of two.
+    # A world over a capacity (8 boxes, a capacity of 4) is padded to the next multiple: a
+    # shape (and a configuration) of its own, the same plan.
+    over = TrajoptConfig(cuda_graph=True, graph_cache=2, graph_capacity=(4, 4, 8), **SMALL)
+    a_over = plan_trajopt_batch([first], config=over)[0]
+    assert np.array_equal(a_over.path, a.path) and len(cache.entries) == 2
+    # Bounded: three more shapes through a cache of two.
     for seeds in (5, 6, 7):
-        plan_trajopt_batch([first], config=TrajoptConfig(cuda_graph=True, graph_cache=2, **dict(SMALL, seeds=seeds)))
+        plan_trajopt_batch([first], config=TrajoptConfig(**dict(vars(cfg), seeds=seeds)))
         assert len(cache.entries) <= 2
-    assert cache.counts["evicted"] >= 2
+    assert cache.counts["evicted"] >= 3
     cache.clear()
 

@@ -97,8 +97,9 @@ class TrajoptConfig:
     cuda_graph: bool = False  # fixed_shape, with its blocks replayed as a CUDA graph (on CUDA only)
     max_obstacles: int = 16  # fixed_shape: nearest obstacles of each kind per robot link
     # cuda_graph: worlds padded to these many boxes, cylinders, convex parts (a kind with more:
-    # to the next multiple, its own graph), so that problems share one captured loop
-    graph_capacity: tuple[int, int, int] = (32, 8, 64)
+    # to the next multiple, its own graph), so that problems share one captured loop; val 0:20's
+    # pre-grasp worlds have up to 46 boxes, 28 cylinders, 161 convex parts
+    graph_capacity: tuple[int, int, int] = (48, 32, 192)
     graph_cache: int = 4  # cuda_graph: captured loops kept (by shape), least recently used dropped
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32

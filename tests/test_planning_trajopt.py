@@ -345,3 +345,92 @@ def test_fixed_shape_loop_stops_at_the_sparse_loops_convergence_test(robot, worl
         assert sum(blocks) == ran and (converged < 1 or ran == 20)
         assert torch.allclose(got, x_ref, atol=1e-4)
         assert trajopt_graph.CHECK_EVERY == 10
+
+
+def test_fixed_shape_warm_start_moves_the_seeds_as_the_sparse_one(robot, shelf_problem):
+    """With ``fixed_shape`` the particle warm start scores its particles with the fixed-shape
+    costs (no host syncs in its rounds): with no Adam iterations, the warm-started
+    trajectories are the default's up to float rounding (the costs agree to rounding, the
+    particles are the same draws), on the unpadded world and on the world padded to the
+    graph capacities (``cuda_graph``); and the warm start did move them off the seeds."""
+    from fetchbench_ms.planning.trajopt import _optimise, _prepare, _seeds
+
+    checker, _, goals = shelf_problem
+    out = {}
+    padded = dict(cuda_graph=True, graph_capacity=(16, 4, 8))
+    for name, extra in (("sparse", {}), ("fixed", dict(fixed_shape=True)), ("padded", padded)):
+        cfg = TrajoptConfig(**dict(SMALL, opt_iters=0, mppi_iters=3), **extra)
+        pr = _prepare(checker, Q_DEFAULT, goals, 0.0, cfg.resolution)
+        assert pr.result is None
+        out[name] = _optimise([pr], robot, cfg, deadline=float("inf"))
+        if extra:
+            assert pr.extras["over_cap_warm"] == 0 and pr.extras["over_capacity"] is False
+    seeds, _ = _seeds([pr], cfg, robot.q_min, robot.q_max)
+    assert np.abs(out["sparse"][0] - seeds).max() > 0.05  # the warm start moved the seeds
+    for name in ("fixed", "padded"):
+        assert np.allclose(out[name][0], out["sparse"][0], atol=1e-4)
+        assert np.allclose(out[name][2], out["sparse"][2], rtol=1e-4)  # the final costs
+        assert np.array_equal(out[name][1], out["sparse"][1])
+
+
+def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(robot, shelf_problem):
+    """``cuda_graph`` (on a CPU: the same bookkeeping, uncaptured): the worlds are padded to
+    the graph capacities, so two different problems (other scenes, starts and goals) share
+    one cached loop; the second only copies its world and seeds into the first one's
+    buffers, and plans bitwise as it does from an empty cache, and as the unpadded
+    fixed-shape plan up to float rounding. Other shapes (more seeds) get their own loop;
+    the cache keeps at most ``graph_cache`` of them."""
+    from fetchbench_ms.planning import trajopt_graph
+
+    checker, _, goals = shelf_problem
+    # Another scene (the shelf and a box above it), another start, the goals it leaves valid.
+    scene, _ = shelf_worlds()
+    scene.add("box", ConvexSet([trimesh.creation.box([0.15, 0.15, 0.15]).apply_translation([0.3, 0.3, 0.6])]))
+    cluttered = CollisionChecker(robot, scene)
+    q_other = np.clip(Q_DEFAULT + 0.05, robot.q_min, robot.q_max)
+    other = goals[cluttered.valid(goals)][::-1]
+    assert len(other) and not any(cluttered.motion_valid(q_other, g) for g in other)
+    first, second = (checker, Q_DEFAULT, goals), (cluttered, q_other, other)
+    cfg = TrajoptConfig(cuda_graph=True, graph_cache=2, graph_capacity=(16, 4, 8), **SMALL)
+    cache = trajopt_graph.graph_cache(cfg.graph_cache)
+    cache.clear()
+    n0 = dict(cache.counts)
+    a = plan_trajopt_batch([first], config=cfg)[0]
+    b = plan_trajopt_batch([second], config=cfg)[0]
+    assert a.status == "solved" and b.success
+    assert cache.counts["new"] - n0["new"] == 1 and cache.counts["reused"] - n0["reused"] == 1
+    # The cached loop's costs are now the second problem's, bitwise, and not the first one's.
+    from fetchbench_ms.planning.trajopt import _Costs
+
+    (loop, _, _), = cache.entries.values()
+    rng = np.random.default_rng(4)
+    traj = torch.as_tensor(np.clip(Q_DEFAULT + rng.normal(0, 0.8, (1, 64, cfg.n_waypoints, 7)), robot.q_min,
+                                   robot.q_max), dtype=torch.float32)
+    fresh = []
+    for c in (first[0], cluttered):
+        own = _Costs(TorchRobot(robot, [c]), TorchWorld([c.world], [c.exclude], max_planes=cfg.max_planes), cfg,
+                     robot.q_min, robot.q_max)
+        with torch.no_grad():
+            fresh.append(trajopt_graph.fixed_shape_costs(own, cfg)[0](traj)[1])
+    with torch.no_grad():
+        cached = loop.costs(traj)[1]
+    assert torch.equal(cached, fresh[1]) and not torch.equal(cached, fresh[0])
+    cache.clear()
+    b_fresh = plan_trajopt_batch([second], config=cfg)[0]
+    assert b.status == b_fresh.status and b.goal_index == b_fresh.goal_index
+    assert np.array_equal(b.path, b_fresh.path)
+    b_fixed = plan_trajopt_batch([second], config=TrajoptConfig(fixed_shape=True, **SMALL))[0]
+    assert b_fixed.goal_index == b.goal_index and len(b_fixed.path) == len(b.path)
+    assert np.allclose(b_fixed.path, b.path, atol=1e-3)
+    # A world over a capacity (8 boxes, a capacity of 4) is padded to the next multiple: a
+    # shape (and a configuration) of its own, the same plan.
+    over = TrajoptConfig(cuda_graph=True, graph_cache=2, graph_capacity=(4, 4, 8), **SMALL)
+    a_over = plan_trajopt_batch([first], config=over)[0]
+    assert np.array_equal(a_over.path, a.path) and len(cache.entries) == 2
+    # Bounded: three more shapes through a cache of two.
+    for seeds in (5, 6, 7):
+        plan_trajopt_batch([first], config=TrajoptConfig(**dict(vars(cfg), seeds=seeds)))
+        assert len(cache.entries) <= 2
+    assert cache.counts["evicted"] >= 3
+    cache.clear()
+

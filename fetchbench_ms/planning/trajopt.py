@@ -96,6 +96,11 @@ class TrajoptConfig:
     fixed_shape: bool = False
     cuda_graph: bool = False  # fixed_shape, with its blocks replayed as a CUDA graph (on CUDA only)
     max_obstacles: int = 16  # fixed_shape: nearest obstacles of each kind per robot link
+    # cuda_graph: worlds padded to these many boxes, cylinders, convex parts (a kind with more:
+    # to the next multiple, its own graph), so that problems share one captured loop; val 0:20's
+    # pre-grasp worlds have up to 46 boxes, 28 cylinders, 161 convex parts
+    graph_capacity: tuple[int, int, int] = (48, 32, 192)
+    graph_cache: int = 4  # cuda_graph: captured loops kept (by shape), least recently used dropped
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0
@@ -242,6 +247,14 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
                        max_planes=cfg.max_planes)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
     costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
+    fixed = None
+    if cfg.fixed_shape or cfg.cuda_graph:  # the warm start and Adam over fixed shapes: no host syncs
+        from .trajopt_graph import fixed_shape_costs
+
+        fixed, over_capacity = fixed_shape_costs(costs, cfg)
+        for pr in problems:
+            pr.extras["over_capacity"] = over_capacity
+    warm_costs = fixed if fixed is not None else costs
     seeds, goal_of = _seeds(problems, cfg, robot_model.q_min, robot_model.q_max)
     P, S, T, _ = seeds.shape
     traj = torch.as_tensor(seeds, **dd)
@@ -269,22 +282,24 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             # In pieces of at most ``max_configs`` configurations: the pair tensors of a
             # large batch would not fit a GPU at once.
             per_traj = P * ((T - 1) * cfg.collision_substeps + 1)
-            c = torch.cat([costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)], dim=1)
+            c = torch.cat([warm_costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)],
+                          dim=1)
             c = c.reshape(P, S, N)
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)
             interior = (w[..., None, None] * particles).sum(dim=2)
     sparse_iters = cfg.opt_iters
-    if cfg.fixed_shape or cfg.cuda_graph:
+    if fixed is not None:
         from .trajopt_graph import optimise_fixed_shape
 
         def check_time():
             if time.perf_counter() > deadline:
                 raise _OutOfTime
 
-        interior, over_cap = optimise_fixed_shape(costs, interior, start, goal, cfg, check_time)
-        for pr, n in zip(problems, over_cap.tolist()):
-            pr.extras["over_cap"] = n
+        warm_over_cap = fixed.over_cap.clone()
+        interior, over_cap, how = optimise_fixed_shape(fixed, interior, start, goal, cfg, check_time)
+        for pr, n, w in zip(problems, over_cap.tolist(), warm_over_cap.tolist()):
+            pr.extras.update(over_cap=n, over_cap_warm=w, loop=how)
         sparse_iters = 0  # done: the sparse loop below is the default's
     # Adam, written out: torch.optim's first use in a process imports torch._dynamo (~2 s).
     m, v = torch.zeros_like(interior), torch.zeros_like(interior)

@@ -26,15 +26,29 @@ block. On CUDA with ``cuda_graph`` the block is captured once per problem batch 
 replayed (the world's tensors, the trajectories and Adam's moments are the graph's
 static inputs); elsewhere the same block runs eagerly, so the CPU runs and tests the code
 the graph replays.
+
+In both modes the particle warm start (``trajopt._optimise``) scores its particles with
+these costs too: its rounds read nothing back to the host.
+
+With ``cuda_graph`` the captured loop outlives its plan: the world is padded to fixed
+capacities (``pad_world``: ``TrajoptConfig.graph_capacity`` boxes, cylinders and convex
+parts, convex parts to ``max_planes`` planes; a kind with more obstacles is padded to the
+next multiple of its capacity, a shape of its own), and ``GraphCache`` keeps the loops by
+the shapes of every tensor they read, at most ``graph_cache`` of them (least recently used
+dropped, with its graph's memory pool). A problem of a cached shape copies its world,
+robot and seeds into that loop's buffers and replays its graph: no capture. On a CPU the
+same cache and copies run, uncaptured (the tests' view of the bookkeeping).
 """
 from __future__ import annotations
 
+import math
+from collections import OrderedDict
 from typing import Callable
 
 import numpy as np
 import torch
 
-from .distance import FAR, SphereGroups, _smooth_norm, collision_cost
+from .distance import _FAR_CENTER, FAR, SphereGroups, TorchRobot, TorchWorld, _Primitives, _smooth_norm, collision_cost
 from .trajopt import _Costs
 
 CHECK_EVERY = 10  # iterations between convergence tests (the sparse loop's ``it % 10 == 9``)
@@ -163,7 +177,7 @@ class _AdamLoop:
 
     def __init__(self, costs, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor, cfg):
         self.costs, self.cfg = costs, cfg
-        self.start, self.goal = start, goal
+        self.start, self.goal = start.clone(), goal.clone()
         self.interior = interior.clone()
         self.m, self.v = torch.zeros_like(interior), torch.zeros_like(interior)
         dev = interior.device
@@ -174,6 +188,19 @@ class _AdamLoop:
         table = np.stack([1 - BETA1 ** it, 1 - BETA2 ** it], axis=1)
         self.corrections = torch.as_tensor(table, device=dev, dtype=interior.dtype)
         self.block_corrections = self.corrections[:CHECK_EVERY].clone()
+
+    def load(self, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor) -> None:
+        """Another problem's start into the same buffers (a captured graph's inputs): the
+        state as ``__init__`` leaves it."""
+        with torch.no_grad():
+            self.interior.copy_(interior)
+            self.start.copy_(start)
+            self.goal.copy_(goal)
+            self.m.zero_()
+            self.v.zero_()
+            self.previous.fill_(float("inf"))
+            self.stop.zero_()
+            self.costs.over_cap.zero_()
 
     def block(self, n: int, check: bool) -> None:
         """``n`` iterations from the state; with ``check``, the last one tests convergence and,
@@ -222,10 +249,13 @@ class _AdamLoop:
             t.copy_(s)
         return graph
 
-    def run(self, capture: bool, check_time: Callable[[], None]) -> torch.Tensor:
-        """All ``opt_iters`` iterations (fewer when converged); the final interior."""
+    def run(self, capture: bool, check_time: Callable[[], None], graph=None) -> torch.Tensor:
+        """All ``opt_iters`` iterations (fewer when converged); the final interior. ``graph``:
+        one this loop captured before (its buffers now hold another problem)."""
         full, tail = divmod(self.cfg.opt_iters, CHECK_EVERY)
-        graph = self.capture() if capture and full else None
+        if graph is None and capture and full:
+            graph = self.capture()
+        self.graph = graph
         for b in range(full):
             check_time()
             self.block_corrections.copy_(self.corrections[b * CHECK_EVERY: (b + 1) * CHECK_EVERY])
@@ -242,14 +272,200 @@ class _AdamLoop:
         return self.interior
 
 
-def optimise_fixed_shape(costs, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor, cfg,
-                         check_time: Callable[[], None]) -> tuple[torch.Tensor, torch.Tensor]:
+# -- one captured loop reused across problems --------------------------------------------------
+#: The obstacle kinds of ``TorchWorld`` in its order, with each one's per-obstacle tensors' tails.
+KIND_TAILS = {"box": {"R": (3, 3), "t": (3,), "half": (3,)},
+              "cylinder": {"R": (3, 3), "t": (3,), "radius": (), "half_length": (), "capsule": ()},
+              "convex": {"planes": None}}
+PLANES_BUCKET = 8  # convex parts' plane counts are padded to a multiple of this when max_planes is None
+
+
+def _bucket(n: int, cap: int) -> int:
+    """``cap`` when ``n`` fits, else the next multiple of ``cap`` (a larger shape: its own graph)."""
+    return cap * max(1, math.ceil(n / cap))
+
+
+def pad_world(world: TorchWorld, capacity, max_planes: int | None) -> tuple[TorchWorld, bool]:
+    """A copy of ``world`` whose obstacle kinds all exist (kinds of capacity 0 only where the
+    world has some) and are padded to ``capacity`` (boxes, cylinders, convex parts; a kind
+    with more obstacles than its capacity to the next multiple of it) and convex parts to
+    ``max_planes`` planes: problems of different scenes then share tensor shapes (one CUDA
+    graph). Padding obstacles are those of ``TorchWorld``'s own padding (far away, zero
+    bounding radius: the fixed-shape costs never use them), so the costs are the same up to
+    float rounding. Returns the world and whether a kind exceeded its capacity."""
+    have = {k.kind: k for k in world.kinds}
+    dd = dict(device=world.device, dtype=world.dtype)
+    P, kinds, over = world.P, [], False
+    for name, cap in zip(KIND_TAILS, capacity):
+        kind = have.get(name)
+        O = kind.O if kind is not None else 0
+        if cap <= 0 and kind is None:
+            continue
+        over |= O > cap
+        n = _bucket(O, cap) if cap > 0 else O
+        tensors = {}
+        for key, tail in KIND_TAILS[name].items():
+            if name == "convex":
+                K = kind.t["planes"].shape[2] if kind is not None else 1
+                K = max_planes if max_planes is not None and K <= max_planes else _bucket(K, PLANES_BUCKET)
+                planes = torch.zeros((P, n, K, 4), **dd)
+                planes[:, :O, :, 3] = 1e9  # padding planes of a real part never bind
+                if kind is not None:
+                    planes[:, :O, : kind.t["planes"].shape[2]] = kind.t["planes"]
+                tensors[key] = planes
+                continue
+            value = torch.zeros((P, n) + tail, **dd)
+            if kind is not None:
+                value[:, :O] = kind.t[key]
+            tensors[key] = value
+        bound_c = torch.full((P, n, 3), _FAR_CENTER, **dd)
+        bound_r = torch.zeros((P, n), **dd)
+        if kind is not None:
+            bound_c[:, :O], bound_r[:, :O] = kind.bound_c, kind.bound_r
+        padded = _Primitives(name, tensors, bound_c, bound_r, world.device, world.dtype)
+        padded.reduced = kind.reduced if kind is not None else (name == "convex" and max_planes is not None)
+        kinds.append(padded)
+    out = TorchWorld.__new__(TorchWorld)
+    out.__dict__.update(world.__dict__)
+    out.kinds = kinds
+    return out, over
+
+
+_WALKED = (FixedShapeCosts, _Groups, TorchWorld, TorchRobot, _Primitives, SphereGroups)
+_SCALARS = (int, float, bool, str, type(None), torch.dtype, torch.device)
+
+
+def _walk(obj, path: tuple, tensors: dict, signature: list, keep: list) -> None:
+    """Every tensor reachable from ``obj`` through the classes of ``_WALKED`` (by attribute
+    path), and a signature of everything a captured graph depends on: tensor shapes, scalar
+    values, the identity of other objects (the robot model, its kinematics; kept alive)."""
+    if isinstance(obj, torch.Tensor):
+        tensors[path] = obj
+        signature.append((path, tuple(obj.shape), obj.dtype, obj.device))
+    elif isinstance(obj, _SCALARS):
+        signature.append((path, obj))
+    elif isinstance(obj, (list, tuple)):
+        signature.append((path, type(obj), len(obj)))
+        for i, v in enumerate(obj):
+            _walk(v, path + (i,), tensors, signature, keep)
+    elif isinstance(obj, dict):
+        signature.append((path, dict, tuple(sorted(obj, key=str))))
+        for k in sorted(obj, key=str):
+            _walk(obj[k], path + (k,), tensors, signature, keep)
+    elif isinstance(obj, _WALKED):
+        signature.append((path, type(obj)))
+        for k in sorted(vars(obj)):
+            # The configuration is in the key whole; the kinematics (``TorchRobot.fk``, a copy
+            # per plan) are the robot model's, whose identity is in the signature.
+            if k not in ("cfg", "fk"):
+                _walk(vars(obj)[k], path + (k,), tensors, signature, keep)
+    else:  # the robot model, its kinematics module: the same objects, not copies
+        signature.append((path, "id", id(obj)))
+        keep.append(obj)
+
+
+def _replace(obj, path: tuple, value):
+    """Set the tensor at ``path`` (``_walk``'s) below ``obj`` to ``value``, or, ``None``, read it."""
+    for step in path[:-1]:
+        obj = obj[step] if isinstance(obj, (list, tuple, dict)) else getattr(obj, step)
+    last = path[-1]
+    if value is None:
+        return obj[last] if isinstance(obj, (list, tuple, dict)) else getattr(obj, last)
+    if isinstance(obj, (list, dict)):
+        obj[last] = value
+    else:
+        setattr(obj, last, value)
+    return value
+
+
+class GraphCache:
+    """Captured Adam loops by shape, least recently used first out, at most ``size``: a long
+    run's GPU memory stays bounded (a dropped graph frees its memory pool). A plan whose
+    world, robot and configuration have the shapes of a cached loop copies its tensors into
+    that loop's buffers and replays its graph; the counts say how often each happened."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self.entries: OrderedDict = OrderedDict()
+        self.counts = {"new": 0, "reused": 0, "evicted": 0}
+
+    def loop(self, fixed: FixedShapeCosts, interior, start, goal, cfg) -> tuple["_AdamLoop", bool]:
+        """The cached loop for ``fixed``'s shapes, loaded with this problem (True), or a new
+        one, cached (False)."""
+        tensors, signature, keep = {}, [], []
+        _walk(fixed, (), tensors, signature, keep)
+        key = (repr(cfg), tuple(interior.shape), interior.dtype, interior.device, tuple(signature))
+        entry = self.entries.get(key)
+        if entry is not None:
+            self.entries.move_to_end(key)
+            loop, cached = entry[0], entry[1]
+            with torch.no_grad():
+                for path, t in tensors.items():
+                    cached[path].copy_(t)
+            loop.load(interior, start, goal)
+            return loop, True
+        # Broadcast views (the gripper's joints, expanded from the finger openings) become
+        # tensors of their own: the next problem's values are copied into them.
+        for path, t in tensors.items():
+            if t.numel() > 1 and 0 in t.stride():
+                _replace(fixed, path, t.contiguous())
+                tensors[path] = _replace(fixed, path, None)
+        loop = _AdamLoop(fixed, interior, start, goal, cfg)
+        loop.graph = None
+        self.entries[key] = (loop, tensors, keep)
+        while len(self.entries) > self.size:
+            self.entries.popitem(last=False)
+            self.counts["evicted"] += 1
+        return loop, False
+
+    def clear(self) -> None:
+        self.entries.clear()
+
+
+_CACHE: GraphCache | None = None
+
+
+def graph_cache(size: int) -> GraphCache:
+    """The process's cache of captured loops (resized to ``size``)."""
+    global _CACHE
+    if _CACHE is None:
+        _CACHE = GraphCache(size)
+    _CACHE.size = size
+    while len(_CACHE.entries) > size:
+        _CACHE.entries.popitem(last=False)
+        _CACHE.counts["evicted"] += 1
+    return _CACHE
+
+
+def fixed_shape_costs(costs, cfg) -> tuple[FixedShapeCosts, bool]:
+    """The fixed-shape costs of ``costs``'s problems; with ``cfg.cuda_graph`` over the world
+    padded to ``cfg.graph_capacity`` (``pad_world``: shapes shared across problems, so a
+    captured loop is reused). Returns them and whether a kind exceeded its capacity."""
+    world, over = costs.world, False
+    if cfg.cuda_graph:
+        world, over = pad_world(world, cfg.graph_capacity, cfg.max_planes)
+    return FixedShapeCosts(costs.robot, world, cfg, costs.q_min, costs.q_max, cfg.max_obstacles), over
+
+
+def optimise_fixed_shape(fixed: FixedShapeCosts, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor,
+                         cfg, check_time: Callable[[], None]) -> tuple[torch.Tensor, torch.Tensor, str]:
     """Adam on ``interior`` (P, S, T - 2, 7) between ``start`` and ``goal`` (P, S, 1, 7) with
-    the fixed-shape costs of ``costs`` (a ``trajopt._Costs``); a CUDA graph when ``cfg.cuda_graph``
-    and the tensors are on CUDA. ``check_time`` raises past the deadline (between blocks).
-    Returns the final interior and, per problem, the (configuration, link, kind) triples that
-    had more near obstacles than ``cfg.max_obstacles`` (summed over iterations)."""
-    fixed = FixedShapeCosts(costs.robot, costs.world, cfg, costs.q_min, costs.q_max, cfg.max_obstacles)
-    loop = _AdamLoop(fixed, interior, start, goal, cfg)
+    the fixed-shape costs ``fixed``; a CUDA graph when ``cfg.cuda_graph`` and the tensors are
+    on CUDA. With ``cuda_graph`` (on any device) the loop comes from the process's
+    ``GraphCache``: a problem of a cached shape reuses its buffers (and, on CUDA, its graph).
+    ``check_time`` raises past the deadline (between blocks). Returns the final interior and,
+    per problem, the (configuration, link, kind) triples that had more near obstacles than
+    ``cfg.max_obstacles`` (summed over iterations), and how the loop ran: ``eager``,
+    ``captured`` or ``replayed`` (a graph captured for an earlier problem; on a CPU, its
+    buffers reused)."""
     capture = bool(cfg.cuda_graph) and interior.is_cuda
-    return loop.run(capture, check_time), fixed.over_cap
+    fixed.over_cap.zero_()  # the Adam iterations' count (a cached loop's is reset by its load)
+    if not cfg.cuda_graph:
+        loop = _AdamLoop(fixed, interior, start, goal, cfg)
+        return loop.run(False, check_time), fixed.over_cap, "eager"
+    cache = graph_cache(cfg.graph_cache)
+    loop, reused = cache.loop(fixed, interior, start, goal, cfg)
+    how = "replayed" if reused else ("captured" if capture else "eager")
+    cache.counts["reused" if reused else "new"] += 1
+    out = loop.run(capture, check_time, loop.graph)
+    return out.clone(), loop.costs.over_cap.clone(), how

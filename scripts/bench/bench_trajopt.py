@@ -301,6 +301,12 @@ def main() -> None:
                 f"{name} {rs[i].status}/{rs[i].planner} {rs[i].planning_time:.2f}s len {cspace_length(rs[i].path):.2f}"
                 for name, rs in rows.items()))
     print_table(problems, rows, recheck, device)
+    from fetchbench_ms.planning import trajopt_graph
+
+    # cuda_graph: how often a plan's Adam loop was new (captured on CUDA) or reused (one process only).
+    graph_counts = dict(trajopt_graph._CACHE.counts) if trajopt_graph._CACHE is not None else None
+    if graph_counts is not None:
+        print(f"cuda_graph loops: {graph_counts}")
     if args.json:
         import json
         import sys
@@ -309,7 +315,7 @@ def main() -> None:
             json.dump(dict(summary(rows, recheck), run=dict(
                 command=" ".join(sys.argv), suite=args.suite, tasks=args.tasks, world=args.world, full=args.full,
                 device=device, batch=args.batch, threads=torch.get_num_threads(), torch=torch.__version__,
-                config=config_overrides(args.config),
+                config=config_overrides(args.config), graph_cache=graph_counts,
                 problems=len(problems))), f, indent=1)
 
 

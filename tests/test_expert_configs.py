@@ -71,6 +71,23 @@ def test_fast3_is_fast2_with_segment_checks_that_look_at_the_start_first():
     assert "motion_check_first" not in fast2.to_json()["solve"]
 
 
+def test_every_expert_can_be_asked_for_by_name():
+    """The command lines that make demonstrations offer every configuration in ``EXPERTS``."""
+    import argparse
+    import re
+    from pathlib import Path
+
+    from fetchbench_ms.demos.cli import add_run_arguments
+
+    p = argparse.ArgumentParser()
+    add_run_arguments(p)
+    assert set(next(a for a in p._actions if a.dest == "expert").choices) == set(EXPERTS)
+    root = Path(__file__).resolve().parents[1]
+    for script in ("scripts/imitation/build_imitation_data.py", "scripts/imitation/imitation_round.py"):
+        choices = re.search(r'"--expert", default="fast", choices=\(([^)]*)\)', (root / script).read_text()).group(1)
+        assert set(re.findall(r'"(\w+)"', choices)) == set(EXPERTS), script
+
+
 def test_fast3_makes_fast2s_trajectory(monkeypatch):
     """train/1513's first try plans its retrieval with RRTConnect (about 11,000 checks, most
     segments rejected): fast3 executes the same grasp along the same steps, with the same

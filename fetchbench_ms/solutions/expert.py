@@ -90,9 +90,9 @@ class ExpertSpec:
 #: - ``fast3``: ``fast2``, and the planners check a straight segment's first 16 configurations
 #:   before the rest (``SolveConfig.motion_check_first``): a rejected segment mostly collides
 #:   within a few steps of its start, and the rest is then not computed. The answers and the
-#:   counted checks are the same, so are the plans and trajectories (on the measured tasks:
-#:   equal to ``fast2``'s up to the last bit of a clearance, which another batch size may round
-#:   otherwise); it costs about a quarter less CPU where the planners search.
+#:   counted checks are the same, so are the plans and trajectories (train/1500-1579: the same
+#:   178 as ``fast2``'s, byte for byte; a clearance computed in another batch size may differ in
+#:   its last bit, so this is not promised everywhere); 15 % less CPU there (docs/demos.md).
 _FAST = (("pregrasp_goal_sets", 3), ("world_pose_tolerance", 5e-4), ("attachment_per_object", True),
          ("settle_steps", 3), ("reuse_candidates", True))
 EXPERTS = {

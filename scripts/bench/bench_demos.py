@@ -12,7 +12,9 @@ other load on the machine does not stretch) and the projected wall time of the p
 ``--convert N`` it replays the first N trajectories with ManiSkill's replay tool (through
 ``python -m fetchbench_ms.replay_trajectory``) in each conversion the dataset needs and
 prints each one's success rate. Results also go to OUT/bench.json. Resumable: a rerun
-reuses the finished tasks (the timing then covers only the new ones).
+reuses the finished tasks (the timing then covers only the new ones). ``--profile PATH`` runs
+the tasks in this process under cProfile instead and writes the statistics by cumulative time,
+with each try's CPU seconds by outcome (``--tries-only``: those alone, without the profiler).
 """
 from __future__ import annotations
 

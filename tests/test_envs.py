@@ -465,3 +465,24 @@ def test_an_empty_subset_of_the_complete_default_suite_raises_at_make():
                                              "'Drawer'; its tasks cover scene types .*Drawer.* for category 'Drawer'"):
             gym.make("FetchBench-Desk-v0", category="Drawer", obs_mode="state")
     assert not [w for w in caught if "task suite" in str(w.message)], [str(w.message) for w in caught]
+
+
+def test_the_grasp_test_is_left_out_only_where_nothing_reads_it():
+    """``obs_mode="none"`` with ``reward_mode="none"`` (the demo generator's env) skips the
+    contact walk of ``is_grasped``; every other info entry is the same as with it."""
+    infos = {}
+    for obs_mode, reward_mode in (("none", "none"), ("none", "sparse"), ("state", "none")):
+        env = gym.make("FetchBench-v0", task_source="sampled", obs_mode=obs_mode, control_mode="pd_joint_pos",
+                       reward_mode=reward_mode, num_objects=6, render_backend="none")
+        try:
+            env.reset(seed=1)
+            info = _close_gripper_on_target_in_free_space(env)
+            infos[obs_mode, reward_mode] = info
+        finally:
+            env.close()
+    lean = infos["none", "none"]
+    assert "is_grasped" not in lean
+    for key, info in infos.items():
+        if key != ("none", "none"):
+            assert bool(info["is_grasped"]) and set(info) == set(lean) | {"is_grasped"}
+            assert all(torch.equal(torch.as_tensor(lean[k]), torch.as_tensor(info[k])) for k in lean), key

@@ -62,6 +62,56 @@ def test_a_finger_that_clears_the_board_by_a_hair_is_tried_by_fast2():
     assert fast2.success and fast2.reason is None and fast2.steps > 0
 
 
+def test_fast3_is_fast2_with_segment_checks_that_look_at_the_start_first():
+    fast2, fast3 = EXPERTS["fast2"], EXPERTS["fast3"]
+    assert dict(fast3.solve) == {**dict(fast2.solve), "motion_check_first": 16}
+    assert fast3.max_failures_in_a_row == fast2.max_failures_in_a_row
+    assert SolveConfig().motion_check_first == 0 and fast2.config().motion_check_first == 0
+    assert json.loads(json.dumps(fast3.to_json()))["solve"]["motion_check_first"] == 16
+    assert "motion_check_first" not in fast2.to_json()["solve"]
+
+
+def test_every_expert_can_be_asked_for_by_name():
+    """The command lines that make demonstrations offer every configuration in ``EXPERTS``."""
+    import argparse
+    import re
+    from pathlib import Path
+
+    from fetchbench_ms.demos.cli import add_run_arguments
+
+    p = argparse.ArgumentParser()
+    add_run_arguments(p)
+    assert set(next(a for a in p._actions if a.dest == "expert").choices) == set(EXPERTS)
+    root = Path(__file__).resolve().parents[1]
+    for script in ("scripts/imitation/build_imitation_data.py", "scripts/imitation/imitation_round.py"):
+        choices = re.search(r'"--expert", default="fast", choices=\(([^)]*)\)', (root / script).read_text()).group(1)
+        assert set(re.findall(r'"(\w+)"', choices)) == set(EXPERTS), script
+
+
+def test_fast3_makes_fast2s_trajectory(monkeypatch):
+    """train/1513's first try plans its retrieval with RRTConnect (about 11,000 checks, most
+    segments rejected): fast3 executes the same grasp along the same steps, with the same
+    counted checks. (Each run gets a fresh world cache: a warm one may hand the second run the
+    first run's sets of objects that barely moved.)"""
+    from fetchbench_ms.planning import world_models
+    from fetchbench_ms.solutions import sense_plan_act
+
+    built = []
+    make = sense_plan_act._checker
+    monkeypatch.setattr(sense_plan_act, "_checker", lambda *a, **k: built.append(make(*a, **k)) or built[-1])
+    demos = {}
+    for name in ("fast2", "fast3"):
+        monkeypatch.setattr(world_models, "MESH_WORLD_CACHE", world_models.MeshWorldCache())
+        built.clear()
+        demos[name] = _first_try(name, 1513)
+        assert {c.motion_check_first for c in built} == {16 if name == "fast3" else 0}
+    fast2, fast3 = demos["fast2"], demos["fast3"]
+    assert fast2.success and any("plan solved" in note for note in fast2.notes)
+    assert (fast3.success, fast3.grasp_id, fast3.checks, fast3.notes[-1].split("checks")[0]) == (
+        fast2.success, fast2.grasp_id, fast2.checks, fast2.notes[-1].split("checks")[0])
+    assert np.array_equal(fast3.stages, fast2.stages) and fast3.cspace_length == fast2.cspace_length
+
+
 def test_a_job_recorded_before_experts_had_names_is_the_reference_one():
     old = {k: v for k, v in DemoJob().__dict__.items() if k != "expert"}
     assert DemoJob.from_json(old) == {**old, "expert": "reference"}

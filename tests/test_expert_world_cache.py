@@ -98,3 +98,29 @@ def test_pose_tolerance_reuses_sets_of_objects_that_barely_moved(monkeypatch):
     assert after.groups["target"][0] is not start.groups["target"][0]
     exact = worlds.task_mesh_world(task, noisy_base, noisy)  # no tolerance: everything at its new pose
     assert cache.misses == 2 and all(exact.groups[name(k)][0] is not start.groups[name(k)][0] for k in others)
+
+
+def test_object_sets_that_skip_the_convexity_test_at_each_pose_are_the_tested_ones():
+    """``convex_set_from_parts`` asks each part (object frame) whether it is convex, once a
+    process, instead of testing the moved copy at every pose: over the objects of a few train
+    tasks placed at random poses, the verdicts and the sets' planes and balls are the same."""
+    from fetchbench_ms.objects.loading import load_object
+    from fetchbench_ms.planning.world import ConvexSet, convex_set_from_parts, pose_matrix
+    from fetchbench_ms.tasks.suite import load_suite
+    from scipy.spatial.transform import Rotation
+
+    suite = load_suite("train")
+    ids = sorted({o.object_id for task_id in suite.ids()[1500:1504] for o in suite.get(task_id).objects})
+    rng = np.random.default_rng(0)
+    parts_seen = 0
+    for object_id in ids:
+        parts = load_object(object_id).convex_parts
+        quat = Rotation.random(random_state=int(rng.integers(2**31))).as_quat()[[3, 0, 1, 2]]
+        T = pose_matrix(rng.uniform(-1, 1, 3), quat)
+        moved = [p.copy().apply_transform(T) for p in parts]
+        assert [bool(m.is_convex) for m in moved] == [bool(p.is_convex) for p in parts], object_id
+        fast, tested = convex_set_from_parts(parts, T), ConvexSet(moved)
+        for name in ("planes", "bound_center", "bound_radius"):
+            assert torch.equal(getattr(fast, name), getattr(tested, name)), (object_id, name)
+        parts_seen += len(parts)
+    assert len(ids) >= 20 and parts_seen >= 100

@@ -33,7 +33,7 @@ def add_run_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-tries", type=int, default=DEFAULT_MAX_TRIES,
                    help=f"expert tries per task at most (default {DEFAULT_MAX_TRIES})")
     p.add_argument("--start-seed", type=int, default=0, help="first task (episode seed) of the run (default 0)")
-    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "reference"),
+    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "fast3", "reference"),
                    help="the expert's configuration (solutions.expert.EXPERTS; default fast)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

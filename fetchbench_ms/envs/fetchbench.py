@@ -458,10 +458,14 @@ class FetchBenchEnv(BaseEnv):
             else:
                 contacts = self.contact_queries.forces_cpu(self)
                 extra["robot_furniture_force"] = contacts["robot_furniture_force"]
+        if self.reward_mode != "none" or self.obs_mode != "none":
+            # The grasp test walks the contact list at every step once the hand is near the
+            # target (on CPU about as long as the rest of evaluate); the rewards and the
+            # observations read it, so an env with neither (the demo generator's) leaves it out.
+            extra["is_grasped"] = self.contact_queries.is_grasping(self, target_com_world, contacts)
         return dict(
             objects_pose=raw_pose,
             success=flags["success"],
-            is_grasped=self.contact_queries.is_grasping(self, target_com_world, contacts),
             target_com_base=target_com_base,
             target_height=target_com_base[:, 2],
             target_lift=target_com_world[:, 2] - self._initial_com_world[rows, b.target_index, 2],

@@ -155,11 +155,13 @@ class ConvexSet(_BoundAll):
     distance (never above), so collision answers are conservative.
     """
 
-    def __init__(self, hulls_base: list[trimesh.Trimesh]):
+    def __init__(self, hulls_base: list[trimesh.Trimesh], convex: list[bool] | None = None):
+        """``convex``: whether each mesh is convex, when known (a rigid motion keeps it so);
+        None: each is tested, and a mesh that is not is replaced by its convex hull."""
         planes = []
         centers, radii = [], []
-        for hull in hulls_base:
-            hull = hull if hull.is_convex else hull.convex_hull
+        for i, hull in enumerate(hulls_base):
+            hull = hull if (hull.is_convex if convex is None else convex[i]) else hull.convex_hull
             normals = np.asarray(hull.face_normals)
             offsets = np.einsum("ij,ij->i", normals, hull.vertices[hull.faces[:, 0]])
             # Coplanar triangles give the same plane: keep one.
@@ -315,8 +317,11 @@ def obstacle_sets_from_parts(parts, T_base_scene: np.ndarray) -> list:
 
 
 def convex_set_from_parts(convex_parts, T_base_object: np.ndarray) -> ConvexSet:
-    """An object's convex parts (object frame) placed at ``T_base_object``."""
-    return ConvexSet([p.copy().apply_transform(T_base_object) for p in convex_parts])
+    """An object's convex parts (object frame) placed at ``T_base_object``. Whether a part is
+    convex is asked of the part itself (trimesh keeps the answer with the mesh: an object's
+    parts are tested once a process, not at every pose they are placed at)."""
+    return ConvexSet([p.copy().apply_transform(T_base_object) for p in convex_parts],
+                     convex=[bool(p.is_convex) for p in convex_parts])
 
 
 def box_set(T_base_box, size) -> BoxSet:

@@ -136,6 +136,10 @@ class SolveConfig:
     settle_steps: int = 6  # control steps holding a path's end before the next motion
     approach_speed_scale: float = 0.1  # the straight approach, the lift and the extra lifts
     margin: float = 0.0  # extra clearance on top of the spheres' own 4 mm
+    # The planners' segment checks look at a segment's first this many configurations before
+    # the rest (``CollisionChecker.motion_check_first``; the expert's ``fast3``): the same
+    # answers and counted checks, less computation. 0: every segment as one batch.
+    motion_check_first: int = 0
     # The straight approach from the pre-grasp to the grasp (the target left out), and the open
     # hand at the grasp in the candidates' filter, may overlap the world by this much (m): the
     # spheres' own margin (2 mm on the fingers, 3 on the hand, 4 elsewhere) makes a finger that
@@ -269,6 +273,13 @@ class Executor:
             self.step(q, gripper)
 
 
+def _checker(cfg: SolveConfig, robot, world, **kwargs) -> CollisionChecker:
+    """A collision checker with the config's margin and segment-check order."""
+    checker = CollisionChecker(robot, world, margin=cfg.margin, **kwargs)
+    checker.motion_check_first = cfg.motion_check_first
+    return checker
+
+
 def _hand_poses_base(T_base_object: np.ndarray, T_object_hand: np.ndarray) -> np.ndarray:
     return T_base_object[None] @ T_object_hand
 
@@ -397,10 +408,11 @@ def _attempt(env, spec: MethodSpec, state: EpisodeState, rng, tried: set) -> str
     if grasps is None:
         state.reason = state.reason or "no_untried_grasp"
         return "no_grasp_candidate"
-    open_checker = CollisionChecker(robot, sensed.world, exclude=(), margin=cfg.margin)
-    near_target = CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin)
+    open_checker = _checker(cfg, robot, sensed.world, exclude=())
+    near_target = _checker(cfg, robot, sensed.world, exclude=("target",))
     approach_checker = (near_target if not cfg.approach_tolerance else
-                        CollisionChecker(robot, sensed.world, exclude=("target",), margin=cfg.margin - cfg.approach_tolerance))
+                        _checker(dataclasses.replace(cfg, margin=cfg.margin - cfg.approach_tolerance), robot,
+                                 sensed.world, exclude=("target",)))
     grasps = _free_grasps(spec, state, grasps, open_checker, near_target)
     if not grasps.ids:
         state.reason = "no_free_grasp"
@@ -596,8 +608,8 @@ def _carry_checker(env, state: EpisodeState, ex: "Executor", rng, robot, sensed:
         attachment = Attachment.from_points(points_hand, seed=int(rng.integers(2**31)))
     finger = ex.finger_opening()
     # The fingers wrap the object: the attachment spheres stand for both there.
-    carry = CollisionChecker(robot, world, finger=finger, exclude=("target",), attachment=attachment,
-                             margin=cfg.margin, ignore_links=robot.finger_links)
+    carry = _checker(cfg, robot, world, finger=finger, exclude=("target",), attachment=attachment,
+                     ignore_links=robot.finger_links)
     return carry, world, finger
 
 
@@ -607,8 +619,7 @@ def _clear_support(state: EpisodeState, ex: "Executor", robot, world, finger: fl
     cfg = state.config
     if carry.valid(ex.q)[0]:
         return
-    arm_only = CollisionChecker(robot, world, finger=finger, exclude=("target",), margin=cfg.margin,
-                                ignore_links=robot.finger_links)
+    arm_only = _checker(cfg, robot, world, finger=finger, exclude=("target",), ignore_links=robot.finger_links)
     for extra in (cfg.extra_lifts if cfg.uses("extra_lifts") else ()):
         T_up = robot.link_poses(ex.q[None])[robot.tcp_link][0].numpy().copy()
         T_up[2, 3] += extra

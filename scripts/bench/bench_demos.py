@@ -12,7 +12,9 @@ other load on the machine does not stretch) and the projected wall time of the p
 ``--convert N`` it replays the first N trajectories with ManiSkill's replay tool (through
 ``python -m fetchbench_ms.replay_trajectory``) in each conversion the dataset needs and
 prints each one's success rate. Results also go to OUT/bench.json. Resumable: a rerun
-reuses the finished tasks (the timing then covers only the new ones).
+reuses the finished tasks (the timing then covers only the new ones). ``--profile PATH`` runs
+the tasks in this process under cProfile instead and writes the statistics by cumulative time,
+with each try's CPU seconds by outcome (``--tries-only``: those alone, without the profiler).
 """
 from __future__ import annotations
 
@@ -77,7 +79,14 @@ def main(argv=None) -> int:
     ap.add_argument("--convert-only", action="store_true",
                     help="convert the existing TRAJ-NAME file without running the expert")
     ap.add_argument("--out", default="build/bench-demos")
+    ap.add_argument("--profile", default=None, metavar="PATH",
+                    help="instead: run the tasks in this process under cProfile and write its statistics, sorted "
+                         "by cumulative time, to PATH (text; the parts go to a fresh OUT/profile-* folder)")
+    ap.add_argument("--tries-only", action="store_true",
+                    help="with --profile: only the header (each try's CPU seconds by outcome), without cProfile")
     args = ap.parse_args(argv)
+    if args.profile:
+        return profile(args, argv)
 
     from fetchbench_ms.demos.generate import TIMING_FILE, done_parts, parts_dir
     from fetchbench_ms.demos.stats import demo_stats, format_stats
@@ -149,6 +158,78 @@ def main(argv=None) -> int:
     if args.record:
         write_result(result, Path(args.record))
     convert(path, args, result, result_path)
+    return 0
+
+
+def profile(args, argv) -> int:
+    """The tasks run one after another in this process (``generate.run_task``, what a worker
+    runs) under cProfile; PATH gets a header (the command, tries, trajectories, CPU seconds)
+    and the statistics sorted by cumulative time."""
+    import cProfile
+    import io
+    import pstats
+    import shutil
+
+    from fetchbench_ms.demos.generate import DemoJob, run_task, suite_task_ids
+
+    job = DemoJob(env_id=args.env_id, task_suite=args.suite, per_task=args.per_task, expert=args.expert)
+    ids = suite_task_ids(job.env_id, job.task_suite)
+    parts = Path(args.out) / f"profile-{args.suite}{args.start}-{args.tasks}-{args.expert}"
+    shutil.rmtree(parts, ignore_errors=True)
+    parts.mkdir(parents=True)
+    summaries, tries_cpu = [], []  # (seconds, success, reason, env.step calls) of each try
+    import fetchbench_ms.solutions.expert as expert
+
+    solve_demo = expert.solve_demo
+
+    def timed_solve_demo(*a, **kw):
+        t = time.process_time()
+        demo = solve_demo(*a, **kw)
+        tries_cpu.append((time.process_time() - t, demo.success, demo.reason, demo.steps, a[1] if len(a) > 1 else None))
+        if args.tries_only:  # as they come, with what each try did
+            print(json.dumps({"seed": a[1] if len(a) > 1 else None, "cpu": round(tries_cpu[-1][0], 2),
+                              "success": demo.success, "reason": demo.reason, "steps": demo.steps,
+                              "checks": demo.checks, "notes": demo.notes}), flush=True)
+        return demo
+
+    expert.solve_demo = timed_solve_demo  # run_task imports it at each call
+    prof = cProfile.Profile()
+    cpu0 = time.process_time()
+    if not args.tries_only:
+        prof.enable()
+    for seed in range(args.start, args.start + args.tasks):
+        summaries.append(run_task(job, parts, seed, ids[seed]))
+    prof.disable()
+    cpu = time.process_time() - cpu0
+    out = io.StringIO()
+    if not args.tries_only:
+        pstats.Stats(prof, stream=out).sort_stats("cumulative").print_stats(120)
+    tries = sum(s["tries"] for s in summaries)
+    successes = sum(s["successes"] for s in summaries)
+    reasons: dict = {}
+    for s in summaries:
+        for k, v in s["reasons"].items():
+            reasons[k] = reasons.get(k, 0) + v
+    header = (f"python scripts/bench/bench_demos.py {' '.join(argv if argv is not None else sys.argv[1:])}\n"
+              f"tasks {len(summaries)}, tries {tries}, trajectories {successes}, failure reasons "
+              f"{dict(sorted(reasons.items()))}\nCPU seconds{'' if args.tries_only else ' (profiled, with the overhead of cProfile)'} {cpu:.1f}; "
+              f"per task: " + ", ".join(f"{s['seed']}: {s['successes']}/{s['tries']} {s['cpu_time']}s"
+                                        for s in summaries) + "\n\n")
+    for label, rows in (("successful", [t for t in tries_cpu if t[1]]), ("failed", [t for t in tries_cpu if not t[1]])):
+        header += (f"{label} tries: {len(rows)}, CPU s {sum(t[0] for t in rows):.1f} (mean "
+                   f"{sum(t[0] for t in rows) / max(1, len(rows)):.2f}), env steps {sum(t[3] for t in rows)}\n")
+    by_reason: dict = {}
+    for t in tries_cpu:
+        if not t[1]:
+            n, c = by_reason.get(t[2], (0, 0.0))
+            by_reason[t[2]] = (n + 1, c + t[0])
+    header += "failed tries by reason (tries, CPU s): " + ", ".join(
+        f"{k}: {n}, {c:.1f}" for k, (n, c) in sorted(by_reason.items())) + "\n"
+    header += "tries (seed, CPU s, success, reason, steps): " + "; ".join(
+        f"{t[4]} {t[0]:.2f} {int(t[1])} {t[2]} {t[3]}" for t in tries_cpu) + "\n\n"
+    Path(args.profile).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(args.profile), header + out.getvalue())
+    print(header)
     return 0
 
 

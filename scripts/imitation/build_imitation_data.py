@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     p.add_argument("--tasks", required=True, help="START:END, train task indices (END exclusive)")
     p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert processes, replay processes, render workers")
     p.add_argument("--per-task", type=int, default=5, help="successful trajectories per task at most")
-    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "reference"),
+    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "fast3", "reference"),
                    help="the expert's configuration (solutions.expert.EXPERTS)")
     p.add_argument("--obs-mode", default=POLICY_OBS_MODE, choices=(*POINTS_OBS_MODES, COMPACT_OBS_MODE))
     p.add_argument("--frame-stride", type=int, default=1, help="keep every K-th step of each stage (the converter's)")

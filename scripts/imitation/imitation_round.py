@@ -276,7 +276,7 @@ def main(argv=None) -> int:
     p.add_argument("--work", type=Path, default=None, help="work folder (round_NN/ inside; re-running resumes)")
     p.add_argument("--tasks", type=int, default=600, help="train tasks this round takes, after the last round's")
     p.add_argument("--per-task", type=int, default=3, help="expert trajectories a task at most")
-    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "reference"),
+    p.add_argument("--expert", default="fast", choices=("fast", "fast2", "fast3", "reference"),
                    help="the expert's configuration (solutions.expert.EXPERTS; default fast)")
     p.add_argument("--procs", type=int, default=os.cpu_count(), help="expert, replay and eval processes")
     p.add_argument("--gpus", default="0,1", help="GPU indices the trainers take in turn, or 'cpu'")

@@ -1,7 +1,7 @@
-"""The trajectory optimiser's work that does not change its numbers: the particles' costs
-sort only the pairs that cost, the pair cache and the clearance take the broad phase's pairs
-unordered, the convex parts' thinned planes are kept on their sets. Against the reference
-(every broad-phase pair sorted, as before), costs, clearances and plans are bitwise equal."""
+"""The trajectory optimiser's work that does not change its numbers: the pair cache sorts its
+pairs after their exact-distance filter and the clearance takes them unordered, the convex
+parts' thinned planes are kept on their sets. Against the reference (every broad-phase pair
+list sorted), costs, clearances, gradients and plans are bitwise equal."""
 import numpy as np
 import pytest
 import torch
@@ -26,8 +26,7 @@ def checkers(robot, worlds):
 
 @pytest.fixture
 def reference(monkeypatch):
-    """A context that restores the sorted broad phase everywhere: every candidate list sorted,
-    the particles' costs summed over every broad-phase pair."""
+    """A context that sorts every broad-phase pair list (``ordered=True`` everywhere)."""
     def use():
         candidates = SphereGroups.candidates
 
@@ -35,8 +34,6 @@ def reference(monkeypatch):
             return candidates(self, points, radii, kind, horizon, prepared, True)
 
         monkeypatch.setattr(SphereGroups, "candidates", ordered)
-        monkeypatch.setattr(TorchWorld, "_costing_pairs",
-                            lambda self, points, radii, eta, groups: self.pairs(points, eta, radii, groups))
     return use
 
 

@@ -358,34 +358,13 @@ class TorchWorld:
             if self.grid is not None:
                 pairs.append((None, self.grid_distance(points).reshape(-1)))
         else:
-            pairs = self._costing_pairs(points, radii.reshape(P, N), eta, groups)
+            pairs = self.pairs(points, eta, radii.reshape(P, N), groups)
         for idx, d in pairs:
             if idx is None:
                 out = out + collision_cost(d - r, eta)
             else:
                 out = out.index_add(0, idx, collision_cost(d - r[idx], eta))
         return out.reshape(P, N)
-
-
-    def _costing_pairs(self, points: torch.Tensor, radii: torch.Tensor, eta: float, groups: "SphereGroups | None"
-                       ) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
-        """``pairs(points, eta, radii, groups)`` less the pairs that cost nothing (beyond ``eta``
-        by their exact distance), without gradients. The broad phase's pairs are measured
-        unordered and only the few that cost are sorted (by point, then obstacle): a sort of
-        every broad-phase pair was a tenth of the particles' cost evaluation. The sum per point
-        adds the same nonzero terms in the same order (the dropped terms are +0: bitwise the
-        same sums)."""
-        prepared = groups.prepare(points, radii) if groups is not None and self.kinds else None
-        out = []
-        for kind in self.kinds:
-            p, n, o = kind.candidates(points, eta, radii, groups, prepared, ordered=False)
-            pn, d = kind.pair_distances(points, p, n, o)
-            keep = torch.nonzero(d - radii.reshape(-1).index_select(0, pn) < eta + NEAR_MARGIN, as_tuple=True)[0]
-            key, order = (pn.index_select(0, keep) * kind.O + o.index_select(0, keep)).sort()
-            out.append((key // kind.O, d.index_select(0, keep).index_select(0, order)))
-        if self.grid is not None:
-            out.append((None, self.grid_distance(points).reshape(-1)))
-        return out
 
 
 class SphereGroups:

@@ -110,26 +110,28 @@ class _Primitives:
         return torch.where(capsule, d_capsule, d_cylinder)
 
     def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
-              groups: "SphereGroups | None" = None, prepared: tuple | None = None
+              groups: "SphereGroups | None" = None, prepared: tuple | None = None, ordered: bool = True
               ) -> tuple[torch.Tensor, torch.Tensor]:
         """(flat point index into P*N, signed distance) of every (point, obstacle) pair whose
         bounding sphere is within ``horizon`` (+ the point's radius in ``radii`` (P, N)).
         With ``groups`` the points are tested group by group first (the same pairs, each
         point's in ascending obstacle order, as without, less pairs beyond ``horizon`` by
-        their exact distance); ``prepared``: ``groups.prepare(points, radii)`` when known."""
-        return self.pair_distances(points, *self.candidates(points, horizon, radii, groups, prepared))
+        their exact distance); ``prepared``: ``groups.prepare(points, radii)`` when known;
+        ``ordered=False``: the same pairs in any order (for order-free reductions)."""
+        return self.pair_distances(points, *self.candidates(points, horizon, radii, groups, prepared, ordered))
 
     def candidates(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
-                   groups: "SphereGroups | None" = None, prepared: tuple | None = None
+                   groups: "SphereGroups | None" = None, prepared: tuple | None = None, ordered: bool = True
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(p, n, o) of the pairs ``pairs`` measures, ordered by point, then obstacle."""
+        """(p, n, o) of the pairs ``pairs`` measures, ordered by point, then obstacle (with
+        ``ordered``; else in any order)."""
         with torch.no_grad():
             if groups is None:
                 coarse = torch.cdist(points.detach(), self.bound_c) - self.bound_r[:, None, :]  # (P, N, O)
                 if radii is not None:
                     coarse = coarse - radii[..., None]
                 return torch.nonzero(coarse < horizon, as_tuple=True)
-            return groups.candidates(points.detach(), radii, self, horizon, prepared)
+            return groups.candidates(points.detach(), radii, self, horizon, prepared, ordered)
 
     def near(self, points: torch.Tensor, radii: torch.Tensor, horizon: float, p: torch.Tensor, n: torch.Tensor,
              o: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -170,6 +172,15 @@ def _fewer_planes(planes: np.ndarray, max_planes: int | None) -> np.ndarray:
         nearest = np.maximum(nearest, normals @ normals[i])
     return planes[sorted(chosen)]
 
+
+
+def _set_fewer_planes(convex: ConvexSet, max_planes: int | None) -> list[np.ndarray]:
+    """``_fewer_planes`` of each part of ``convex``, kept on the set (as its torch grid is on a
+    cloud): a world's sets outlive a plan, and the thinning was a millisecond a part per plan."""
+    cache = convex.__dict__.setdefault("_fewer_planes", {})
+    if max_planes not in cache:
+        cache[max_planes] = [_fewer_planes(part, max_planes) for part in convex.planes.numpy()]
+    return cache[max_planes]
 
 def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndarray, np.ndarray]:
     """(origin (3,), values (nx, ny, nz)) of a truncated distance grid around the cloud."""
@@ -254,7 +265,7 @@ class TorchWorld:
     def _convex(self, per_problem, max_planes: int | None):
         data = []
         for sets in per_problem:
-            planes = [_fewer_planes(part, max_planes) for s in sets for part in s.planes.numpy()]
+            planes = [part for s in sets for part in _set_fewer_planes(s, max_planes)]
             data.append(dict(planes=planes, bound_c=self._cat(sets, lambda c: c.bound_center.numpy()).reshape(-1, 3),
                              bound_r=self._cat(sets, lambda c: c.bound_radius.numpy())))
         k = max([len(p) for d in data for p in d["planes"]] + [1])
@@ -306,10 +317,12 @@ class TorchWorld:
         return out[:, 0, 0, 0]  # outside the grid: the border's value, >= the truncation
 
     def pairs(self, points: torch.Tensor, horizon: float, radii: torch.Tensor | None = None,
-              groups: "SphereGroups | None" = None) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
-        """Per obstacle kind: (flat point index or None for one value per point, distance)."""
+              groups: "SphereGroups | None" = None, ordered: bool = True
+              ) -> list[tuple[torch.Tensor | None, torch.Tensor]]:
+        """Per obstacle kind: (flat point index or None for one value per point, distance);
+        ``ordered=False``: each kind's pairs in any order."""
         prepared = groups.prepare(points.detach(), radii) if groups is not None and self.kinds else None
-        out = [kind.pairs(points, horizon, radii, groups, prepared) for kind in self.kinds]
+        out = [kind.pairs(points, horizon, radii, groups, prepared, ordered) for kind in self.kinds]
         if self.grid is not None:
             out.append((None, self.grid_distance(points).reshape(-1)))
         return out
@@ -319,7 +332,8 @@ class TorchWorld:
         """Signed distance (P, N) of points (P, N, 3) to the nearest obstacle of their problem."""
         P, N, _ = points.shape
         out = torch.full((P * N,), FAR, device=points.device, dtype=points.dtype)
-        for idx, d in self.pairs(points, horizon, groups=groups):
+        # The smallest value does not depend on the pairs' order: no sort.
+        for idx, d in self.pairs(points, horizon, groups=groups, ordered=False):
             out = torch.minimum(out, d) if idx is None else out.scatter_reduce(0, idx, d, reduce="amin")
         return out.reshape(P, N)
 
@@ -393,12 +407,13 @@ class SphereGroups:
         return centre, member, reach
 
     def candidates(self, points: torch.Tensor, radii: torch.Tensor | None, kind: "_Primitives",
-                   horizon: float, prepared: tuple | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                   horizon: float, prepared: tuple | None = None, ordered: bool = True
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(p, n, o) of the (point, obstacle) pairs within ``horizon`` (bounding spheres)
         whose obstacle is within ``horizon`` of the point's group sphere (exact distance),
-        ordered by point, then obstacle. The pairs the second test drops are beyond
-        ``horizon`` by their exact distance too (it is 1-Lipschitz), so their cost and its
-        gradient are zero."""
+        ordered by point, then obstacle (``ordered=False``: in any order). The pairs the second
+        test drops are beyond ``horizon`` by their exact distance too (it is 1-Lipschitz), so
+        their cost and its gradient are zero."""
         bound_c, bound_r = kind.bound_c, kind.bound_r
         P, N, _ = points.shape
         S, G = self.S, self.G
@@ -424,7 +439,8 @@ class SphereGroups:
             d = d - radii.reshape(P * N).index_select(0, pn)
         near = d < horizon
         key = pn[near] * O + (po[near] % O)  # the flat test's order: problem, point, obstacle
-        key = key.sort().values
+        if ordered:  # (else the caller sorts fewer pairs later, or needs no order)
+            key = key.sort().values
         pn, o = key // O, key % O
         return pn // N, pn % N, o
 
@@ -485,14 +501,16 @@ class PairCache:
         C = N // S
         x = points.reshape(P, C, S, 3)
         wide = horizon + self.slack
+        # The broad phase's pairs unordered: the kept keys are sorted after the exact filter (fewer).
         if self.ref is None or self.ref.shape != x.shape:
             prepared = groups.prepare(points, radii)
-            found = [self._near(kind, points, radii, wide, *groups.candidates(points, radii, kind, wide, prepared))
+            found = [self._near(kind, points, radii, wide,
+                                *groups.candidates(points, radii, kind, wide, prepared, ordered=False))
                      for kind in world.kinds]
-            self.keys = [(p * N + n) * kind.O + o for kind, (p, n, o) in zip(world.kinds, found)]
+            self.keys = [((p * N + n) * kind.O + o).sort().values for kind, (p, n, o) in zip(world.kinds, found)]
             self.ref = x.clone()
             self.searches += P * C
-            return found
+            return self._decode(world, N)
         # Float rounding of the displacement: a configuration is searched again a little early.
         moved = (x - self.ref).norm(dim=3).amax(dim=2) > self.slack - groups.SLACK  # (P, C)
         p_moved, c_moved = torch.nonzero(moved, as_tuple=True)
@@ -512,12 +530,17 @@ class PairCache:
             prepared = groups.prepare(sub, sub_r)
             stale = moved.reshape(-1)
             for i, kind in enumerate(world.kinds):
-                p, n, o = self._near(kind, sub, sub_r, wide, *groups.candidates(sub, sub_r, kind, wide, prepared))
+                p, n, o = self._near(kind, sub, sub_r, wide,
+                                     *groups.candidates(sub, sub_r, kind, wide, prepared, ordered=False))
                 n = config[p, n // S] * S + n % S
                 old = self.keys[i]
                 old = old[~stale.index_select(0, old // (kind.O * S))]
                 self.keys[i] = torch.cat([old, (p * N + n) * kind.O + o]).sort().values
             self.ref[p_moved, c_moved] = x[p_moved, c_moved]
+        return self._decode(world, N)
+
+    def _decode(self, world: "TorchWorld", N: int) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+        """(p, n, o) per obstacle kind of the sorted keys."""
         out = []
         for kind, key in zip(world.kinds, self.keys):
             pn, o = key // kind.O, key % kind.O

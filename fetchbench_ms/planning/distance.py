@@ -173,7 +173,6 @@ def _fewer_planes(planes: np.ndarray, max_planes: int | None) -> np.ndarray:
     return planes[sorted(chosen)]
 
 
-
 def _set_fewer_planes(convex: ConvexSet, max_planes: int | None) -> list[np.ndarray]:
     """``_fewer_planes`` of each part of ``convex``, kept on the set (as its torch grid is on a
     cloud): a world's sets outlive a plan, and the thinning was a millisecond a part per plan."""
@@ -181,6 +180,7 @@ def _set_fewer_planes(convex: ConvexSet, max_planes: int | None) -> list[np.ndar
     if max_planes not in cache:
         cache[max_planes] = [_fewer_planes(part, max_planes) for part in convex.planes.numpy()]
     return cache[max_planes]
+
 
 def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndarray, np.ndarray]:
     """(origin (3,), values (nx, ny, nz)) of a truncated distance grid around the cloud."""

@@ -25,9 +25,10 @@ def record(task_id: str, category: str, reached: int, success: bool, failure=Non
             "phases": {p: k < reached for k, p in enumerate(PHASES)}, "attempts": 1}
 
 
-def make_run(root: Path, records: list[dict], method="ga-mesh-rrt", options=None, tasks="0:2") -> Path:
+def make_run(root: Path, records: list[dict], method="ga-mesh-rrt", options=None, tasks="0:2",
+             source="suite.json", source_sha256="ab" * 32) -> Path:
     store = ResultsStore(root)
-    store.open_run({"method": method, "source": "suite.json", "source_sha256": "ab" * 32,
+    store.open_run({"method": method, "source": source, "source_sha256": source_sha256,
                     "method_options": options or {"retries": 1}, "selection": {"suite": "test", "tasks": tasks}})
     for r in records:  # appended out of task order: the pack sorts them
         store.append({**r, "method": method})
@@ -163,11 +164,17 @@ def test_shards_of_one_run_pack_as_that_run(tmp_path, capsys):
     assert main(["results", "pack", str(second), str(first), "--name", "r", "--runs-dir", str(tmp_path / "runs2")]) == 0
     for name in ("run.json", "results.jsonl.xz"):
         assert (whole / name).read_bytes() == (tmp_path / "runs2" / "r" / name).read_bytes()
+    # the same suite file at another path (another machine's checkout) is the same run: its hash says so
+    moved = make_run(tmp_path / "moved", TWO[:1], tasks="1:2", source="/elsewhere/suite.json")
+    assert main(["results", "pack", str(first), str(moved), "--name", "r", "--runs-dir", str(tmp_path / "runs2")]) == 0
+    assert "holds another run" not in capsys.readouterr().err
     gap = make_run(tmp_path / "gap", TWO[:1], tasks="2:3")
+    edited = make_run(tmp_path / "edited", TWO[:1], tasks="1:2", source_sha256="cd" * 32)
     other = make_run(tmp_path / "other", TWO[:1], tasks="1:2", options={"retries": 5})
     overlap = make_run(tmp_path / "overlap", TWO[:1], tasks="0:2")
     for shards, message in [([first, gap], "leave a gap (tasks 1 and 2)"), ([first, overlap], "overlap"),
                             ([first, other], "is not a shard of the same run"),
+                            ([first, edited], "(its source_sha256 differ)"),
                             ([first, make_run(tmp_path / "dup", TWO[1:], tasks="1:2")], "records of the same task")]:
         assert main(["results", "pack", *map(str, shards), "--name", "x", "--runs-dir", str(tmp_path / "runs3")]) == 2
         err = capsys.readouterr().err

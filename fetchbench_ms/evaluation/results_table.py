@@ -99,10 +99,16 @@ def merge_shards(shards: list[tuple[Path, dict, list[dict]]]) -> tuple[dict, lis
     START:END``) that tile one range without gap or overlap. Each task's outcome depends on its
     id alone (count budgets, per-task seeds), so a run split over machines and packed here has
     the records the same run on one machine would have."""
-    base = {k: v for k, v in shards[0][1].items() if k != "selection"}
+    def compared(manifest: dict) -> dict:
+        # a suite's path is where it lay on the machine that ran the shard; its hash (where
+        # recorded) says whether it is the same suite, as when a run resumes (ResultsStore)
+        skip = {"selection", "source"} if manifest.get("source_sha256") else {"selection"}
+        return {k: v for k, v in manifest.items() if k not in skip}
+
+    base = compared(shards[0][1])
     suite = shards[0][1].get("selection", {}).get("suite")
     for run_dir, manifest, _ in shards[1:]:
-        other = {k: v for k, v in manifest.items() if k != "selection"}
+        other = compared(manifest)
         differ = sorted(k for k in set(base) | set(other) if base.get(k) != other.get(k))
         if differ or manifest.get("selection", {}).get("suite") != suite:
             raise ValueError(f"{run_dir} is not a shard of the same run as {shards[0][0]} "
@@ -116,7 +122,8 @@ def merge_shards(shards: list[tuple[Path, dict, list[dict]]]) -> tuple[dict, lis
     if len({r["task_id"] for r in records}) != len(records):
         raise ValueError("the shards hold records of the same task")
     selection = {"suite": suite, "tasks": f"{ranges[0][0][0]}:{ranges[-1][0][1]}"}
-    return {**base, "selection": selection}, records
+    first_manifest = next(m for d, m, _ in shards if d == ranges[0][1])  # its source path: the first range's
+    return {**first_manifest, "selection": selection}, records
 
 
 def pack(run_dirs, name: str, runs_dir=None, force: bool = False) -> Path:

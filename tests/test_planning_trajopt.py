@@ -434,3 +434,39 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     assert cache.counts["evicted"] >= 3
     cache.clear()
 
+
+
+# The fixed-shape loop is slow on a CPU (~5 s here, with fewer iterations).
+GRAPH_ON_CPU = dict(cuda_graph=True, graph_capacity=(16, 4, 8), mppi_iters=1, opt_iters=10)
+
+
+@pytest.mark.parametrize("extra", [{}, dict(max_verify=0, rrt_fallback=True),
+                                   pytest.param(GRAPH_ON_CPU, marks=pytest.mark.slow)],
+                         ids=["sparse", "fallback", "cuda-graph"])
+def test_phase_timer_reports_every_phase_and_changes_no_plan(robot, shelf_problem, extra):
+    """``phase_times`` (a report only): the plans of a batch (two searched problems, one the
+    straight segment solves) are bitwise the untimed ones; each result's ``extras["phase_s"]``
+    has the phases it went through, the batch's phases the same for both optimised problems
+    (``batch_size`` 2), within the problem's wall time. Off, there is no report. With
+    ``cuda_graph`` the timed plan replays the untimed plan's cached loop."""
+    from fetchbench_ms.planning.trajopt import BATCH_PHASES
+
+    checker, _, goals = shelf_problem
+    near = np.clip(Q_DEFAULT + 0.01, robot.q_min, robot.q_max)[None]
+    batch = [(checker, Q_DEFAULT, goals), (checker, Q_DEFAULT, goals[::-1][:2]), (checker, Q_DEFAULT, near)]
+    cfg = TrajoptConfig(**dict(SMALL, **extra))
+    off = plan_trajopt_batch(batch, config=cfg)
+    on = plan_trajopt_batch(batch, config=TrajoptConfig(**dict(vars(cfg), phase_times=True)))
+    for a, b in zip(off, on):
+        assert (a.status, a.planner, a.goal_index, a.n_checked) == (b.status, b.planner, b.goal_index, b.n_checked)
+        assert np.array_equal(a.path, b.path) and "phase_s" not in a.extras
+    assert [r.status for r in on] == ["solved", "solved", "direct"]
+    assert on[2].extras["phase_s"].keys() == {"prepare"}
+    own = {"prepare", "select"} | ({"fallback"} if "max_verify" in extra else set())
+    for r in on[:2]:
+        phases = dict(r.extras["phase_s"])
+        assert phases.pop("batch_size") == 2 and phases.keys() == own | set(BATCH_PHASES)
+        assert min(phases.values()) >= 0 and sum(phases.values()) <= r.planning_time + 1e-3
+    assert all(on[0].extras["phase_s"][k] == on[1].extras["phase_s"][k] for k in BATCH_PHASES)
+    if extra.get("cuda_graph"):
+        assert on[0].extras["loop"] == "replayed"

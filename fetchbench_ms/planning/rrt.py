@@ -48,6 +48,8 @@ class PlanResult:
     start_escaped: bool = False  # the path begins with a move out of an invalid start
     planner: str = "rrtconnect"  # what found the path: rrtconnect | trajopt | trajopt+rrtconnect (fallback) | mppi
     executed: bool = False  # the robot already moved along ``path`` (MPPI executes while it plans)
+    # The planner's own notes on how it ran (trajopt: its loop, its ``phase_s`` timer): a report only
+    extras: dict = field(default_factory=dict)
 
     @property
     def success(self) -> bool:

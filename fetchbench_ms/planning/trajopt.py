@@ -28,6 +28,10 @@ Budgets are counts, so a plan does not depend on the machine's speed or load: th
 particles and iterations of ``TrajoptConfig`` (the same on every device: CPU and CUDA run the
 same optimisation, up to their floating-point arithmetic) and the fallback's collision
 checks. The time limit is a safety net only: a plan it cuts short has status ``timeout``.
+
+``TrajoptConfig.phase_times`` reports where a plan's wall time goes, phase by phase
+(``PHASES``), in ``PlanResult.extras["phase_s"]``; ``extras`` also says how the fixed-shape
+loop ran (``loop``, ``over_cap``) and which verified seed was taken (``rank``).
 """
 from __future__ import annotations
 
@@ -104,11 +108,58 @@ class TrajoptConfig:
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0
+    # Wall seconds per phase into each result's ``extras["phase_s"]`` (``PHASES``): a report, the
+    # plans are the same; on CUDA it waits for the device at every phase boundary
+    phase_times: bool = False
 
     @classmethod
     def for_device(cls, device: str | None = None, **overrides) -> "TrajoptConfig":
         """The same counts on ``device`` (default ``default_device()``)."""
         return cls(device=device or default_device(), **overrides)
+
+
+#: The phases ``TrajoptConfig.phase_times`` times, in a plan's order. ``BATCH_PHASES`` run once
+#: for all the optimised problems of a batch (``batch_size`` in ``extras["phase_s"]``): each of
+#: them reports the batch's seconds. The others are the problem's own.
+PHASES = ("prepare", "world", "seeds", "particles", "adam", "final_costs", "to_host", "select", "fallback")
+BATCH_PHASES = ("world", "seeds", "particles", "adam", "final_costs", "to_host")
+
+
+class _PhaseTimer:
+    """Wall seconds between phase boundaries (``TrajoptConfig.phase_times``); off, it does
+    nothing (no sync). On CUDA each boundary waits for the device: a phase's kernels count
+    to it, not to the next phase that reads a result back."""
+
+    def __init__(self, on: bool, device: str | torch.device):
+        self.on = on
+        self.device = torch.device(device)
+        self.batch: dict[str, float] = {}
+        self.restart()
+
+    def _now(self) -> float:
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        return time.perf_counter()
+
+    def restart(self) -> None:
+        """A boundary whose seconds before it count to no phase."""
+        if self.on:
+            self._last = self._now()
+
+    def lap(self, phase: str, pr: "_Problem | None" = None) -> None:
+        """The seconds since the last boundary to ``phase``: of problem ``pr``, or of the batch."""
+        if not self.on:
+            return
+        now = self._now()
+        into = self.batch if pr is None else pr.extras.setdefault("phase_s", {})
+        into[phase] = into.get(phase, 0.0) + now - self._last
+        self._last = now
+
+    def share(self, problems: list["_Problem"]) -> None:
+        """The batch's phases into each of its optimised ``problems``' report."""
+        if self.on:
+            for pr in problems:
+                pr.extras.setdefault("phase_s", {}).update(self.batch, batch_size=len(problems))
 
 
 @dataclass
@@ -234,13 +285,15 @@ class _OutOfTime(Exception):
     """The wall-clock safety net stopped the optimisation (its result would depend on the machine)."""
 
 
-def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadline: float
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadline: float,
+              timer: _PhaseTimer | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Seeds -> MPPI -> Adam for all problems at once. Returns trajectories (P, S, T, 7),
     their goal indices (P, S), total costs and smallest sphere clearance (P, S): self-
     collision spheres count only beyond ``self_tolerance``. Raises ``_OutOfTime`` past
-    ``deadline`` (the safety net: a cut-short optimisation is not returned)."""
+    ``deadline`` (the safety net: a cut-short optimisation is not returned). ``timer``
+    times the batch's phases."""
     device = torch.device(cfg.device or default_device())
+    timer = timer or _PhaseTimer(False, device)
     dd = dict(device=device, dtype=cfg.dtype)
     checkers = [pr.checker for pr in problems]
     world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype,
@@ -254,6 +307,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
         fixed, over_capacity = fixed_shape_costs(costs, cfg)
         for pr in problems:
             pr.extras["over_capacity"] = over_capacity
+    timer.lap("world")
     warm_costs = fixed if fixed is not None else costs
     seeds, goal_of = _seeds(problems, cfg, robot_model.q_min, robot_model.q_max)
     P, S, T, _ = seeds.shape
@@ -262,6 +316,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     interior = traj[:, :, 1:-1].clone()
     q_lo, q_hi = costs.q_min, costs.q_max
     gens = [torch.Generator(device=device).manual_seed(_problem_seed(pr, cfg.seed)) for pr in problems]
+    timer.lap("seeds")
 
     def full(x):
         return torch.cat([start, x, goal], dim=2)
@@ -288,6 +343,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)
             interior = (w[..., None, None] * particles).sum(dim=2)
+    timer.lap("particles")
     sparse_iters = cfg.opt_iters
     if fixed is not None:
         from .trajopt_graph import optimise_fixed_shape
@@ -321,6 +377,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             v.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
             step = cfg.lr * (m / (1 - beta1 ** (it + 1))) / ((v / (1 - beta2 ** (it + 1))).sqrt() + 1e-8)
             interior = torch.minimum(torch.maximum(interior - step, q_lo), q_hi)
+    timer.lap("adam")
     with torch.no_grad():
         traj = full(interior)
         total, _ = costs(traj)
@@ -328,10 +385,13 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
         clearance = robot.clearance(dense.reshape(P, -1, 7), world, cfg.eta, cfg.self_tolerance)
         clearance = clearance.reshape(P, S, -1).amin(dim=2)
     clearance = clearance - robot.margin[:, None]
+    timer.lap("final_costs")
     # Back to float64: the ends exactly as asked, the interior exactly within the limits.
     traj = np.clip(traj.double().cpu().numpy(), robot_model.q_min, robot_model.q_max)
     traj[:, :, 0], traj[:, :, -1] = seeds[:, :, 0], seeds[:, :, -1]
-    return traj, goal_of, total.double().cpu().numpy(), clearance.double().cpu().numpy()
+    total, clearance = total.double().cpu().numpy(), clearance.double().cpu().numpy()
+    timer.lap("to_host")
+    return traj, goal_of, total, clearance
 
 
 def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float) -> np.ndarray:
@@ -401,35 +461,50 @@ def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 300.0, con
     ``time_limit`` (s, per batch) is the safety net: past it, the unsolved problems end
     ``timeout``."""
     cfg = config or TrajoptConfig.for_device()
-    t0 = time.perf_counter()
-    deadline = t0 + time_limit
-    prepared = [_prepare(c, q, g, start_tolerance, cfg.resolution) for c, q, g in problems]
+    deadline = time.perf_counter() + time_limit
+    timer = _PhaseTimer(cfg.phase_times, cfg.device or default_device())
+    prepared = []
+    for c, q, g in problems:
+        prepared.append(_prepare(c, q, g, start_tolerance, cfg.resolution))
+        timer.lap("prepare", prepared[-1])
     todo = [pr for pr in prepared if pr.result is None]
     out_of_time = False
     if todo:
         try:
-            out = _optimise(todo, todo[0].checker.robot, cfg, deadline)
+            out = _optimise(todo, todo[0].checker.robot, cfg, deadline, timer)
         except _OutOfTime:
             out_of_time = True
         else:
             for p, pr in enumerate(todo):
                 _select(pr, *(a[p] for a in out), cfg)
+                timer.lap("select", pr)
     for pr in todo:
-        if pr.result is not None:
-            continue
-        left = deadline - time.perf_counter()
-        if cfg.rrt_fallback and not out_of_time and left > 0:
-            rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution, seed=seed,
-                                   max_checks=max_checks)
-            path = None if rest.path is None else np.concatenate([pr.prefix, rest.path])
-            goal_index = int(pr.goal_ids[rest.goal_index]) if rest.path is not None else -1
-            pr.result = PlanResult(rest.status, path, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
-                                   goal_index, start_escaped=len(pr.prefix) > 0, planner="trajopt+rrtconnect")
-        else:
-            status = "timeout" if out_of_time or left <= 0 else "budget"
-            pr.result = PlanResult(status, None, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
-                                   start_escaped=len(pr.prefix) > 0, planner="trajopt")
+        if pr.result is None:
+            _fallback(pr, cfg, deadline, out_of_time, seed, max_checks, timer)
+    timer.share(todo)
+    for pr in prepared:
+        pr.result.extras = pr.extras
     return [pr.result for pr in prepared]
+
+
+def _fallback(pr: _Problem, cfg: TrajoptConfig, deadline: float, out_of_time: bool, seed: int, max_checks: int,
+              timer: _PhaseTimer) -> None:
+    """The result of a problem no seed solved: RRTConnect's (``rrt_fallback``, time left),
+    else ``timeout`` or ``budget``."""
+    left = deadline - time.perf_counter()
+    if cfg.rrt_fallback and not out_of_time and left > 0:
+        timer.restart()
+        rest = plan_rrtconnect(pr.checker, pr.q_start, pr.goals, left, cfg.resolution, seed=seed,
+                               max_checks=max_checks)
+        path = None if rest.path is None else np.concatenate([pr.prefix, rest.path])
+        goal_index = int(pr.goal_ids[rest.goal_index]) if rest.path is not None else -1
+        pr.result = PlanResult(rest.status, path, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
+                               goal_index, start_escaped=len(pr.prefix) > 0, planner="trajopt+rrtconnect")
+        timer.lap("fallback", pr)
+    else:
+        status = "timeout" if out_of_time or left <= 0 else "budget"
+        pr.result = PlanResult(status, None, time.perf_counter() - pr.t0, pr.checker.n_checked - pr.n0,
+                               start_escaped=len(pr.prefix) > 0, planner="trajopt")
 
 
 def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float = 300.0,
@@ -467,5 +542,5 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
     return result
 
 
-__all__ = ["TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose",
-           "shortcut"]
+__all__ = ["BATCH_PHASES", "PHASES", "TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch",
+           "plan_trajopt_to_pose", "shortcut"]

@@ -13,7 +13,10 @@ too. Then every problem is planned by
 
 and the table gives success, plan time (median, p95), C-space length (L1 over the 7
 joints, on problems both planners solved), the fraction of returned paths valid under a
-finer re-check (0.005 rad), and how many trajopt plans needed the RRT fallback.
+finer re-check (0.005 rad), and how many trajopt plans needed the RRT fallback. With
+``--phases`` (``TrajoptConfig.phase_times``) a second table gives the trajopt planners'
+median wall seconds per phase of a plan on the searched problems: per problem one at a time,
+per batch batched.
 
 Usage (val tasks: the test suite is for the final figures):
   python scripts/bench/bench_trajopt.py --suite val --tasks 0:20 [--device cpu|cuda] [--batch 16] [--full]
@@ -106,6 +109,8 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
         per, per_cpu = (time.perf_counter() - t) / len(chunk), (time.process_time() - t_cpu) / len(chunk)
         for r in results:
             r.planning_time, r.cpu_time = per, per_cpu
+        # One record per batch, on its first result: the rows of --workers' slices join in order.
+        results[0].batch_phase_s = phase_record(results)
         rows[f"trajopt batch {batch}"] += results
     recheck = {}
     for name, results in rows.items():
@@ -139,7 +144,7 @@ def bench_parallel(args, device: str) -> tuple:
     ids = parse_range(args.tasks, len(open_suite(args.suite)[0].tasks))
     bounds = np.linspace(0, len(ids), args.workers + 1).round().astype(int)
     jobs = [(args.suite, f"{ids[a]}:{ids[b - 1] + 1}", args.world, args.full, device, args.batch, args.time_limit,
-             args.threads, config_overrides(args.config)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+             args.threads, trajopt_overrides(args)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     problems, rows, recheck = [], {}, {}
     with mp.get_context("spawn").Pool(len(jobs)) as pool:
         for part_problems, part_rows, part_recheck in pool.imap(_bench_slice, jobs):
@@ -186,10 +191,51 @@ def print_table(problems, rows, recheck, device) -> None:
           "by the straight segment; batch times are the batch's time over its problems")
 
 
+def phase_record(results) -> dict | None:
+    """Wall seconds per trajopt phase (``trajopt.PHASES``, ``phase_times``) of ``results``'
+    searched problems (not ``direct``), a phase they did not go through 0: of one problem, or
+    of a batch (its shared phases once, its problems' own summed); None when none was timed."""
+    from fetchbench_ms.planning.trajopt import BATCH_PHASES, PHASES
+
+    timed = [r.extras["phase_s"] for r in results if r.status != "direct" and "phase_s" in r.extras]
+    if not timed:
+        return None
+    shared = next((p for p in timed if "batch_size" in p), {})
+    return {k: shared.get(k, 0.0) if k in BATCH_PHASES else sum(p.get(k, 0.0) for p in timed) for k in PHASES}
+
+
+def phase_medians(name: str, results) -> tuple[dict, int] | None:
+    """The median of each phase and of their sum (``phases_sum``) over a trajopt planner's
+    records: per searched problem one at a time, per batch batched; and the records' count."""
+    if name.startswith("trajopt batch"):
+        records = [r.batch_phase_s for r in results if getattr(r, "batch_phase_s", None)]
+    else:
+        records = [rec for r in results if (rec := phase_record([r])) is not None]
+    if not records:
+        return None
+    medians = {k: statistics.median(rec[k] for rec in records) for k in records[0]}
+    medians["phases_sum"] = statistics.median(sum(rec.values()) for rec in records)
+    return medians, len(records)
+
+
+def print_phases(rows: dict) -> None:
+    """The median wall seconds per phase of each timed trajopt planner (``--phases``)."""
+    medians = {name: m for name, results in rows.items() if (m := phase_medians(name, results)) is not None}
+    if not medians:
+        return
+    keys = list(next(iter(medians.values()))[0])
+    print("trajopt phases, median wall s over the searched problems (one at a time: per problem; "
+          "batched: per batch, its shared phases once and its problems' own summed; a phase not run is 0)")
+    print(f"{'planner':<20} {'n':>4} " + " ".join(f"{k:>{max(len(k), 6)}}" for k in keys))
+    for name, (m, n) in medians.items():
+        print(f"{name:<20} {n:>4} " + " ".join(f"{m[k]:>{max(len(k), 6)}.3f}" for k in keys))
+
+
 def summary(rows: dict, recheck: dict) -> dict:
     """Per planner (``rrtconnect``, ``trajopt``, ``trajopt_batch``): success, median and p95
     plan time, the median over problems the straight segment did not solve, C-space length
-    (median of the successes) and validity at the finer check."""
+    (median of the successes) and validity at the finer check; with ``--phases``, the trajopt
+    planners' median seconds per phase (``phase_median_s``)."""
     out = {}
     for name, results in rows.items():
         key = "trajopt_batch" if name.startswith("trajopt batch") else name
@@ -204,6 +250,9 @@ def summary(rows: dict, recheck: dict) -> dict:
             searched_median_cpu_s=statistics.median([r.cpu_time for r in searched]) if searched else None,
             cspace_length_median=statistics.median([cspace_length(r.path) for r in results if r.success] or [np.nan]),
             valid_fine=sum(ok) / max(len(ok), 1), fallback=sum(r.planner == "trajopt+rrtconnect" for r in results))
+        phases = phase_medians(name, results)
+        if phases is not None:  # --phases: per searched problem one at a time, per batch batched
+            out[key]["phase_median_s"] = phases[0]
     return out
 
 
@@ -223,6 +272,11 @@ def config_overrides(items: list[str]) -> dict:
         out[name] = {"true": True, "false": False}.get(value.lower()) if value.lower() in ("true", "false") \
             else ast.literal_eval(value)
     return out
+
+
+def trajopt_overrides(args) -> dict:
+    """The run's ``TrajoptConfig`` changes: ``--config`` items, and ``--phases``' timer."""
+    return dict(config_overrides(args.config), **({"phase_times": True} if args.phases else {}))
 
 
 def write_profile(profile, path: str, rows: dict) -> None:
@@ -263,6 +317,9 @@ def main() -> None:
     parser.add_argument("--config", action="append", default=[], metavar="NAME=VALUE",
                         help="a TrajoptConfig field for this run (repeatable), e.g. --config seeds=16; "
                              "--config cuda_graph=true: the fixed-shape loop replayed as a CUDA graph")
+    parser.add_argument("--phases", action="store_true",
+                        help="time each trajopt plan phase by phase (TrajoptConfig.phase_times; on CUDA a sync per "
+                             "phase) and print the medians over the searched problems")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
     args = parser.parse_args()
@@ -291,8 +348,7 @@ def main() -> None:
             import cProfile
 
             profile = cProfile.Profile()
-        rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile,
-                                     config_overrides(args.config))
+        rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile, trajopt_overrides(args))
         if profile is not None:
             write_profile(profile, args.profile, rows)
     if args.verbose:
@@ -301,6 +357,7 @@ def main() -> None:
                 f"{name} {rs[i].status}/{rs[i].planner} {rs[i].planning_time:.2f}s len {cspace_length(rs[i].path):.2f}"
                 for name, rs in rows.items()))
     print_table(problems, rows, recheck, device)
+    print_phases(rows)
     from fetchbench_ms.planning import trajopt_graph
 
     # cuda_graph: how often a plan's Adam loop was new (captured on CUDA) or reused (one process only).

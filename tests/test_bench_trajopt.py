@@ -29,7 +29,7 @@ def test_phase_medians_per_problem_and_per_batch():
     one_at_a_time, n = bench.phase_medians("trajopt", [one, direct, other])
     assert n == 2 and one_at_a_time["fallback"] == 2.0 and one_at_a_time["adam"] == 2.0
     assert one_at_a_time["phases_sum"] == pytest.approx((4.1 + 7.5) / 2)
-    one.batch_phase_s = batch  # run_planners: one record per batch, on its first result
+    one.extras["batch_phase_s"] = batch  # run_planners: one record per batch, on its first result
     medians, n = bench.phase_medians("trajopt batch 4", [one, direct, other])
     assert n == 1 and medians == dict(batch, phases_sum=sum(batch.values()))
     assert bench.phase_medians("rrtconnect", [PlanResult("solved", None, 0.0, 0)]) is None

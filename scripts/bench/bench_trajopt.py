@@ -110,7 +110,7 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
         for r in results:
             r.planning_time, r.cpu_time = per, per_cpu
         # One record per batch, on its first result: the rows of --workers' slices join in order.
-        results[0].batch_phase_s = phase_record(results)
+        results[0].extras["batch_phase_s"] = phase_record(results)
         rows[f"trajopt batch {batch}"] += results
     recheck = {}
     for name, results in rows.items():
@@ -208,7 +208,7 @@ def phase_medians(name: str, results) -> tuple[dict, int] | None:
     """The median of each phase and of their sum (``phases_sum``) over a trajopt planner's
     records: per searched problem one at a time, per batch batched; and the records' count."""
     if name.startswith("trajopt batch"):
-        records = [r.batch_phase_s for r in results if getattr(r, "batch_phase_s", None)]
+        records = [r.extras["batch_phase_s"] for r in results if r.extras.get("batch_phase_s")]
     else:
         records = [rec for r in results if (rec := phase_record([r])) is not None]
     if not records:

@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import lzma
 import math
 import os
 import shlex
@@ -56,6 +57,7 @@ import sys
 import time
 from pathlib import Path
 
+from fetchbench_ms.utils.io import atomic_write_bytes
 from fetchbench_ms.utils.rounds import answer_report, next_tasks, no_gain_in_two as plateau, parse_slice, round_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -69,6 +71,16 @@ CGN_STEPS = 1000
 COLLISION_STEPS = 3000
 STAGES = ("labels", "training", "val")
 GOAL_TASKS = 3000  # issue 53's scale: both models trained on views / labels of >= 3,000 train tasks
+
+
+def archive_round(work: Path, folder: Path) -> None:
+    """Keep beside the record what its figures rest on, xz-compressed (the tree's budget): the three
+    data manifests, and the per-task rows of the CGN val runs at the path their ``run`` field names
+    (``round_NN/val/cgn/NAME.jsonl`` -> ``.jsonl.xz`` under the record folder)."""
+    for key, source in (("cgn-views", "cgn_views"), ("collision-labels", "collision"), ("collision-val", "collision_val")):
+        atomic_write_bytes(folder / f"{key}-manifest.json.xz", lzma.compress((work / source / "manifest.json").read_bytes(), preset=9))
+    for rows in sorted((work / "val" / "cgn").glob("*.jsonl")):
+        atomic_write_bytes(folder / "val" / "cgn" / f"{rows.name}.xz", lzma.compress(rows.read_bytes(), preset=9))
 
 
 # ----------------------------------------------------------------------------- the record
@@ -138,7 +150,7 @@ def status(record: dict) -> str:
                      f"{'shipped' if c['shipped'] else 'not shipped'} ({c['choice']['why']})")
         lines.append(f"  collision net: steps {n['steps'][0]}->{n['steps'][1]}, {n['tasks_seen']} train tasks seen; "
                      f"accuracy {n['val']['accuracy']:.4f}, false-free {n['val']['false_free_of_all']:.4f} of all "
-                     f"(shipped {shipped_net.get('accuracy')}, {shipped_net.get('false_free_of_all')}); "
+                     f"(shipped {shipped_net.get('accuracy', math.nan):.4f}, {shipped_net.get('false_free_of_all', math.nan):.4f}); "
                      f"{'shipped' if n['shipped'] else 'not shipped'} ({n['choice']['why']})")
     for name, scores in best_scores(record).items():
         lines.append(f"{name}: " + ("plateau: val has not improved for two rounds" if plateau(scores)
@@ -177,23 +189,37 @@ def plot(record: dict, out: Path) -> None:
 
     rounds = record["rounds"]
     fig, (a, b) = plt.subplots(1, 2, figsize=(9.6, 3.8))
-    xs = [r["cgn"]["tasks_seen"] for r in rounds]
+
+    def curve(model: str, figure) -> tuple[list, list]:
+        """x: train tasks seen; y: the figure, starting at the weights round 1 went on from."""
+        first = rounds[0][model]
+        xs = [first["init_from"]["tasks_seen"]] if first.get("shipped_val") else []
+        ys = [figure(first["shipped_val"])] if xs else []
+        xs += [r[model]["tasks_seen"] for r in rounds]
+        return xs, ys + [figure(r[model]["val"]) for r in rounds]
+
     for key, style in (("precision_top1", "-o"), (f"precision_top{TOP}", "--s")):
-        ys = [math.nan if r["cgn"]["val"][key] is None else r["cgn"]["val"][key] for r in rounds]
-        a.plot(xs, ys, style, label=f"ours, {key}")
+        a.plot(*curve("cgn", lambda v, key=key: math.nan if v[key] is None else v[key]), style, label=f"ours, {key}")
     for p in record.get("pretrained_val", []):
         a.axhline(p["precision_top1"], color="grey", lw=0.8, label=f"pretrained top-1 (val {p['tasks']})")
+        a.axhline(p[f"precision_top{TOP}"], color="grey", lw=0.8, ls="--", label=f"pretrained top-{TOP}")
     a.set_xlabel("train tasks seen by the weights' lineage")
     a.set_ylabel("physics-judged precision on val")
     a.set_title("Contact-GraspNet (ours)")
-    xs = [r["collision_net"]["tasks_seen"] for r in rounds]
-    b.plot(xs, [r["collision_net"]["val"]["accuracy"] for r in rounds], "-o", label="accuracy")
-    b.plot(xs, [r["collision_net"]["val"]["false_free_of_all"] for r in rounds], "--s", label="false-free of all")
+    b.plot(*curve("collision_net", lambda v: v["accuracy"]), "-o", color="C0", label="accuracy")
+    b.axhline(0.97, color="C0", lw=0.8, ls=":", label="accuracy goal 0.97")
+    b.set_ylabel("accuracy")
+    b2 = b.twinx()  # the two figures differ 40-fold: one axis each
+    b2.plot(*curve("collision_net", lambda v: 100 * v["false_free_of_all"]), "--s", color="C1", label="false-free, % of all")
+    b2.axhline(1.0, color="C1", lw=0.8, ls=":", label="false-free goal 1 %")
+    b2.set_ylabel("false-free, % of all queries")
+    b2.set_ylim(bottom=0)
+    b2.legend(fontsize=7, loc="center right")
     b.set_xlabel("train tasks seen by the network's lineage")
     b.set_title("scene-collision network (val queries)")
     for ax in (a, b):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="center left" if ax is b else "best")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, metadata={"Software": None})  # (no date in the PNG: same record, same bytes)
@@ -534,10 +560,7 @@ def main(argv=None) -> int:
     record["rounds"].append(entry)
     from fetchbench_ms.utils.io import atomic_write_text
 
-    folder = args.record / f"round_{number:02d}"
-    folder.mkdir(parents=True, exist_ok=True)
-    for key, source in (("cgn-views", "cgn_views"), ("collision-labels", "collision"), ("collision-val", "collision_val")):
-        shutil.copyfile(work / source / "manifest.json", folder / f"{key}-manifest.json")
+    archive_round(work, args.record / f"round_{number:02d}")
     atomic_write_text(args.record / "rounds.json", json.dumps(record, indent=1) + "\n")
     log(f"round {number} recorded in {args.record / 'rounds.json'} ({time.perf_counter() - t0:.0f} s in this call; "
         f"stages: {json.dumps(seconds)})")

@@ -5,6 +5,7 @@ shipping."""
 from __future__ import annotations
 
 import json
+import lzma
 from pathlib import Path
 
 import pytest
@@ -72,7 +73,11 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     assert labels["collision"]["queries"] == 400 and labels["collision_val"]["queries"] == 200
     assert all(len(labels[k]["sha256"]) == 64 and labels[k]["per_core_minute"] for k in labels)
     for name in ("cgn-views", "collision-labels", "collision-val"):  # the data manifests beside the record
-        assert json.loads((record / "round_01" / f"{name}-manifest.json").read_text())["sha256"]
+        assert json.loads(lzma.decompress((record / "round_01" / f"{name}-manifest.json.xz").read_bytes()))["sha256"]
+    # the CGN val runs' per-task rows beside the record, where the entry's `run` names them
+    for judged in ("val", "shipped_val"):
+        rows = lzma.decompress((record / (entry["cgn"][judged]["run"] + ".xz")).read_bytes()).decode().splitlines()
+        assert len(rows) == 1 and json.loads(rows[0])
     assert set(entry["seconds"]["labels"]) == {"cgn_views", "collision", "collision_val"} and entry["seconds"]["total"]
     cgn, net = entry["cgn"], entry["collision_net"]
     # both go on from the shipped weights; the tasks seen are the lineage's train-suite tasks

@@ -33,3 +33,40 @@ def test_phase_medians_per_problem_and_per_batch():
     medians, n = bench.phase_medians("trajopt batch 4", [one, direct, other])
     assert n == 1 and medians == dict(batch, phases_sum=sum(batch.values()))
     assert bench.phase_medians("rrtconnect", [PlanResult("solved", None, 0.0, 0)]) is None
+
+
+def test_kernel_profile_tables_the_searched_plans_operators(tmp_path):
+    """--kernel-profile plans the searched problems again under torch.profiler and writes the
+    operator table (on a CPU the aten operators; on CUDA their kernels too), most time first;
+    problems the straight segment solved are left out."""
+    import numpy as np
+
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
+    from fetchbench_ms.planning.ik import solve_ik
+    from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+
+    bench = import_script(ROOT / "scripts/bench/bench_trajopt.py")
+    checker = CollisionChecker(panda(), shelf_worlds()[0])
+    goals = solve_ik(checker.robot, hand_pose([0.68, -0.1, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=32,
+                     rng=np.random.default_rng(1))
+    problem = dict(checker=checker, q_start=Q_DEFAULT, q_goals=goals.q[:2], start_tolerance=0.0)
+    rows = {"rrtconnect": [PlanResult("solved", None, 0.0, 0), PlanResult("direct", None, 0.0, 0)]}
+    out = tmp_path / "kernels.txt"
+    small = dict(seeds=2, mppi_iters=1, mppi_particles=2, opt_iters=10, rrt_fallback=False)
+    bench.write_kernel_profile([problem, problem], rows, "cpu", small, str(out))
+    text = out.read_text()
+    head, table = text.split("\n", 2)[1], text.split("\n", 2)[2]
+    assert "on cpu; 1 searched plans one at a time" in head and "sorted by self_cpu_time_total" in head
+    assert "aten::" in table and "Self CPU" in table
+    calls = int(head.split(" profiled calls")[0].rsplit(" ", 1)[1])
+    assert calls > 1000  # a plan is thousands of small operators: what a GPU launches one by one
+
+
+def test_show_reprints_a_records_figures_and_phases(capsys):
+    """--show JSON: the figures docs/trajopt-speed.md quotes, from the shipped record."""
+    bench = import_script(ROOT / "scripts/bench/bench_trajopt.py")
+    bench.show_records([str(ROOT / "results/planning/bench-trajopt-h200-val20-b16-phases-cuda-graph.json")])
+    out = capsys.readouterr().out
+    assert "config {'cuda_graph': True}" in out and "searched median 0.909 s" in out
+    assert "particles 0.096, adam 0.665" in out and "phases_sum 2.305" in out

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -297,6 +298,59 @@ def write_profile(profile, path: str, rows: dict) -> None:
         f.write(text.getvalue())
 
 
+def write_kernel_profile(problems: list[dict], rows: dict, device: str, overrides: dict, path: str) -> None:
+    """The searched problems' one-at-a-time trajopt plans again (the same counts, so the same
+    work), under ``torch.profiler``: per operator (on CUDA, per kernel too) the calls and the
+    time, most device time first, as text. What a GPU spends its time on: the cProfile of
+    ``--profile`` sees only the host, which waits."""
+    import sys
+
+    from torch.profiler import ProfilerActivity, profile
+
+    from fetchbench_ms.planning.trajopt import TrajoptConfig, plan_trajopt
+
+    cfg = TrajoptConfig.for_device(device, **overrides)
+    cuda = torch.device(cfg.device).type == "cuda"
+    searched = [p for p, q in zip(problems, rows["rrtconnect"]) if q.status not in ("direct", "start_invalid")]
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+    t = time.perf_counter()
+    with profile(activities=activities) as prof:
+        for p in searched:
+            plan_trajopt(p["checker"], p["q_start"], p["q_goals"], start_tolerance=p["start_tolerance"], config=cfg)
+        if cuda:
+            torch.cuda.synchronize()
+    wall = time.perf_counter() - t
+    events = prof.key_averages()
+    sort = "self_device_time_total" if cuda else "self_cpu_time_total"
+    ops = sum(e.count for e in events)
+    head = (f"command: {' '.join(sys.argv)}\ntorch {torch.__version__} on {cfg.device}; {len(searched)} searched plans "
+            f"one at a time under torch.profiler in {wall:.2f} s wall; {ops} profiled calls "
+            f"({ops / max(1, len(searched)):.0f} a plan); sorted by {sort}\n")
+    with open(path, "w") as f:
+        f.write(head + events.table(sort_by=sort, row_limit=50, max_name_column_width=60) + "\n")
+    print(f"kernel profile of {len(searched)} plans -> {path}")
+
+
+def show_records(paths: list[str]) -> None:
+    """Reprint the figures of ``--json`` records: per record and planner, success, median, p95 and
+    searched median plan time, and the phase medians when the run had ``--phases``."""
+    import json
+
+    for path in paths:
+        record = json.loads(Path(path).read_text())
+        run = record["run"]
+        print(f"{path}: {run['suite']} {run['tasks']}, {run['problems']} problems on {run['device']}, batch "
+              f"{run['batch']}, config {run['config'] or 'default'}")
+        for name in ("rrtconnect", "trajopt", "trajopt_batch"):
+            r = record[name]
+            line = (f"  {name:<14} success {r['success']:.3f}  median {r['median_s']:.3f} s  p95 {r['p95_s']:.3f} s  "
+                    f"searched median {r['searched_median_s']:.3f} s")
+            phases = r.get("phase_median_s")
+            if phases:
+                line += "\n    phases: " + ", ".join(f"{k} {v:.3f}" for k, v in phases.items())
+            print(line)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--suite", default="val")
@@ -314,6 +368,9 @@ def main() -> None:
     parser.add_argument("--profile", default=None, metavar="PATH",
                         help="write where the one-at-a-time trajopt plans of the searched problems spend their "
                              "time (cProfile, cumulative; one worker)")
+    parser.add_argument("--kernel-profile", default=None, metavar="PATH",
+                        help="plan the searched problems once more under torch.profiler (CUDA kernels on a GPU) and "
+                             "write its operator table, most device time first (one worker)")
     parser.add_argument("--config", action="append", default=[], metavar="NAME=VALUE",
                         help="a TrajoptConfig field for this run (repeatable), e.g. --config seeds=16; "
                              "--config cuda_graph=true: the fixed-shape loop replayed as a CUDA graph")
@@ -322,9 +379,13 @@ def main() -> None:
                              "phase) and print the medians over the searched problems")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes over contiguous task slices (success and lengths; take timings with 1)")
+    parser.add_argument("--show", nargs="+", default=None, metavar="JSON",
+                        help="reprint the figures of --json records and exit")
     args = parser.parse_args()
-    if args.profile and args.workers > 1:
-        parser.error("--profile takes one worker (--workers 1)")
+    if args.show:
+        return show_records(args.show)
+    if (args.profile or args.kernel_profile) and args.workers > 1:
+        parser.error("--profile and --kernel-profile take one worker (--workers 1)")
     if args.suite == "test":
         print("note: the test suite is for final figures; planner tuning belongs on val")
     torch.set_num_threads(args.threads)
@@ -351,6 +412,8 @@ def main() -> None:
         rows, recheck = run_planners(problems, device, args.batch, args.time_limit, profile, trajopt_overrides(args))
         if profile is not None:
             write_profile(profile, args.profile, rows)
+        if args.kernel_profile:
+            write_kernel_profile(problems, rows, device, trajopt_overrides(args), args.kernel_profile)
     if args.verbose:
         for i, p in enumerate(problems):
             print(f"{p['task']} {p['kind']:<15} goals {len(p['q_goals'])}: " + "; ".join(

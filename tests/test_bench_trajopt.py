@@ -70,3 +70,13 @@ def test_show_reprints_a_records_figures_and_phases(capsys):
     out = capsys.readouterr().out
     assert "config {'cuda_graph': True}" in out and "searched median 0.909 s" in out
     assert "particles 0.096, adam 0.665" in out and "phases_sum 2.305" in out
+
+
+def test_config_items_parse_literals_booleans_and_bare_words():
+    """--config NAME=VALUE: Python literals, true/false, a bare word as a string; an unknown
+    field is one line naming the valid ones."""
+    bench = import_script(ROOT / "scripts/bench/bench_trajopt.py")
+    got = bench.config_overrides(["seeds=8", "cuda_graph=true", "compile_backend=inductor", "graph_capacity=(8, 4, 16)"])
+    assert got == {"seeds": 8, "cuda_graph": True, "compile_backend": "inductor", "graph_capacity": (8, 4, 16)}
+    with pytest.raises(SystemExit, match="unknown TrajoptConfig field 'nope'; valid: .*compile_backend"):
+        bench.config_overrides(["nope=1"])

@@ -1,6 +1,8 @@
 """The torch distances agree with the collision checker; the trajectory optimiser plans
 around the shelf (where the straight line collides) a path the exact meshes accept;
 batched and single plans agree."""
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -304,6 +306,36 @@ def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
     assert sparse.status == fixed.status == "solved" and fixed.goal_index == sparse.goal_index
     assert len(fixed.path) == len(sparse.path) and np.allclose(fixed.path, sparse.path, atol=1e-3)
     assert graph.status == "solved" and np.array_equal(graph.path, fixed.path)
+
+
+def test_compiled_cost_function_plans_as_the_eager_loop(robot, shelf_problem):
+    """``compile_backend``: the fixed-shape loop's cost function through ``torch.compile``
+    (here AOTAutograd's eager backend: the same tracing and forward/backward split as
+    ``inductor``, no compiler needed) plans the shelf problem as the eager loop, to float
+    rounding; a cached loop (``cuda_graph``'s bookkeeping on a CPU) reuses its compiled function
+    for the next problem of its shapes."""
+    import torch._dynamo
+
+    from fetchbench_ms.planning import trajopt_graph
+
+    checker, _, goals = shelf_problem
+    eager = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(fixed_shape=True, **SMALL))
+    torch._dynamo.reset()
+    compiled_cfg = TrajoptConfig(fixed_shape=True, compile_backend="aot_eager", **SMALL)
+    compiled = plan_trajopt(checker, Q_DEFAULT, goals, config=compiled_cfg)
+    assert compiled.status == eager.status == "solved" and compiled.goal_index == eager.goal_index
+    assert len(compiled.path) == len(eager.path) and np.allclose(compiled.path, eager.path, atol=1e-3)
+    cache = trajopt_graph.graph_cache(2)
+    cache.clear()
+    graph_cfg = dataclasses.replace(compiled_cfg, cuda_graph=True, graph_capacity=(16, 4, 8))
+    first = plan_trajopt(checker, Q_DEFAULT, goals, config=graph_cfg)
+    (loop, *_), = cache.entries.values()
+    assert loop.cost_fn is not loop.costs  # the compiled wrapper
+    second = plan_trajopt(checker, Q_DEFAULT, goals[::-1].copy(), config=graph_cfg)
+    (again, *_), = cache.entries.values()
+    assert again is loop and first.status == second.status == "solved"
+    cache.clear()
+    torch._dynamo.reset()
 
 
 def test_fixed_shape_loop_stops_at_the_sparse_loops_convergence_test(robot, worlds):

@@ -105,6 +105,10 @@ class TrajoptConfig:
     # pre-grasp worlds have up to 46 boxes, 28 cylinders, 161 convex parts
     graph_capacity: tuple[int, int, int] = (48, 32, 192)
     graph_cache: int = 4  # cuda_graph: captured loops kept (by shape), least recently used dropped
+    # fixed_shape: the Adam loop's cost function (forward and backward) through torch.compile with
+    # this backend, e.g. "inductor" (fused kernels: Triton on CUDA, a C++ compiler on a CPU;
+    # compiled once per loop shape); None: eager. The costs are the same up to float rounding.
+    compile_backend: str | None = None
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0

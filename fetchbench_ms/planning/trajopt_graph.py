@@ -178,6 +178,9 @@ class _AdamLoop:
 
     def __init__(self, costs, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor, cfg):
         self.costs, self.cfg = costs, cfg
+        # Compiled per loop, so a cached loop (the same tensors, new values) reuses its kernels.
+        self.cost_fn = costs if cfg.compile_backend is None else torch.compile(
+            costs.__call__, backend=cfg.compile_backend, dynamic=False)
         self.start, self.goal = start.clone(), goal.clone()
         self.interior = interior.clone()
         self.m, self.v = torch.zeros_like(interior), torch.zeros_like(interior)
@@ -210,7 +213,7 @@ class _AdamLoop:
         interior = self.interior
         for j in range(n):
             x = interior.detach().requires_grad_(True)
-            total, _ = self.costs(torch.cat([self.start, x, self.goal], dim=2))
+            total, _ = self.cost_fn(torch.cat([self.start, x, self.goal], dim=2))
             loss = total.sum()
             (grad,) = torch.autograd.grad(loss, x)
             with torch.no_grad():

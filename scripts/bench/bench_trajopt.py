@@ -270,8 +270,13 @@ def config_overrides(items: list[str]) -> dict:
         name, _, value = item.partition("=")
         if name not in names:
             raise SystemExit(f"unknown TrajoptConfig field {name!r}; valid: {', '.join(sorted(names))}")
-        out[name] = {"true": True, "false": False}.get(value.lower()) if value.lower() in ("true", "false") \
-            else ast.literal_eval(value)
+        if value.lower() in ("true", "false"):
+            out[name] = value.lower() == "true"
+            continue
+        try:
+            out[name] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):  # a bare word: a string (--config compile_backend=inductor)
+            out[name] = value
     return out
 
 

@@ -136,14 +136,28 @@ class FixedShapeCosts(_Costs):
         return out
 
 
+def _plane_max(x: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """max over the last axis of ``planes`` (..., K, 4) of n . x - offset, ``x`` (..., 1, 3)
+    broadcast against them. Written as products and sums, not a matrix product: under
+    ``torch.compile`` (``TrajoptConfig.compile_backend``) the whole expression and its maximum
+    fuse into one kernel that never stores the (..., K) distances (the largest tensors of an
+    iteration: every sphere, its nearest parts, every plane), and the backward recomputes them.
+    Eager, the batched matrix product is faster; the two agree to float rounding."""
+    return (x[..., 0] * planes[..., 0] + x[..., 1] * planes[..., 1] + x[..., 2] * planes[..., 2]
+            - planes[..., 3]).amax(dim=-1)
+
+
 def _group_distance(kind, x: torch.Tensor) -> torch.Tensor:
     """(P, A, O) exact distance of points ``x`` (P, A, 3) to every obstacle of ``kind``."""
     P, A, _ = x.shape
     O = kind.O
     if kind.kind == "convex":  # one batched matrix product per problem: every point, every plane
         planes = kind.t["planes"]  # (P, O, K, 4)
-        d = torch.einsum("pai,poki->paok", x, planes[..., :3]) - planes[:, None, :, :, 3]
-        d = d.amax(dim=3)
+        if torch.compiler.is_compiling():
+            d = _plane_max(x[:, :, None, None], planes[:, None])
+        else:
+            d = torch.einsum("pai,poki->paok", x, planes[..., :3]) - planes[:, None, :, :, 3]
+            d = d.amax(dim=3)
         if kind.reduced:
             d = torch.maximum(d, torch.cdist(x, kind.bound_c) - kind.bound_r[:, None])
         return d
@@ -160,8 +174,11 @@ def _member_distance(kind, x: torch.Tensor, o: torch.Tensor) -> torch.Tensor:
     po = (torch.arange(P, device=x.device)[:, None, None] * kind.O + o).reshape(-1)
     if kind.kind == "convex":  # the rows' planes gathered once, then a batched matrix product
         planes = kind.flat["planes"].index_select(0, po).reshape(P, A, k, -1, 4)
-        d = torch.einsum("pawi,pamji->pawmj", x, planes[..., :3]) - planes[:, :, None, :, :, 3]
-        d = d.amax(dim=4)
+        if torch.compiler.is_compiling():
+            d = _plane_max(x[:, :, :, None, None], planes[:, :, None])
+        else:
+            d = torch.einsum("pawi,pamji->pawmj", x, planes[..., :3]) - planes[:, :, None, :, :, 3]
+            d = d.amax(dim=4)
         if kind.reduced:
             centre = kind.flat_bound_c.index_select(0, po).reshape(P, A, 1, k, 3)
             bound_r = kind.flat_bound_r.index_select(0, po).reshape(P, A, 1, k)

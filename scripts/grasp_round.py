@@ -57,7 +57,7 @@ import sys
 import time
 from pathlib import Path
 
-from fetchbench_ms.utils.io import atomic_write_bytes
+from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text
 from fetchbench_ms.utils.rounds import answer_report, next_tasks, no_gain_in_two as plateau, parse_slice, round_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -236,8 +236,6 @@ def run(command: list[str], log, env: dict | None = None) -> None:
 
 def stage(work: Path, name: str, body, log) -> dict:
     """A stage's result: from ``stages/<name>.json`` when it finished before, else ``body()`` (timed), saved."""
-    from fetchbench_ms.utils.io import atomic_write_text
-
     path = work / "stages" / f"{name}.json"
     if path.is_file():
         log(f"{name}: finished before ({path}), not run again")
@@ -426,7 +424,6 @@ def val_stage(args, work: Path, record: dict, ship: dict, val: tuple[int, int], 
 # ----------------------------------------------------------------------------- shipping
 def ship_checkpoint(export_pt: Path, meta: dict, log_file: Path, name: str, log) -> None:
     """Pack an export into ``assets/checkpoints/<name>.pt.planes.xz`` with its JSON and log."""
-    from fetchbench_ms.utils.io import atomic_write_bytes, atomic_write_text
     from fetchbench_ms.utils.packed import PLANES_SUFFIX, pack_planes, unpack_planes
 
     raw = export_pt.read_bytes()
@@ -558,8 +555,6 @@ def main(argv=None) -> int:
     seconds = entry["seconds"]
     seconds["total"] = round(sum(seconds["labels"].values()) + seconds["training"] + seconds["val"], 1)
     record["rounds"].append(entry)
-    from fetchbench_ms.utils.io import atomic_write_text
-
     archive_round(work, args.record / f"round_{number:02d}")
     atomic_write_text(args.record / "rounds.json", json.dumps(record, indent=1) + "\n")
     log(f"round {number} recorded in {args.record / 'rounds.json'} ({time.perf_counter() - t0:.0f} s in this call; "

@@ -76,6 +76,12 @@ def cspace_length(path) -> float:
     return float(np.abs(np.diff(path, axis=0)).sum()) if path is not None else float("nan")
 
 
+def is_searched(rrt_result) -> bool:
+    """A problem the straight segment did not solve (nor started in collision): the ones the
+    searched medians, ``--profile`` and ``--kernel-profile`` are over."""
+    return rrt_result.status not in ("direct", "start_invalid")
+
+
 def run_planners(problems: list[dict], device: str, batch: int, time_limit: float, profile=None,
                  overrides: dict | None = None) -> dict:
     """Every problem by each planner; ``profile`` (a ``cProfile.Profile``) records the one-at-a-time
@@ -97,7 +103,7 @@ def run_planners(problems: list[dict], device: str, batch: int, time_limit: floa
 
     for p, a in zip(problems, args):
         rows["rrtconnect"].append(timed(plan_rrtconnect, *a, time_limit, start_tolerance=p["start_tolerance"]))
-        if profile is not None and rows["rrtconnect"][-1].status not in ("direct", "start_invalid"):
+        if profile is not None and is_searched(rows["rrtconnect"][-1]):
             profile.enable()
         rows["trajopt"].append(timed(plan_trajopt, *a, time_limit, start_tolerance=p["start_tolerance"], config=cfg))
         if profile is not None:
@@ -293,13 +299,12 @@ def write_profile(profile, path: str, rows: dict) -> None:
     import pstats
     import sys
 
-    searched = [(r.status, round(r.cpu_time, 2)) for r, q in zip(rows["trajopt"], rows["rrtconnect"])
-                if q.status not in ("direct", "start_invalid")]
+    plans = [(r.status, round(r.cpu_time, 2)) for r, q in zip(rows["trajopt"], rows["rrtconnect"]) if is_searched(q)]
     text = io.StringIO()
     pstats.Stats(profile, stream=text).strip_dirs().sort_stats("cumulative").print_stats(40)
     with open(path, "w") as f:
         f.write(f"command: {' '.join(sys.argv)}\ntorch {torch.__version__}, {torch.get_num_threads()} threads; "
-                f"{len(searched)} plans profiled (status, CPU s under the profiler): {searched}\n")
+                f"{len(plans)} plans profiled (status, CPU s under the profiler): {plans}\n")
         f.write(text.getvalue())
 
 
@@ -316,11 +321,11 @@ def write_kernel_profile(problems: list[dict], rows: dict, device: str, override
 
     cfg = TrajoptConfig.for_device(device, **overrides)
     cuda = torch.device(cfg.device).type == "cuda"
-    searched = [p for p, q in zip(problems, rows["rrtconnect"]) if q.status not in ("direct", "start_invalid")]
+    problems = [p for p, q in zip(problems, rows["rrtconnect"]) if is_searched(q)]
     activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
     t = time.perf_counter()
     with profile(activities=activities) as prof:
-        for p in searched:
+        for p in problems:
             plan_trajopt(p["checker"], p["q_start"], p["q_goals"], start_tolerance=p["start_tolerance"], config=cfg)
         if cuda:
             torch.cuda.synchronize()
@@ -328,12 +333,12 @@ def write_kernel_profile(problems: list[dict], rows: dict, device: str, override
     events = prof.key_averages()
     sort = "self_device_time_total" if cuda else "self_cpu_time_total"
     ops = sum(e.count for e in events)
-    head = (f"command: {' '.join(sys.argv)}\ntorch {torch.__version__} on {cfg.device}; {len(searched)} searched plans "
+    head = (f"command: {' '.join(sys.argv)}\ntorch {torch.__version__} on {cfg.device}; {len(problems)} searched plans "
             f"one at a time under torch.profiler in {wall:.2f} s wall; {ops} profiled calls "
-            f"({ops / max(1, len(searched)):.0f} a plan); sorted by {sort}\n")
+            f"({ops / max(1, len(problems)):.0f} a plan); sorted by {sort}\n")
     with open(path, "w") as f:
         f.write(head + events.table(sort_by=sort, row_limit=50, max_name_column_width=60) + "\n")
-    print(f"kernel profile of {len(searched)} plans -> {path}")
+    print(f"kernel profile of {len(problems)} plans -> {path}")
 
 
 def show_records(paths: list[str]) -> None:

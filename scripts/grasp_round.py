@@ -132,6 +132,23 @@ def best_scores(record: dict) -> dict:
             "collision_net": [collision_score(r["collision_net"]["val"]) for r in record["rounds"]]}
 
 
+def default_grasp_model(record: dict) -> tuple[str, str]:
+    """Which weights val says should be the default grasp model, and why: ``ours`` only when the
+    last shipped CGN candidate's top-1 and top-10 are both at or above the pretrained weights' on
+    the same val tasks (the default changes every Contact-GraspNet row: one figure is not enough)."""
+    shipped = [r["cgn"] for r in record["rounds"] if r["cgn"]["shipped"]]
+    if not shipped:
+        return "pretrained", "no round shipped CGN weights"
+    ours = shipped[-1]["val"]
+    pretrained = next((p for p in record.get("pretrained_val", []) if p["tasks"] == ours["tasks"]), None)
+    if pretrained is None:
+        return "pretrained", f"the pretrained weights were not judged on val {ours['tasks']}"
+    keys = ("precision_top1", f"precision_top{TOP}")
+    figures = ", ".join(f"{k[len('precision_'):]} {ours[k]} vs {pretrained[k]}" for k in keys)
+    beats = all(ours[k] is not None and ours[k] >= pretrained[k] for k in keys)
+    return ("ours" if beats else "pretrained"), f"ours against pretrained on val {ours['tasks']}: {figures}"
+
+
 def status(record: dict) -> str:
     lines = [f"{len(record['rounds'])} rounds of train-suite tasks"]
     for p in record.get("pretrained_val", []):
@@ -152,6 +169,8 @@ def status(record: dict) -> str:
                      f"accuracy {n['val']['accuracy']:.4f}, false-free {n['val']['false_free_of_all']:.4f} of all "
                      f"(shipped {shipped_net.get('accuracy', math.nan):.4f}, {shipped_net.get('false_free_of_all', math.nan):.4f}); "
                      f"{'shipped' if n['shipped'] else 'not shipped'} ({n['choice']['why']})")
+    choice, why = default_grasp_model(record)
+    lines.append(f"default grasp model by val: {choice} ({why}; both must be at or above)")
     for name, scores in best_scores(record).items():
         lines.append(f"{name}: " + ("plateau: val has not improved for two rounds" if plateau(scores)
                                      else "no plateau yet: another round can improve val"))
@@ -190,36 +209,52 @@ def plot(record: dict, out: Path) -> None:
     rounds = record["rounds"]
     fig, (a, b) = plt.subplots(1, 2, figsize=(9.6, 3.8))
 
-    def curve(model: str, figure) -> tuple[list, list]:
-        """x: train tasks seen; y: the figure, starting at the weights round 1 went on from."""
+    def curve(model: str, figure) -> tuple[list, list, list, list]:
+        """The shipped lineage (x: train tasks seen, y: the figure), from the weights round 1 went
+        on from to each round's winner; then the candidates that did not ship (a branch the next
+        round did not go on from, so not on the line)."""
         first = rounds[0][model]
         xs = [first["init_from"]["tasks_seen"]] if first.get("shipped_val") else []
         ys = [figure(first["shipped_val"])] if xs else []
-        xs += [r[model]["tasks_seen"] for r in rounds]
-        return xs, ys + [figure(r[model]["val"]) for r in rounds]
+        dropped = [r[model] for r in rounds if not r[model].get("choice", {}).get("ships", True)]
+        for r in rounds:
+            if r[model].get("choice", {}).get("ships", True):
+                xs.append(r[model]["tasks_seen"])
+                ys.append(figure(r[model]["val"]))
+        return xs, ys, [c["tasks_seen"] for c in dropped], [figure(c["val"]) for c in dropped]
 
-    for key, style in (("precision_top1", "-o"), (f"precision_top{TOP}", "--s")):
-        a.plot(*curve("cgn", lambda v, key=key: math.nan if v[key] is None else v[key]), style, label=f"ours, {key}")
+    def lineage(ax, model: str, figure, style: str, color: str, label: str) -> None:
+        xs, ys, dx, dy = curve(model, figure)
+        ax.plot(xs, ys, style, color=color, label=f"{label}, shipped")
+        if dx:
+            ax.plot(dx, dy, style[-1], color=color, mfc="none", label=f"{label}, not shipped")
+
+    for key, style, color in (("precision_top1", "-o", "C0"), (f"precision_top{TOP}", "--s", "C1")):
+        lineage(a, "cgn", lambda v, key=key: math.nan if v[key] is None else v[key], style, color, key)
     for p in record.get("pretrained_val", []):
         a.axhline(p["precision_top1"], color="grey", lw=0.8, label=f"pretrained top-1 (val {p['tasks']})")
         a.axhline(p[f"precision_top{TOP}"], color="grey", lw=0.8, ls="--", label=f"pretrained top-{TOP}")
     a.set_xlabel("train tasks seen by the weights' lineage")
     a.set_ylabel("physics-judged precision on val")
     a.set_title("Contact-GraspNet (ours)")
-    b.plot(*curve("collision_net", lambda v: v["accuracy"]), "-o", color="C0", label="accuracy")
+    lineage(b, "collision_net", lambda v: v["accuracy"], "-o", "C0", "accuracy")
     b.axhline(0.97, color="C0", lw=0.8, ls=":", label="accuracy goal 0.97")
     b.set_ylabel("accuracy")
     b2 = b.twinx()  # the two figures differ 40-fold: one axis each
-    b2.plot(*curve("collision_net", lambda v: 100 * v["false_free_of_all"]), "--s", color="C1", label="false-free, % of all")
+    lineage(b2, "collision_net", lambda v: 100 * v["false_free_of_all"], "--s", "C1", "false-free %")
     b2.axhline(1.0, color="C1", lw=0.8, ls=":", label="false-free goal 1 %")
     b2.set_ylabel("false-free, % of all queries")
     b2.set_ylim(bottom=0)
-    b2.legend(fontsize=7, loc="center right")
+    # one legend for both axes, in room left below the curves
+    handles, labels = [sum(pair, []) for pair in zip(b.get_legend_handles_labels(), b2.get_legend_handles_labels())]
+    low, high = b.get_ylim()
+    b.set_ylim(low - (high - low), high)
+    b2.legend(handles, labels, fontsize=7, loc="lower right", ncol=2)
     b.set_xlabel("train tasks seen by the network's lineage")
     b.set_title("scene-collision network (val queries)")
+    a.legend(fontsize=7, loc="best")
     for ax in (a, b):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="center left" if ax is b else "best")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110, metadata={"Software": None})  # (no date in the PNG: same record, same bytes)

@@ -44,6 +44,26 @@ def test_a_plateau_is_two_rounds_without_a_better_val_score(rounds):
     assert not rounds.plateau([0.1, 0.2, 0.2, 0.25])
 
 
+def test_ours_is_the_default_only_when_val_puts_both_precisions_at_or_above_pretrained(rounds):
+    def record(ours: dict, shipped: bool = True) -> dict:
+        pretrained = {"tasks": "0:50", "precision_top1": 0.88, "precision_top10": 0.90}
+        cgn = {"shipped": shipped, "val": {"tasks": "0:50", **ours}}
+        return {"pretrained_val": [pretrained], "rounds": [{"cgn": cgn}]}
+
+    assert rounds.default_grasp_model(record({"precision_top1": 0.92, "precision_top10": 0.87}))[0] == "pretrained"
+    assert rounds.default_grasp_model(record({"precision_top1": 0.88, "precision_top10": 0.90}))[0] == "ours"
+    assert rounds.default_grasp_model(record({"precision_top1": 0.9, "precision_top10": 0.95}, shipped=False))[0] \
+        == "pretrained"  # a candidate that did not ship is not the shipped weights
+    # the CLI's default is the one the shipped record's val says
+    shipped = json.loads((ROOT / "results/training/grasp-rounds/rounds.json").read_text())
+    import argparse
+
+    from fetchbench_ms.evaluation import cli
+    commands = argparse.ArgumentParser().add_subparsers()
+    cli.add_commands(commands)
+    assert commands.choices["eval"].parse_args([]).grasp_model == rounds.default_grasp_model(shipped)[0]
+
+
 def test_bad_arguments_are_one_line_errors_and_write_nothing(rounds, tmp_path):
     base = ["--record", str(tmp_path / "rec"), "--work", str(tmp_path / "w")]
     for argv, words in ((["--val-tasks", "0:20"], "at least 50"), (["--val-tasks", "5:2"], "START"),

@@ -25,8 +25,8 @@ CHECKPOINTS = ROOT / "assets" / "checkpoints"
 #: sha256 of the .pt files the shipped checkpoints were packed from (the checkpoints' JSON and
 #: the evaluation records name the same ones, where they name one).
 PT_SHA256 = {
-    "cgn_ours": "2f9103fe8c094a07119fcd828d2e863b1a0c7d31fd52cc2b3a54e9637b94bc05",
-    "collision_net": "08ebfb050ce3dbe42bbd91c77dad2f4ceee46447522f6cc2e6a235e5a294a89b",
+    "cgn_ours": "89c00322b225179accf5373f86408789ba24ab985e2fe283d248ce7346a37c3d",
+    "collision_net": "36f2d97a3fd59881f98267b8352bb566b0760dca71d274a0e414b7c11b861ed5",
     "imit_act": "1ea55247db12a728bb5be2328227136d80555b2cb1061e1aa3659783bf842f7a",
     "imit_diffusion": "9c3a6598835ea9701446ba3a6f740b0cca1d883d658d19011687979c4a6be823",
     "imit_mlp": "f09e9488070a94ee35cdbcaa0b404633e20a684a5baa5917720c867f9cf69952",

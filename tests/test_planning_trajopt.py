@@ -291,6 +291,39 @@ def test_fixed_shape_costs_give_the_sparse_costs_and_gradients(robot, worlds):
     assert out[1][1].sum() == 0 and torch.allclose(out[1][0], reference, rtol=1e-5)
 
 
+def test_broad_phase_on_the_nearest_bounding_spheres_gives_the_same_costs(robot, worlds):
+    """``broad_candidates``: the broad phase measures exactly only the obstacles of the nearest
+    bounding spheres. Bounding spheres are never farther than their obstacles, so the costs and
+    gradients are those of measuring every obstacle unless more bounding spheres than that are
+    within the horizon; those links are counted in ``over_cap``, and their cost is not higher."""
+    import dataclasses
+
+    from fetchbench_ms.planning.trajopt_graph import FixedShapeCosts
+
+    costs, _, cfg = _trajectory_costs(robot, worlds)
+    assert max(kind.O for kind in costs.world.kinds) > 6  # the candidates are fewer than a kind's obstacles
+    traj = torch.as_tensor(np.clip(Q_DEFAULT + np.random.default_rng(7).normal(0, 0.6, (4, 6, 12, 7)), robot.q_min,
+                                   robot.q_max), dtype=torch.float32)
+
+    def run(candidates, trajectories):
+        fixed = FixedShapeCosts(costs.robot, costs.world, dataclasses.replace(cfg, broad_candidates=candidates),
+                                costs.q_min, costs.q_max, max_obstacles=4)
+        x = trajectories.clone().requires_grad_(True)
+        total, collision = fixed(x)
+        (grad,) = torch.autograd.grad(total.sum(), x)
+        return total.detach(), collision.detach(), grad, fixed.over_cap.clone()
+
+    every, nearest = run(None, traj), run(6, traj)
+    assert (every[1] > 0).any(dim=1).all()
+    for a, b in zip(every[:3], nearest[:3]):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-6 * float(a.abs().max()))
+    assert every[3].tolist() == nearest[3].tolist() == [0, 0, 0, 0]
+    # fewer candidates (at least max_obstacles: 1 means 4) than the bounding spheres near some
+    # links: those are counted, and their cost is never higher
+    few = run(1, traj)
+    assert few[3].sum() > 0 and (few[1] <= every[1] + 1e-3).all()
+
+
 SMALL = dict(n_waypoints=12, seeds=4, opt_iters=25, collision_substeps=2, rrt_fallback=False, device="cpu")
 
 
@@ -306,6 +339,12 @@ def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
     assert sparse.status == fixed.status == "solved" and fixed.goal_index == sparse.goal_index
     assert len(fixed.path) == len(sparse.path) and np.allclose(fixed.path, sparse.path, atol=1e-3)
     assert graph.status == "solved" and np.array_equal(graph.path, fixed.path)
+    # the broad phase on the nearest bounding spheres (6 of the shelf's 7 boxes) plans the same
+    six = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(fixed_shape=True, max_obstacles=6, **SMALL))
+    near = plan_trajopt(checker, Q_DEFAULT, goals,
+                        config=TrajoptConfig(fixed_shape=True, max_obstacles=6, broad_candidates=6, **SMALL))
+    assert near.status == six.status == "solved" and near.goal_index == six.goal_index
+    assert len(near.path) == len(six.path) and np.allclose(near.path, six.path, atol=1e-3)
 
 
 def test_compiled_cost_function_plans_as_the_eager_loop(robot, shelf_problem):
@@ -502,3 +541,4 @@ def test_phase_timer_reports_every_phase_and_changes_no_plan(robot, shelf_proble
     assert all(on[0].extras["phase_s"][k] == on[1].extras["phase_s"][k] for k in BATCH_PHASES)
     if extra.get("cuda_graph"):
         assert on[0].extras["loop"] == "replayed"
+

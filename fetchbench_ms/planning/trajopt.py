@@ -100,6 +100,10 @@ class TrajoptConfig:
     fixed_shape: bool = False
     cuda_graph: bool = False  # fixed_shape, with its blocks replayed as a CUDA graph (on CUDA only)
     max_obstacles: int = 16  # fixed_shape: nearest obstacles of each kind per robot link
+    # fixed_shape: the broad phase measures the exact distance of only this many obstacles of a
+    # kind per link, those of the nearest bounding spheres (None: of all); the costs are the same
+    # unless more bounding spheres than this are within the horizon (counted in over_cap)
+    broad_candidates: int | None = None
     # cuda_graph: worlds padded to these many boxes, cylinders, convex parts (a kind with more:
     # to the next multiple, its own graph), so that problems share one captured loop; val 0:20's
     # pre-grasp worlds have up to 46 boxes, 28 cylinders, 161 convex parts

@@ -12,7 +12,10 @@ iteration (on a GPU, a sync and dozens of small launches per call; most of a pla
   the link's bounding sphere costs 0 for each of its spheres (the distance is
   1-Lipschitz), so the costs are the sparse path's unless more than ``max_obstacles``
   obstacles of a kind are that near one link: those are counted (``over_cap``, per
-  problem), not hidden;
+  problem), not hidden. With ``broad_candidates`` the link's centre is measured exactly
+  against only that many obstacles of a kind, those of the nearest bounding spheres (a
+  bounding sphere is never farther than its obstacle: the same costs unless more bounding
+  spheres than that are within the horizon, also counted in ``over_cap``);
 - self-collision: every sphere pair the robot model checks, masked by the cost itself;
 - the carried object's spheres: one group, as a link.
 
@@ -75,6 +78,7 @@ class FixedShapeCosts(_Costs):
         super().__init__(robot, world, cfg, q_min, q_max)
         dev = robot.device
         self.max_obstacles = max_obstacles
+        self.broad_candidates = cfg.broad_candidates
         g = robot.groups
         self.link_groups = _Groups(g.table, g.valid, g.mean)
         M = robot.att_c.shape[1]
@@ -121,10 +125,28 @@ class FixedShapeCosts(_Costs):
                 # Bounding spheres first (padding obstacles sit far away), then the exact distance.
                 bound = (torch.cdist(centre.reshape(P, C * G, 3), kind.bound_c) - kind.bound_r[:, None]
                          - reach.reshape(P, C * G, 1))
-                exact = _group_distance(kind, centre.reshape(P, C * G, 3)) - reach.reshape(P, C * G, 1)
-                score = torch.where(bound < horizon, exact, torch.full_like(exact, FAR)).reshape(P, C, G, O)
-                self.over_cap += ((score < horizon).sum(dim=3) > k).sum(dim=(1, 2))
+                near = bound < horizon
+                if self.broad_candidates is not None and self.broad_candidates < O:
+                    # The exact distance of only the nearest bounding spheres: a bounding sphere is
+                    # never farther than its obstacle, so every obstacle within the horizon is among
+                    # them unless more bounding spheres than that are (counted in over_cap).
+                    kb = max(self.broad_candidates, k)
+                    too_many = near.sum(dim=2) > kb
+                    bound, candidates = bound.topk(kb, dim=2, largest=False)  # (P, C * G, kb)
+                    exact = _member_distance(kind, centre.reshape(P, C * G, 1, 3), candidates)[:, :, 0]
+                    exact = exact - reach.reshape(P, C * G, 1)
+                    near = bound < horizon
+                else:
+                    too_many, candidates = None, None
+                    exact = _group_distance(kind, centre.reshape(P, C * G, 3)) - reach.reshape(P, C * G, 1)
+                score = torch.where(near, exact, torch.full_like(exact, FAR)).reshape(P, C, G, -1)
+                over = (score < horizon).sum(dim=3) > k
+                if too_many is not None:
+                    over = over | too_many.reshape(P, C, G)
+                self.over_cap += over.sum(dim=(1, 2))
                 score, nearest = score.topk(k, dim=3, largest=False)  # (P, C, G, k)
+                if candidates is not None:  # back to the kind's obstacle indices
+                    nearest = candidates.reshape(P, C, G, -1).gather(3, nearest)
             d = _member_distance(kind, member_x.reshape(P, C * G, W, 3), nearest.reshape(P, C * G, k))
             d = d.reshape(P, C, G, W, k)
             use = (score < horizon)[:, :, :, None] & groups.valid[:, :, None]

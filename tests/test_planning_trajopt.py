@@ -324,6 +324,37 @@ def test_broad_phase_on_the_nearest_bounding_spheres_gives_the_same_costs(robot,
     assert few[3].sum() > 0 and (few[1] <= every[1] + 1e-3).all()
 
 
+def test_baked_grid_reads_the_world_within_half_a_cell_diagonal(robot, worlds):
+    """``baked_grid``: every obstacle of each world (boxes, convex parts, a point cloud, less a
+    carried object's group) read through one grid measured at its vertices: within half a cell
+    diagonal of the exact distance (it is 1-Lipschitz) up to the truncation, at least about the
+    truncation beyond; the grid is measured once per world and resolution."""
+    from fetchbench_ms.planning.distance import GRID_TRUNCATION, baked_grid_values, grid_shape
+
+    checkers = _checkers(robot, worlds)
+    res = 0.03
+    args = ([c.world for c in checkers], [c.exclude for c in checkers])
+    exact = TorchWorld(*args, max_planes=24)
+    baked = TorchWorld(*args, max_planes=24, baked_grid=res)
+    assert baked.kinds == [] and tuple(baked.grid.shape) == (len(checkers), 1, *grid_shape(res)[::-1])
+    rng = np.random.default_rng(0)
+    points = torch.as_tensor(rng.uniform((-0.3, -0.7, -0.1), (1.1, 0.7, 1.3), (len(checkers), 4000, 3)),
+                             dtype=torch.float32)
+    d_exact, d_baked = exact.distance(points, GRID_TRUNCATION), baked.distance(points, GRID_TRUNCATION)
+    tol = 0.5 * np.sqrt(3) * res + 1e-4
+    near = d_exact < GRID_TRUNCATION - tol
+    assert near.sum(dim=1).min() > 50  # every world has points near its obstacles
+    assert float((d_baked - d_exact).abs()[near].max()) <= tol
+    assert float(d_baked[~near].min()) >= GRID_TRUNCATION - 2 * tol
+    c = checkers[0]
+    assert baked_grid_values(c.world, c.exclude, res, max_planes=24) is baked_grid_values(c.world, c.exclude, res,
+                                                                                         max_planes=24)
+    # the GPU's bake (every vertex against every obstacle, no host read) gives the same grid
+    for c, grid in zip(checkers, baked.grid[:, 0].permute(0, 3, 2, 1)):
+        dense = baked_grid_values(c.world, c.exclude, res, max_planes=24, dense=True)
+        assert torch.allclose(dense, grid, atol=1e-5)
+
+
 SMALL = dict(n_waypoints=12, seeds=4, opt_iters=25, collision_substeps=2, rrt_fallback=False, device="cpu")
 
 
@@ -345,6 +376,12 @@ def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
                         config=TrajoptConfig(fixed_shape=True, max_obstacles=6, broad_candidates=6, **SMALL))
     assert near.status == six.status == "solved" and near.goal_index == six.goal_index
     assert len(near.path) == len(six.path) and np.allclose(near.path, six.path, atol=1e-3)
+    # the world through a baked grid: a plan the exact checker passed, the same plan in the graph's loop
+    baked = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(fixed_shape=True, world_grid=0.015, **SMALL))
+    baked_graph = plan_trajopt(checker, Q_DEFAULT, goals,
+                               config=TrajoptConfig(cuda_graph=True, world_grid=0.015, **SMALL))
+    assert baked.status == "solved" and baked_graph.status == "solved" and np.array_equal(baked.path, baked_graph.path)
+    assert all(checker.motion_valid(a, b, 0.02) for a, b in zip(baked.path[:-1], baked.path[1:]))
 
 
 def test_compiled_cost_function_plans_as_the_eager_loop(robot, shelf_problem):

@@ -14,7 +14,12 @@ over problems (``P``), and with gradients.
   (``GRID_RESOLUTION``, within the arm's reach): an EDT of the occupied cells, refined to
   the exact nearest-voxel distance (the k-d tree's answer) at the grid vertices near the
   cloud, read by trilinear interpolation (``grid_sample``), so it is within about a cell
-  of the checker's value and smooth enough for gradients.
+  of the checker's value and smooth enough for gradients. With ``baked_grid=RES`` the
+  whole world (primitives and clouds alike) is read through one such grid over
+  ``GRID_BOUNDS``, its vertices measured once per world by the exact formulas above
+  (``baked_grid_values``): within half a cell diagonal of the exact distance (the distance
+  is 1-Lipschitz), one interpolation per sphere however many obstacles, and the same grid
+  shape for every world.
 - ``TorchRobot``: batched FK of the Panda's spheres on the device, per problem finger
   opening, checked links and carried object (``checker.Attachment``); self-collision
   sphere pairs and carried-object-vs-arm pairs.
@@ -208,16 +213,116 @@ def _grid_from_cloud(field: PointCloudField, resolution: float) -> tuple[np.ndar
     return lo, values
 
 
+def plane_max(x: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """max over the last axis of ``planes`` (..., K, 4) of n . x - offset, ``x`` (..., 1, 3)
+    broadcast against them. Written as products and sums, not a matrix product: under
+    ``torch.compile`` (``trajopt.TrajoptConfig.compile_backend``) the whole expression and its maximum
+    fuse into one kernel that never stores the (..., K) distances (the largest tensors of an
+    iteration: every sphere, its nearest parts, every plane), and the backward recomputes them.
+    Eager, the batched matrix product is faster; the two agree to float rounding."""
+    return (x[..., 0] * planes[..., 0] + x[..., 1] * planes[..., 1] + x[..., 2] * planes[..., 2]
+            - planes[..., 3]).amax(dim=-1)
+
+
+def distance_to_every(kind, x: torch.Tensor) -> torch.Tensor:
+    """(P, A, O) exact distance of points ``x`` (P, A, 3) to every obstacle of ``kind``."""
+    P, A, _ = x.shape
+    O = kind.O
+    if kind.kind == "convex":  # one batched matrix product per problem: every point, every plane
+        planes = kind.t["planes"]  # (P, O, K, 4)
+        if torch.compiler.is_compiling():
+            d = plane_max(x[:, :, None, None], planes[:, None])
+        else:
+            d = torch.einsum("pai,poki->paok", x, planes[..., :3]) - planes[:, None, :, :, 3]
+            d = d.amax(dim=3)
+        if kind.reduced:
+            d = torch.maximum(d, torch.cdist(x, kind.bound_c) - kind.bound_r[:, None])
+        return d
+    p = torch.arange(P, device=x.device)[:, None, None].expand(P, A, O).reshape(-1)
+    o = torch.arange(O, device=x.device).expand(P, A, O).reshape(-1)
+    return kind.exact(x[:, :, None].expand(P, A, O, 3).reshape(-1, 3), p, o).reshape(P, A, O)
+
+
+BAKED_CHUNK = 1 << 17  # grid vertices measured per call while baking (bounds the broad phase's memory)
+BAKED_DENSE_CHUNK = 1 << 25  # vertex-plane (or vertex-obstacle) pairs per call of the dense bake
+BAKED_CACHE = 4  # baked grids kept per world (by resolution, device and included obstacle sets)
+
+
+def grid_shape(resolution: float) -> np.ndarray:
+    """Vertices per axis of a grid over ``GRID_BOUNDS`` at ``resolution``."""
+    lo, hi = np.asarray(GRID_BOUNDS[0]), np.asarray(GRID_BOUNDS[1])
+    return np.ceil((hi - lo) / resolution - 1e-9).astype(int) + 1
+
+
+def _dense_distance(world: "TorchWorld", points: torch.Tensor) -> torch.Tensor:
+    """(P, N) distance of ``points`` to the nearest obstacle, every obstacle measured: fixed
+    shapes, no host read (the bake on a GPU; ``TorchWorld.distance``'s broad phase is the
+    cheaper one on a CPU). The same values below any horizon, up to float rounding."""
+    out = torch.full(points.shape[:2], FAR, device=points.device, dtype=points.dtype)
+    for kind in world.kinds:
+        out = torch.minimum(out, distance_to_every(kind, points).amin(dim=2))
+    if world.grid is not None:
+        out = torch.minimum(out, world.grid_distance(points))
+    return out
+
+
+def baked_grid_values(world: CollisionWorld, exclude: tuple[str, ...], resolution: float, device=None,
+                      dtype=torch.float32, max_planes: int | None = None, dense: bool | None = None) -> torch.Tensor:
+    """(nx, ny, nz) distance of the vertices of a grid over ``GRID_BOUNDS`` to ``world`` (less
+    ``exclude``), as ``TorchWorld`` measures it, truncated at ``GRID_TRUNCATION``; ``dense``
+    (default: on CUDA) measures every vertex against every obstacle (``_dense_distance``). Kept
+    on the world (``BAKED_CACHE`` per world, with the obstacle sets they were measured from, so
+    that a set added or replaced is a new entry): the plans of one task share a world."""
+    sets = [s for g, ss in world.groups.items() if g not in exclude for s in ss]
+    device = torch.device(device or "cpu")
+    dense = device.type == "cuda" if dense is None else dense
+    key = (resolution, max_planes, str(device), dtype, dense, tuple(id(s) for s in sets))
+    cache = world.__dict__.setdefault("_baked_grids", {})
+    if key in cache:
+        return cache[key][1]
+    shape = grid_shape(resolution)
+    exact = TorchWorld([world], [exclude], device, dtype, max_planes=max_planes)
+    axes = [torch.arange(n, device=device, dtype=torch.float64) * resolution + lo
+            for n, lo in zip(shape, GRID_BOUNDS[0])]
+    vertices = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(1, -1, 3).to(dtype)
+    if dense:
+        widest = max([k.O * (k.t["planes"].shape[2] if k.kind == "convex" else 1) for k in exact.kinds] + [1])
+        chunk = max(1, BAKED_DENSE_CHUNK // widest)
+    else:
+        chunk = BAKED_CHUNK
+    values = torch.empty(vertices.shape[1], device=device, dtype=dtype)
+    with torch.no_grad():
+        for i in range(0, vertices.shape[1], chunk):
+            points = vertices[:, i: i + chunk]
+            d = _dense_distance(exact, points) if dense else exact.distance(points, horizon=GRID_TRUNCATION)
+            values[i: i + chunk] = d[0].clamp(max=GRID_TRUNCATION)
+    values = values.reshape(*shape)
+    cache[key] = (sets, values)  # the sets held: their ids cannot be reused while cached
+    while len(cache) > BAKED_CACHE:
+        cache.pop(next(iter(cache)))
+    return values
+
+
 class TorchWorld:
     """The obstacles of ``P`` worlds as device tensors; see the module docstring."""
 
     def __init__(self, worlds: Sequence[CollisionWorld], excludes: Sequence[tuple[str, ...]] | None = None,
                  device=None, dtype=torch.float32, grid_resolution: float = GRID_RESOLUTION,
-                 max_planes: int | None = None):
+                 max_planes: int | None = None, baked_grid: float | None = None):
         excludes = list(excludes) if excludes is not None else [()] * len(worlds)
         if len(excludes) != len(worlds):
             raise ValueError(f"{len(worlds)} worlds but {len(excludes)} exclude tuples")
         self.P, self.device, self.dtype = len(worlds), torch.device(device or "cpu"), dtype
+        if baked_grid is not None:  # every obstacle through one grid (module docstring)
+            values = torch.stack([baked_grid_values(w, tuple(e), baked_grid, self.device, dtype, max_planes)
+                                  for w, e in zip(worlds, excludes)])
+            self.kinds = []
+            # grid_sample reads (N, C, D, H, W) with sample coordinates ordered (W, H, D) = (x, y, z).
+            self.grid = values.permute(0, 3, 2, 1)[:, None].contiguous()
+            self.grid_origin = torch.as_tensor(GRID_BOUNDS[0], device=self.device, dtype=dtype).repeat(self.P, 1)
+            self.grid_span = torch.as_tensor((grid_shape(baked_grid) - 1) * baked_grid, device=self.device,
+                                             dtype=dtype)
+            return
         boxes, cyls, convex, clouds = [], [], [], []
         for world, exclude in zip(worlds, excludes):
             sets = [s for g, ss in world.groups.items() if g not in exclude for s in ss]

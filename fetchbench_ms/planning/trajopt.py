@@ -113,6 +113,11 @@ class TrajoptConfig:
     # this backend, e.g. "inductor" (fused kernels: Triton on CUDA, a C++ compiler on a CPU;
     # compiled once per loop shape); None: eager. The costs are the same up to float rounding.
     compile_backend: str | None = None
+    # m: the costs read the whole world through one distance grid of this resolution, measured
+    # once per world (``distance.baked_grid_values``; within half a cell diagonal of the exact
+    # distance): one interpolation per sphere instead of its obstacles' formulas. None: exact.
+    # The plan's checks stay exact (the checker's).
+    world_grid: float | None = None
     device: str | None = None  # None: default_device()
     dtype: torch.dtype = torch.float32
     seed: int = 0
@@ -305,7 +310,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     dd = dict(device=device, dtype=cfg.dtype)
     checkers = [pr.checker for pr in problems]
     world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype,
-                       max_planes=cfg.max_planes)
+                       max_planes=cfg.max_planes, baked_grid=cfg.world_grid)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
     costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
     fixed = None

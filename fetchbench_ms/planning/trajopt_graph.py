@@ -52,7 +52,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from .distance import _FAR_CENTER, FAR, SphereGroups, TorchRobot, TorchWorld, _Primitives, _smooth_norm, collision_cost
+from .distance import (_FAR_CENTER, FAR, SphereGroups, TorchRobot, TorchWorld, _Primitives, _smooth_norm,
+                       collision_cost, distance_to_every, plane_max)
 from .trajopt import _Costs
 
 CHECK_EVERY = 10  # iterations between convergence tests (the sparse loop's ``it % 10 == 9``)
@@ -138,7 +139,7 @@ class FixedShapeCosts(_Costs):
                     near = bound < horizon
                 else:
                     too_many, candidates = None, None
-                    exact = _group_distance(kind, centre.reshape(P, C * G, 3)) - reach.reshape(P, C * G, 1)
+                    exact = distance_to_every(kind, centre.reshape(P, C * G, 3)) - reach.reshape(P, C * G, 1)
                 score = torch.where(near, exact, torch.full_like(exact, FAR)).reshape(P, C, G, -1)
                 over = (score < horizon).sum(dim=3) > k
                 if too_many is not None:
@@ -158,36 +159,6 @@ class FixedShapeCosts(_Costs):
         return out
 
 
-def _plane_max(x: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
-    """max over the last axis of ``planes`` (..., K, 4) of n . x - offset, ``x`` (..., 1, 3)
-    broadcast against them. Written as products and sums, not a matrix product: under
-    ``torch.compile`` (``TrajoptConfig.compile_backend``) the whole expression and its maximum
-    fuse into one kernel that never stores the (..., K) distances (the largest tensors of an
-    iteration: every sphere, its nearest parts, every plane), and the backward recomputes them.
-    Eager, the batched matrix product is faster; the two agree to float rounding."""
-    return (x[..., 0] * planes[..., 0] + x[..., 1] * planes[..., 1] + x[..., 2] * planes[..., 2]
-            - planes[..., 3]).amax(dim=-1)
-
-
-def _group_distance(kind, x: torch.Tensor) -> torch.Tensor:
-    """(P, A, O) exact distance of points ``x`` (P, A, 3) to every obstacle of ``kind``."""
-    P, A, _ = x.shape
-    O = kind.O
-    if kind.kind == "convex":  # one batched matrix product per problem: every point, every plane
-        planes = kind.t["planes"]  # (P, O, K, 4)
-        if torch.compiler.is_compiling():
-            d = _plane_max(x[:, :, None, None], planes[:, None])
-        else:
-            d = torch.einsum("pai,poki->paok", x, planes[..., :3]) - planes[:, None, :, :, 3]
-            d = d.amax(dim=3)
-        if kind.reduced:
-            d = torch.maximum(d, torch.cdist(x, kind.bound_c) - kind.bound_r[:, None])
-        return d
-    p = torch.arange(P, device=x.device)[:, None, None].expand(P, A, O).reshape(-1)
-    o = torch.arange(O, device=x.device).expand(P, A, O).reshape(-1)
-    return kind.exact(x[:, :, None].expand(P, A, O, 3).reshape(-1, 3), p, o).reshape(P, A, O)
-
-
 def _member_distance(kind, x: torch.Tensor, o: torch.Tensor) -> torch.Tensor:
     """(P, A, W, k) exact distance of points ``x`` (P, A, W, 3) to obstacles ``o`` (P, A, k)
     of ``kind`` (the W points of a row share its k obstacles)."""
@@ -197,7 +168,7 @@ def _member_distance(kind, x: torch.Tensor, o: torch.Tensor) -> torch.Tensor:
     if kind.kind == "convex":  # the rows' planes gathered once, then a batched matrix product
         planes = kind.flat["planes"].index_select(0, po).reshape(P, A, k, -1, 4)
         if torch.compiler.is_compiling():
-            d = _plane_max(x[:, :, :, None, None], planes[:, :, None])
+            d = plane_max(x[:, :, :, None, None], planes[:, :, None])
         else:
             d = torch.einsum("pawi,pamji->pawmj", x, planes[..., :3]) - planes[:, :, None, :, :, 3]
             d = d.amax(dim=4)
@@ -487,8 +458,9 @@ def fixed_shape_costs(costs, cfg) -> tuple[FixedShapeCosts, bool]:
     padded to ``cfg.graph_capacity`` (``pad_world``: shapes shared across problems, so a
     captured loop is reused). Returns them and whether a kind exceeded its capacity."""
     world, over = costs.world, False
-    if cfg.cuda_graph:
-        world, over = pad_world(world, cfg.graph_capacity, cfg.max_planes)
+    if cfg.cuda_graph:  # (a baked world has no obstacle kinds to pad: its grid's shape is fixed)
+        capacity = (0, 0, 0) if cfg.world_grid is not None else cfg.graph_capacity
+        world, over = pad_world(world, capacity, cfg.max_planes)
     return FixedShapeCosts(costs.robot, world, cfg, costs.q_min, costs.q_max, cfg.max_obstacles), over
 
 

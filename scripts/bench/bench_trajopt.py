@@ -349,9 +349,10 @@ def show_records(paths: list[str]) -> None:
     for path in paths:
         record = json.loads(Path(path).read_text())
         run = record["run"]
+        # (records older than --config have no config: the default one)
         print(f"{path}: {run['suite']} {run['tasks']}, {run['problems']} problems on {run['device']}, batch "
-              f"{run['batch']}, config {run['config'] or 'default'}")
-        for name in ("rrtconnect", "trajopt", "trajopt_batch"):
+              f"{run.get('batch')}, config {run.get('config') or 'default'}")
+        for name in (n for n in ("rrtconnect", "trajopt", "trajopt_batch") if n in record):
             r = record[name]
             line = (f"  {name:<14} success {r['success']:.3f}  median {r['median_s']:.3f} s  p95 {r['p95_s']:.3f} s  "
                     f"searched median {r['searched_median_s']:.3f} s")

@@ -16,8 +16,10 @@ A round takes the next ``--tasks`` tasks of the ``train`` suite after the last r
    their own cameras, scene-consistent grasp labels (``baselines/contact_graspnet/task_views.py``),
    then the collision network's labelled queries of the same tasks and of the ``--val-tasks``
    val tasks (``baselines/mppi_collision/labels.py``); the rates are labels per core-minute;
-2. **training**: both models go on from their shipped weights (``assets/checkpoints/cgn_ours.pt``,
-   ``collision_net.pt``; the pretrained CGN weights where ours is missing) on this round's labels
+2. **training**: both models go on from the last round's candidate when that round ran in the same
+   ``--work`` folder and its candidate did not ship (training goes on along one line; val only
+   picks what ships), else from their shipped weights (``assets/checkpoints/cgn_ours.pt``,
+   ``collision_net.pt``; the pretrained CGN weights where ours is missing), on this round's labels
    alone, for ``--cgn-steps`` and ``--collision-steps``; the two trainers run at once, CGN on the
    first of ``--gpus``, the collision net on the last;
 3. **val**: the CGN candidate, the shipped ``ours`` and (once per val slice, for reference) the
@@ -302,6 +304,42 @@ def shipped() -> dict:
     return out
 
 
+EXPORTS = {"cgn": "cgn_ours", "collision_net": "collision_net"}  # a model's export name in a round's work folder
+
+
+def starting_points(work_root: Path, record: dict, ship: dict) -> dict:
+    """What each model goes on from: the last round's candidate when that round ran in this work
+    folder and its candidate did not ship (its export is still here: training goes on along one
+    line, val only picks what ships), else the shipped weights. Per model: path, sha256, steps,
+    train tasks seen, the lineage's rounds and, for a candidate, its round."""
+    from fetchbench_ms.utils.packed import content_sha256
+
+    last = record["rounds"][-1] if record["rounds"] else None
+    out = {}
+    for model, name in EXPORTS.items():
+        export = work_root / f"round_{last['round']:02d}" / "export" / f"{name}.pt" if last else None
+        if last and not last[model]["shipped"] and export.is_file():
+            out[model] = {"path": str(export), "sha256": content_sha256(export), "steps": last[model]["steps"][1],
+                          "tasks_seen": last[model]["tasks_seen"], "round": last["round"],
+                          "rounds": lineage_rounds(record, last, model) + [last["round"]]}
+            continue
+        meta = ship[model]["meta"]
+        out[model] = {"path": ship[model]["path"], "sha256": ship[model]["sha256"],
+                      "steps": int(meta.get("steps", 0)) if ship[model]["path"] else 0,
+                      "tasks_seen": lineage_tasks(meta, model), "round": None,
+                      "rounds": list(meta.get("rounds", [])) if ship[model]["path"] else []}
+    return out
+
+
+def lineage_rounds(record: dict, entry: dict, model: str) -> list[int]:
+    """The rounds of the lineage a round's candidate went on from (older records: the rounds
+    shipped before it)."""
+    init = entry[model]["init_from"]
+    if "rounds" in init:
+        return list(init["rounds"])
+    return [r["round"] for r in record["rounds"] if r["round"] < entry["round"] and r[model]["shipped"]]
+
+
 def lineage_tasks(meta: dict, name: str) -> int:
     """Train-suite tasks a shipped checkpoint's lineage trained on (its JSON's count; before any
     round: the collision net's ``train_tasks``, CGN's table-top views none)."""
@@ -368,10 +406,11 @@ def repo_relative(path: str | None) -> str | None:
     return str(Path(path).relative_to(ROOT)) if path and Path(path).is_relative_to(ROOT) else path
 
 
-def train_stage(args, work: Path, ship: dict, gpus, log) -> dict:
-    """Stage 2: both trainers at once, from the shipped weights, on this round's labels."""
+def train_stage(args, work: Path, init: dict, gpus, log) -> dict:
+    """Stage 2: both trainers at once, from their starting points (``starting_points``), on this
+    round's labels."""
     py = sys.executable
-    cgn, net = ship["cgn"], ship["collision_net"]
+    cgn, net = init["cgn"], init["collision_net"]
     points = json.loads((work / "cgn_views" / "manifest.json").read_text())["config"]["num_points"]
     cgn_init = str(cgn["path"]) if cgn["path"] else "pretrained"
     cgn_cmd = [py, "baselines/contact_graspnet/train.py", "--run", str(work / "runs/cgn"), "--views", "0",
@@ -476,10 +515,11 @@ def ship_checkpoint(export_pt: Path, meta: dict, log_file: Path, name: str, log)
     log(f"shipped {target.relative_to(ROOT)} ({len(packed) / 1e6:.2f} MB packed) and {name}.json")
 
 
-def ship_meta(export_json: Path, old: dict, entry: dict, model: str, number: int, record: dict, command: str) -> dict:
+def ship_meta(export_json: Path, old: dict, old_sha: str | None, entry: dict, model: str, number: int, record: dict,
+              command: str) -> dict:
     """The shipped JSON of a winner: the trainer's export JSON plus its lineage and this round's figures."""
     meta = json.loads(export_json.read_text())
-    lineage = [r["round"] for r in record["rounds"] if r[model]["shipped"]] + [number]
+    lineage = lineage_rounds(record, entry, model) + [number]
     meta.update({"steps": entry[model]["steps"][1], "round_steps": meta["steps"],  # the lineage's steps, the round's
                  "train_tasks_seen": entry[model]["tasks_seen"],
                  "train_tasks_seen_note": "train-suite tasks the weights' lineage trained on: every shipped "
@@ -489,7 +529,8 @@ def ship_meta(export_json: Path, old: dict, entry: dict, model: str, number: int
                  "data_manifests": {k: {"sha256": v["sha256"], "tasks": v["tasks"]} for k, v in entry["labels"].items()
                                     if (k == "cgn_views") == (model == "cgn")},
                  "round_val": entry[model]["val"], "previous": {"sha256": entry[model]["init_from"]["sha256"],
-                                                                "train_tasks_seen": lineage_tasks(old, model)}})
+                                                                "train_tasks_seen": entry[model]["init_from"]["tasks_seen"]},
+                 "shipped_before": {"sha256": old_sha, "train_tasks_seen": lineage_tasks(old, model)}})
     return meta
 
 
@@ -546,8 +587,12 @@ def main(argv=None) -> int:
     log(f"round {number}: train tasks {start}:{end}, val tasks {args.val_tasks}; {command}")
     t0 = time.perf_counter()
     ship = stage(work, "shipped", shipped, log)  # (its "seconds" unused)
+    init = stage(work, "init", lambda: starting_points(args.work, record, ship), log)
+    for model in EXPORTS:
+        if init[model]["round"] is not None:
+            log(f"{model}: goes on from round {init[model]['round']}'s candidate (not shipped), {init[model]['path']}")
     labels = stage(work, "labels", lambda: label_stage(args, work, (start, end), val, gpus, log), log)
-    training = stage(work, "training", lambda: train_stage(args, work, ship, gpus, log), log)
+    training = stage(work, "training", lambda: train_stage(args, work, init, gpus, log), log)
     judged = stage(work, "val", lambda: val_stage(args, work, record, ship, val, gpus, log), log)
 
     # 4. choice, 5. record (and shipping)
@@ -556,19 +601,17 @@ def main(argv=None) -> int:
              "small_val": val[1] - val[0] < MIN_VAL_TASKS,
              "seconds": {"labels": labels["seconds"], "training": training["seconds"], "val": judged["seconds"]},
              "labels": {k: v for k, v in labels.items() if k != "seconds"}}
-    init_steps = {"cgn": int(ship["cgn"]["meta"].get("steps", 0)) if ship["cgn"]["path"] else 0,
-                  "collision_net": int(ship["collision_net"]["meta"].get("steps", 0)) if ship["collision_net"]["path"]
-                  else 0}
     scores = {"cgn": cgn_score, "collision_net": lambda f: collision_score(f["network"])}
     for model in ("cgn", "collision_net"):
         old = ship[model]
         figures = judged[model]
         choice = choose(figures["candidate"], figures.get("shipped"), scores[model])
-        new_steps = training[model]["steps"]
-        entry[model] = {"init_from": {"checkpoint": training[model]["init"], "sha256": old["sha256"],
-                                      "steps": init_steps[model], "tasks_seen": lineage_tasks(old["meta"], model)},
-                        "steps": [init_steps[model], init_steps[model] + new_steps],
-                        "tasks_seen": lineage_tasks(old["meta"], model) + (end - start),
+        new_steps, start_from = training[model]["steps"], init[model]
+        entry[model] = {"init_from": {"checkpoint": training[model]["init"], "sha256": start_from["sha256"],
+                                      "steps": start_from["steps"], "tasks_seen": start_from["tasks_seen"],
+                                      "rounds": start_from["rounds"], "candidate_of_round": start_from["round"]},
+                        "steps": [start_from["steps"], start_from["steps"] + new_steps],
+                        "tasks_seen": start_from["tasks_seen"] + (end - start),
                         **{k: v for k, v in training[model].items() if k not in ("init", "init_sha256", "steps")},
                         "val": figures["candidate"] if model == "cgn" else figures["candidate"]["network"],
                         "shipped_val": (figures.get("shipped") if model == "cgn"
@@ -585,7 +628,8 @@ def main(argv=None) -> int:
     for model, name, log_name in (("cgn", "cgn_ours", work / "export/cgn_ours.log"),
                                   ("collision_net", "collision_net", work / "runs/collision/log.txt")):
         if entry[model]["shipped"]:
-            meta = ship_meta(work / "export" / f"{name}.json", ship[model]["meta"], entry, model, number, record, command)
+            meta = ship_meta(work / "export" / f"{name}.json", ship[model]["meta"], ship[model]["sha256"], entry, model,
+                             number, record, command)
             ship_checkpoint(work / "export" / f"{name}.pt", meta, log_name, name, log)
     seconds = entry["seconds"]
     seconds["total"] = round(sum(seconds["labels"].values()) + seconds["training"] + seconds["val"], 1)

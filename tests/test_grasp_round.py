@@ -137,10 +137,25 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     png = tmp_path / "curve.png"
     assert rounds.main(["--record", str(record), "--plot", str(png)]) == 0
     assert png.read_bytes()[:4] == b"\x89PNG"
-    # The next round takes the next tasks (here: past the suite's end, refused before anything runs).
-    with pytest.raises(SystemExit, match=r"train tasks 2:\d+ run past"):
+    # The next round takes the next tasks, and goes on from round 1's candidate, which did not
+    # ship but is still in the work folder: the lineage's steps, tasks and rounds carry on.
+    from fetchbench_ms.utils.packed import content_sha256
+
+    assert rounds.main(argv) == 0
+    second = json.loads((record / "rounds.json").read_text())["rounds"][1]
+    assert second["round"] == 2 and second["tasks"] == [2, 4]
+    for model, name, added in (("cgn", "cgn_ours", 1), ("collision_net", "collision_net", 3)):
+        start_from, first = second[model]["init_from"], entry[model]
+        assert start_from["checkpoint"] == str(export / f"{name}.pt") and start_from["candidate_of_round"] == 1
+        assert start_from["sha256"] == content_sha256(export / f"{name}.pt")
+        assert second[model]["steps"] == [first["steps"][1], first["steps"][1] + added]
+        assert second[model]["tasks_seen"] == first["tasks_seen"] + 2
+        assert start_from["rounds"] == first["init_from"]["rounds"] + [1]
+    assert second["cgn"]["shipped_val"]["checkpoint_sha256"] == shipped_cgn["checkpoint_sha256"]  # judged against
+    # Past the suite's end: refused before anything runs.
+    with pytest.raises(SystemExit, match=r"train tasks 4:\d+ run past"):
         rounds.main(["--record", str(record), "--work", str(work), "--tasks", str(10**7), *SMALL])
-    assert not (work / "round_02").exists()
+    assert not (work / "round_03").exists()
 
     # Shipping (into a copy of the checkpoints folder): the packed weights are the export's bytes
     # and the JSON counts the lineage's train-suite tasks.
@@ -148,11 +163,12 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     from fetchbench_ms.utils.packed import file_bytes
 
     monkeypatch.setattr(rounds, "ROOT", tmp_path)
-    meta = rounds.ship_meta(export / "cgn_ours.json", shipped_cgn, entry, "cgn", 1, {"rounds": []}, "python x")
+    meta = rounds.ship_meta(export / "cgn_ours.json", shipped_cgn, shipped_cgn["checkpoint_sha256"], entry, "cgn", 1,
+                            {"rounds": []}, "python x")
     rounds.ship_checkpoint(export / "cgn_ours.pt", meta, export / "cgn_ours.log", "cgn_ours", print)
     packed = tmp_path / "assets/checkpoints/cgn_ours.pt.planes.xz"
     assert file_bytes(packed) == before["cgn_ours.pt"] and not load_checkpoint(packed).training
     shipped_meta = json.loads((tmp_path / "assets/checkpoints/cgn_ours.json").read_text())
-    assert shipped_meta["train_tasks_seen"] == cgn["tasks_seen"] and shipped_meta["rounds"] == [1]
+    assert shipped_meta["train_tasks_seen"] == cgn["tasks_seen"] and shipped_meta["rounds"] == shipped_cgn["rounds"] + [1]
     assert shipped_meta["steps"] == shipped_cgn["steps"] + 1 and shipped_meta["round_steps"] == 1
     assert shipped_meta["data_manifests"]["cgn_views"]["sha256"] == labels["cgn_views"]["sha256"]

@@ -243,8 +243,10 @@ def distance_to_every(kind, x: torch.Tensor) -> torch.Tensor:
     return kind.exact(x[:, :, None].expand(P, A, O, 3).reshape(-1, 3), p, o).reshape(P, A, O)
 
 
-BAKED_CHUNK = 1 << 17  # grid vertices measured per call while baking (bounds the broad phase's memory)
-BAKED_DENSE_CHUNK = 1 << 25  # vertex-plane (or vertex-obstacle) pairs per call of the dense bake
+# Grid vertices measured per call while baking: bounds the broad phase's memory (vertices x
+# obstacles); a GPU takes larger calls (each call reads pair counts back to the host once per
+# obstacle kind). The values do not depend on it.
+BAKED_CHUNK = {"cpu": 1 << 17, "cuda": 1 << 19}
 BAKED_CACHE = 4  # baked grids kept per world (by resolution, device and included obstacle sets)
 
 
@@ -254,29 +256,16 @@ def grid_shape(resolution: float) -> np.ndarray:
     return np.ceil((hi - lo) / resolution - 1e-9).astype(int) + 1
 
 
-def _dense_distance(world: "TorchWorld", points: torch.Tensor) -> torch.Tensor:
-    """(P, N) distance of ``points`` to the nearest obstacle, every obstacle measured: fixed
-    shapes, no host read (the bake on a GPU; ``TorchWorld.distance``'s broad phase is the
-    cheaper one on a CPU). The same values below any horizon, up to float rounding."""
-    out = torch.full(points.shape[:2], FAR, device=points.device, dtype=points.dtype)
-    for kind in world.kinds:
-        out = torch.minimum(out, distance_to_every(kind, points).amin(dim=2))
-    if world.grid is not None:
-        out = torch.minimum(out, world.grid_distance(points))
-    return out
-
-
 def baked_grid_values(world: CollisionWorld, exclude: tuple[str, ...], resolution: float, device=None,
-                      dtype=torch.float32, max_planes: int | None = None, dense: bool | None = None) -> torch.Tensor:
+                      dtype=torch.float32, max_planes: int | None = None) -> torch.Tensor:
     """(nx, ny, nz) distance of the vertices of a grid over ``GRID_BOUNDS`` to ``world`` (less
-    ``exclude``), as ``TorchWorld`` measures it, truncated at ``GRID_TRUNCATION``; ``dense``
-    (default: on CUDA) measures every vertex against every obstacle (``_dense_distance``). Kept
-    on the world (``BAKED_CACHE`` per world, with the obstacle sets they were measured from, so
-    that a set added or replaced is a new entry): the plans of one task share a world."""
+    ``exclude``), as ``TorchWorld.distance`` measures it (bounding spheres first, the exact
+    formulas within the truncation), truncated at ``GRID_TRUNCATION``. Kept on the world
+    (``BAKED_CACHE`` per world, with the obstacle sets they were measured from, so that a set
+    added or replaced is a new entry): the plans of one task share a world."""
     sets = [s for g, ss in world.groups.items() if g not in exclude for s in ss]
     device = torch.device(device or "cpu")
-    dense = device.type == "cuda" if dense is None else dense
-    key = (resolution, max_planes, str(device), dtype, dense, tuple(id(s) for s in sets))
+    key = (resolution, max_planes, str(device), dtype, tuple(id(s) for s in sets))
     cache = world.__dict__.setdefault("_baked_grids", {})
     if key in cache:
         return cache[key][1]
@@ -285,16 +274,11 @@ def baked_grid_values(world: CollisionWorld, exclude: tuple[str, ...], resolutio
     axes = [torch.arange(n, device=device, dtype=torch.float64) * resolution + lo
             for n, lo in zip(shape, GRID_BOUNDS[0])]
     vertices = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(1, -1, 3).to(dtype)
-    if dense:
-        widest = max([k.O * (k.t["planes"].shape[2] if k.kind == "convex" else 1) for k in exact.kinds] + [1])
-        chunk = max(1, BAKED_DENSE_CHUNK // widest)
-    else:
-        chunk = BAKED_CHUNK
+    chunk = BAKED_CHUNK.get(device.type, BAKED_CHUNK["cpu"])
     values = torch.empty(vertices.shape[1], device=device, dtype=dtype)
     with torch.no_grad():
         for i in range(0, vertices.shape[1], chunk):
-            points = vertices[:, i: i + chunk]
-            d = _dense_distance(exact, points) if dense else exact.distance(points, horizon=GRID_TRUNCATION)
+            d = exact.distance(vertices[:, i: i + chunk], horizon=GRID_TRUNCATION)
             values[i: i + chunk] = d[0].clamp(max=GRID_TRUNCATION)
     values = values.reshape(*shape)
     cache[key] = (sets, values)  # the sets held: their ids cannot be reused while cached

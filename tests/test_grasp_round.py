@@ -152,6 +152,10 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
         assert second[model]["tasks_seen"] == first["tasks_seen"] + 2
         assert start_from["rounds"] == first["init_from"]["rounds"] + [1]
     assert second["cgn"]["shipped_val"]["checkpoint_sha256"] == shipped_cgn["checkpoint_sha256"]  # judged against
+    # the val tasks' collision labels (same tasks, same labeller flags) are round 1's, not made again
+    val_labels = second["labels"]["collision_val"]
+    assert val_labels["copied_from_round"] == 1 and val_labels["sha256"] == labels["collision_val"]["sha256"]
+    assert "copied_from_round" not in labels["collision_val"]
     # Past the suite's end: refused before anything runs.
     with pytest.raises(SystemExit, match=r"train tasks 4:\d+ run past"):
         rounds.main(["--record", str(record), "--work", str(work), "--tasks", str(10**7), *SMALL])

@@ -77,12 +77,28 @@ STAGES = ("labels", "training", "val")
 GOAL_TASKS = 3000  # issue 53's scale: both models trained on views / labels of >= 3,000 train tasks
 
 
+ARCHIVED_FILE_SHA = 16  # hex digits of each data file's sha256 kept in an archived manifest
+
+
+def compact_manifest(manifest: dict) -> dict:
+    """A data manifest as the record keeps it: each file's or shard's sha256 cut to its first
+    ``ARCHIVED_FILE_SHA`` hex digits (incompressible, most of an archived manifest's bytes); the
+    manifest's own sha256, over all its files, stays whole."""
+    out = dict(manifest)
+    for key in ("files", "shards"):
+        if key in out:
+            out[key] = [{**e, "sha256": e["sha256"][:ARCHIVED_FILE_SHA]} if "sha256" in e else e for e in out[key]]
+    out["archived"] = f"per-file sha256 cut to {ARCHIVED_FILE_SHA} hex digits; sha256 above is whole"
+    return out
+
+
 def archive_round(work: Path, folder: Path) -> None:
     """Keep beside the record what its figures rest on, xz-compressed (the tree's budget): the three
-    data manifests, and the per-task rows of the CGN val runs at the path their ``run`` field names
-    (``round_NN/val/cgn/NAME.jsonl`` -> ``.jsonl.xz`` under the record folder)."""
+    data manifests (``compact_manifest``), and the per-task rows of the CGN val runs at the path
+    their ``run`` field names (``round_NN/val/cgn/NAME.jsonl`` -> ``.jsonl.xz`` under the record folder)."""
     for key, source in (("cgn-views", "cgn_views"), ("collision-labels", "collision"), ("collision-val", "collision_val")):
-        atomic_write_bytes(folder / f"{key}-manifest.json.xz", lzma.compress((work / source / "manifest.json").read_bytes(), preset=9))
+        manifest = compact_manifest(json.loads((work / source / "manifest.json").read_text()))
+        atomic_write_bytes(folder / f"{key}-manifest.json.xz", lzma.compress(json.dumps(manifest, indent=1).encode(), preset=9))
     for rows in sorted((work / "val" / "cgn").glob("*.jsonl")):
         atomic_write_bytes(folder / "val" / "cgn" / f"{rows.name}.xz", lzma.compress(rows.read_bytes(), preset=9))
 

@@ -92,8 +92,13 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     assert labels["cgn_views"]["tasks"] == 2 and labels["cgn_views"]["views"] >= 1
     assert labels["collision"]["queries"] == 400 and labels["collision_val"]["queries"] == 200
     assert all(len(labels[k]["sha256"]) == 64 and labels[k]["per_core_minute"] for k in labels)
-    for name in ("cgn-views", "collision-labels", "collision-val"):  # the data manifests beside the record
-        assert json.loads(lzma.decompress((record / "round_01" / f"{name}-manifest.json.xz").read_bytes()))["sha256"]
+    for name, source in (("cgn-views", "cgn_views"), ("collision-labels", "collision"),
+                         ("collision-val", "collision_val")):  # the data manifests beside the record
+        kept = json.loads(lzma.decompress((record / "round_01" / f"{name}-manifest.json.xz").read_bytes()))
+        full = json.loads((work / "round_01" / source / "manifest.json").read_text())
+        assert kept["sha256"] == full["sha256"] and len(kept["sha256"]) == 64  # whole
+        entries = kept.get("files") or kept["shards"]  # each file's hash cut, the rest as made
+        assert [e["sha256"] for e in entries] == [e["sha256"][:16] for e in full.get("files") or full["shards"]]
     # the CGN val runs' per-task rows beside the record, where the entry's `run` names them
     for judged in ("val", "shipped_val"):
         rows = lzma.decompress((record / (entry["cgn"][judged]["run"] + ".xz")).read_bytes()).decode().splitlines()

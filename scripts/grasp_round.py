@@ -231,17 +231,14 @@ def plot(record: dict, out: Path) -> None:
 
     def curve(model: str, figure) -> tuple[list, list, list, list]:
         """The shipped lineage (x: train tasks seen, y: the figure), from the weights round 1 went
-        on from to each round's winner; then the candidates that did not ship (a branch the next
-        round did not go on from, so not on the line)."""
+        on from to each shipped candidate; then the candidates that did not ship (off that line)."""
         first = rounds[0][model]
-        xs = [first["init_from"]["tasks_seen"]] if first.get("shipped_val") else []
-        ys = [figure(first["shipped_val"])] if xs else []
-        dropped = [r[model] for r in rounds if not r[model].get("choice", {}).get("ships", True)]
+        kept = [(first["init_from"]["tasks_seen"], first["shipped_val"])] if first.get("shipped_val") else []
+        dropped = []
         for r in rounds:
-            if r[model].get("choice", {}).get("ships", True):
-                xs.append(r[model]["tasks_seen"])
-                ys.append(figure(r[model]["val"]))
-        return xs, ys, [c["tasks_seen"] for c in dropped], [figure(c["val"]) for c in dropped]
+            (kept if r[model]["shipped"] else dropped).append((r[model]["tasks_seen"], r[model]["val"]))
+        return ([x for x, _ in kept], [figure(v) for _, v in kept],
+                [x for x, _ in dropped], [figure(v) for _, v in dropped])
 
     def lineage(ax, model: str, figure, style: str, color: str, label: str) -> None:
         xs, ys, dx, dy = curve(model, figure)
@@ -550,8 +547,7 @@ def ship_checkpoint(export_pt: Path, meta: dict, log_file: Path, name: str, log)
     log(f"shipped {target.relative_to(ROOT)} ({len(packed) / 1e6:.2f} MB packed) and {name}.json")
 
 
-def ship_meta(export_json: Path, old: dict, old_sha: str | None, entry: dict, model: str, number: int, record: dict,
-              command: str) -> dict:
+def ship_meta(export_json: Path, before: dict, entry: dict, model: str, number: int, record: dict, command: str) -> dict:
     """The shipped JSON of a winner: the trainer's export JSON plus its lineage and this round's figures."""
     meta = json.loads(export_json.read_text())
     lineage = lineage_rounds(record, entry, model) + [number]
@@ -565,7 +561,7 @@ def ship_meta(export_json: Path, old: dict, old_sha: str | None, entry: dict, mo
                                     if (k == "cgn_views") == (model == "cgn")},
                  "round_val": entry[model]["val"], "previous": {"sha256": entry[model]["init_from"]["sha256"],
                                                                 "train_tasks_seen": entry[model]["init_from"]["tasks_seen"]},
-                 "shipped_before": {"sha256": old_sha, "train_tasks_seen": lineage_tasks(old, model)}})
+                 "shipped_before": {"sha256": before["sha256"], "train_tasks_seen": lineage_tasks(before["meta"], model)}})
     return meta
 
 
@@ -638,7 +634,6 @@ def main(argv=None) -> int:
              "labels": {k: v for k, v in labels.items() if k != "seconds"}}
     scores = {"cgn": cgn_score, "collision_net": lambda f: collision_score(f["network"])}
     for model in ("cgn", "collision_net"):
-        old = ship[model]
         figures = judged[model]
         choice = choose(figures["candidate"], figures.get("shipped"), scores[model])
         new_steps, start_from = training[model]["steps"], init[model]
@@ -663,8 +658,7 @@ def main(argv=None) -> int:
     for model, name, log_name in (("cgn", "cgn_ours", work / "export/cgn_ours.log"),
                                   ("collision_net", "collision_net", work / "runs/collision/log.txt")):
         if entry[model]["shipped"]:
-            meta = ship_meta(work / "export" / f"{name}.json", ship[model]["meta"], ship[model]["sha256"], entry, model,
-                             number, record, command)
+            meta = ship_meta(work / "export" / f"{name}.json", ship[model], entry, model, number, record, command)
             ship_checkpoint(work / "export" / f"{name}.pt", meta, log_name, name, log)
     seconds = entry["seconds"]
     seconds["total"] = round(sum(seconds["labels"].values()) + seconds["training"] + seconds["val"], 1)

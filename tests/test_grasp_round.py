@@ -172,8 +172,8 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys, monkeypatch):
     from fetchbench_ms.utils.packed import file_bytes
 
     monkeypatch.setattr(rounds, "ROOT", tmp_path)
-    meta = rounds.ship_meta(export / "cgn_ours.json", shipped_cgn, shipped_cgn["checkpoint_sha256"], entry, "cgn", 1,
-                            {"rounds": []}, "python x")
+    shipped_entry = {"meta": shipped_cgn, "sha256": shipped_cgn["checkpoint_sha256"]}
+    meta = rounds.ship_meta(export / "cgn_ours.json", shipped_entry, entry, "cgn", 1, {"rounds": []}, "python x")
     rounds.ship_checkpoint(export / "cgn_ours.pt", meta, export / "cgn_ours.log", "cgn_ours", print)
     packed = tmp_path / "assets/checkpoints/cgn_ours.pt.planes.xz"
     assert file_bytes(packed) == before["cgn_ours.pt"] and not load_checkpoint(packed).training

@@ -301,11 +301,7 @@ class TorchWorld:
             values = torch.stack([baked_grid_values(w, tuple(e), baked_grid, self.device, dtype, max_planes)
                                   for w, e in zip(worlds, excludes)])
             self.kinds = []
-            # grid_sample reads (N, C, D, H, W) with sample coordinates ordered (W, H, D) = (x, y, z).
-            self.grid = values.permute(0, 3, 2, 1)[:, None].contiguous()
-            self.grid_origin = torch.as_tensor(GRID_BOUNDS[0], device=self.device, dtype=dtype).repeat(self.P, 1)
-            self.grid_span = torch.as_tensor((grid_shape(baked_grid) - 1) * baked_grid, device=self.device,
-                                             dtype=dtype)
+            self._set_grid(values, np.tile(GRID_BOUNDS[0], (self.P, 1)), (grid_shape(baked_grid) - 1) * baked_grid)
             return
         boxes, cyls, convex, clouds = [], [], [], []
         for world, exclude in zip(worlds, excludes):
@@ -391,11 +387,16 @@ class TorchWorld:
         for i, (_, v) in enumerate(grids):
             values[i] = v.max()  # beyond a smaller grid: as far as its truncation (or FAR: no cloud)
             values[i, : v.shape[0], : v.shape[1], : v.shape[2]] = v
+        self._set_grid(torch.as_tensor(values, device=self.device, dtype=self.dtype), np.stack([g[0] for g in grids]),
+                       (shape - 1) * resolution)
+
+    def _set_grid(self, values: torch.Tensor, origin: np.ndarray, span: np.ndarray) -> None:
+        """The grids ``grid_distance`` reads: ``values`` (P, nx, ny, nz) with vertex 0 at ``origin``
+        (P, 3), the last ``span`` (3,) beyond it."""
         # grid_sample reads (N, C, D, H, W) with sample coordinates ordered (W, H, D) = (x, y, z).
-        self.grid = torch.as_tensor(values.transpose(0, 3, 2, 1)[:, None].copy(), device=self.device,
-                                    dtype=self.dtype)
-        self.grid_origin = torch.as_tensor(np.stack([g[0] for g in grids]), device=self.device, dtype=self.dtype)
-        self.grid_span = torch.as_tensor((shape - 1) * resolution, device=self.device, dtype=self.dtype)
+        self.grid = values.permute(0, 3, 2, 1)[:, None].contiguous()
+        self.grid_origin = torch.as_tensor(np.asarray(origin), device=self.device, dtype=self.dtype)
+        self.grid_span = torch.as_tensor(np.asarray(span), device=self.device, dtype=self.dtype)
 
     # -- queries --------------------------------------------------------------------------
     def grid_distance(self, points: torch.Tensor) -> torch.Tensor:

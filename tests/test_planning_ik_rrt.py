@@ -178,8 +178,8 @@ def test_a_start_the_spheres_call_in_collision_is_escaped_not_deepened(robot, sh
 def test_segment_checks_that_look_at_the_first_configurations_first_answer_and_count_the_same(robot, shelf):
     """``CollisionChecker.motion_check_first`` (the expert's fast3): every segment's answer and
     counted checks are those of the whole-segment batch, a segment that collides near its start
-    computes only its first configurations, and RRTConnect plans the same path with the same
-    count of checks."""
+    computes only its first configurations (or, ``spread``, a first batch spread over it), and
+    RRTConnect plans the same path with the same count of checks."""
     world = shelf[0]
     whole, first = CollisionChecker(robot, world), CollisionChecker(robot, world)
     first.motion_check_first = 16
@@ -191,15 +191,18 @@ def test_segment_checks_that_look_at_the_first_configurations_first_answer_and_c
     pairs = [(Q_DEFAULT, q_in), (q_in, Q_DEFAULT)] + [
         (q_in, q_in + rng.normal(0, 0.6, 7)) for _ in range(30)] + [
         (Q_DEFAULT, Q_DEFAULT + rng.normal(0, 0.1, 7)) for _ in range(5)]
-    answers, early_exits = [], 0
+    answers, early_exits, spread_exits = [], 0, 0
     for a, b in pairs:
         n0, m0, k0 = whole.n_checked, first.n_checked, len(computed)
         answer = whole.motion_valid(a, b)
         assert first.motion_valid(a, b) == answer
         assert first.n_checked - m0 == whole.n_checked - n0
         early_exits += sum(computed[k0:]) < whole.n_checked - n0
+        m1, k1 = first.n_checked, len(computed)  # the first batch spread over the segment
+        assert first.motion_valid(a, b, spread=True) == answer and first.n_checked - m1 == whole.n_checked - n0
+        spread_exits += sum(computed[k1:]) < whole.n_checked - n0
         answers.append(answer)
-    assert any(answers) and not all(answers) and early_exits >= 5
+    assert any(answers) and not all(answers) and early_exits >= 5 and spread_exits >= 5
     plans = [plan_rrtconnect(c, Q_DEFAULT, q_in, seed=7) for c in (whole, first)]
     assert plans[0].status == plans[1].status == "solved"
     assert plans[0].n_checked == plans[1].n_checked and np.array_equal(plans[0].path, plans[1].path)

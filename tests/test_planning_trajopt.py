@@ -362,6 +362,30 @@ def test_baked_grid_reads_the_world_within_half_a_cell_diagonal(robot, worlds, m
 SMALL = dict(n_waypoints=12, seeds=4, opt_iters=25, collision_substeps=2, rrt_fallback=False, device="cpu")
 
 
+def test_checking_the_first_configurations_first_plans_the_same_with_fewer_computed(robot, shelf_problem):
+    """``motion_check_first`` (the direct segments, the seeds' paths and the shortcuts checked
+    first over their first configurations): the same plan, goal and count of checks as
+    whole-segment batches, with fewer configurations computed (the shelf's direct segments
+    collide near the start)."""
+    checker, _, goals = shelf_problem
+    computed = []
+    clearance = checker.clearance
+    checker.clearance = lambda q: (computed.append(len(q)), clearance(q))[1]
+    try:
+        plans = []
+        for first in (0, 16):
+            k0 = len(computed)
+            plans.append(plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(motion_check_first=first, **SMALL)))
+            plans[-1].extras["computed"] = sum(computed[k0:])
+    finally:
+        del checker.clearance
+    whole, first = plans
+    assert whole.status == first.status == "solved" and whole.goal_index == first.goal_index
+    assert np.array_equal(whole.path, first.path) and whole.n_checked == first.n_checked
+    assert whole.extras["computed"] == whole.n_checked
+    assert first.extras["computed"] < whole.n_checked
+
+
 def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
     """The fixed-shape Adam loop (blocks of ten iterations, the convergence test on the
     device; on CUDA it is replayed as a graph) plans the shelf problem as the default sparse
@@ -482,7 +506,7 @@ def test_fixed_shape_warm_start_moves_the_seeds_as_the_sparse_one(robot, shelf_p
     padded = dict(cuda_graph=True, graph_capacity=(16, 4, 8))
     for name, extra in (("sparse", {}), ("fixed", dict(fixed_shape=True)), ("padded", padded)):
         cfg = TrajoptConfig(**dict(SMALL, opt_iters=0, mppi_iters=3), **extra)
-        pr = _prepare(checker, Q_DEFAULT, goals, 0.0, cfg.resolution)
+        pr = _prepare(checker, Q_DEFAULT, goals, 0.0, cfg.resolution, cfg.motion_check_first)
         assert pr.result is None
         out[name] = _optimise([pr], robot, cfg, deadline=float("inf"))
         if extra:

@@ -209,16 +209,30 @@ class CollisionChecker:
     #: same search (the same answers: each configuration's clearance does not depend on its batch).
     motion_check_first: int = 0
 
-    def motion_valid(self, q_from, q_to, resolution: float = 0.02) -> bool:
-        """Straight joint-space segment checked at ``resolution`` rad (max joint step)."""
+    def all_valid(self, q, first: int | None = None, spread: bool = False) -> bool:
+        """Whether every configuration of ``q`` (N, 7) is valid: the first ``first`` (default
+        ``motion_check_first``) as one batch, the rest only when those are all free; counted
+        in ``n_checked`` as one batch either way. ``spread``: that first batch is ``first``
+        configurations spread evenly over ``q`` (a segment to a goal deep in the scene
+        collides anywhere along it, not mostly near its start)."""
+        first = self.motion_check_first if first is None else first
+        if 0 < first < len(q):
+            head = np.zeros(len(q), bool)
+            if spread:
+                head[:: -(-len(q) // first)] = True
+            else:
+                head[:first] = True
+            if not self.valid(q[head]).all():
+                self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
+                return False
+            return bool(self.valid(q[~head]).all())
+        return bool(self.valid(q).all())
+
+    def motion_valid(self, q_from, q_to, resolution: float = 0.02, first: int | None = None,
+                     spread: bool = False) -> bool:
+        """Straight joint-space segment checked at ``resolution`` rad (max joint step);
+        ``first``, ``spread``: as ``all_valid``'s."""
         q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
         n = max(2, int(np.ceil(np.abs(q_to - q_from).max() / resolution)) + 1)
         s = np.linspace(0.0, 1.0, n)[:, None]
-        q = q_from + s * (q_to - q_from)
-        first = self.motion_check_first
-        if 0 < first < n:
-            if not self.valid(q[:first]).all():
-                self.n_checked += int(self.robot.within_limits(q[first:]).sum())  # as if checked at once
-                return False
-            return bool(self.valid(q[first:]).all())
-        return bool(self.valid(q).all())
+        return self.all_valid(q_from + s * (q_to - q_from), first, spread)

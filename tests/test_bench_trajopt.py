@@ -80,3 +80,22 @@ def test_config_items_parse_literals_booleans_and_bare_words():
     assert got == {"seeds": 8, "cuda_graph": True, "compile_backend": "inductor", "graph_capacity": (8, 4, 16)}
     with pytest.raises(SystemExit, match="unknown TrajoptConfig field 'nope'; valid: .*compile_backend"):
         bench.config_overrides(["nope=1"])
+
+
+def test_the_checker_bench_times_the_segments_the_planners_check():
+    """bench_checker.py: a problem's segments densified at the planners' 0.02 rad (start and
+    goal included, one run per goal), every configuration checked in each timed pass."""
+    import numpy as np
+
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.demo_worlds import shelf_worlds
+    from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+
+    bench = import_script(ROOT / "scripts/bench/bench_checker.py")
+    goals = np.stack([Q_DEFAULT + 0.09, Q_DEFAULT - 0.05])
+    q = bench.segment_configs(dict(q_start=Q_DEFAULT, q_goals=goals))
+    assert len(q) == 6 + 4  # 0.09 rad in 5 steps, 0.05 in 3 (with both ends)
+    assert np.allclose(q[0], Q_DEFAULT) and np.allclose(q[5], goals[0]) and np.allclose(q[-1], goals[1])
+    checker = CollisionChecker(panda(), shelf_worlds()[0])
+    assert bench.configs_per_second(checker, q, batch=4, repeats=2) > 0
+    assert checker.n_checked == 2 * len(q)

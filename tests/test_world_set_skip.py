@@ -1,5 +1,6 @@
-"""The broad phase skips an obstacle set whose bounding ball is beyond the horizon from the
-query points' box: the distances are the same to the bit as without the skip."""
+"""The broad phase measures a point against a set's members only when the point is within the
+horizon of the set's one bounding ball: the distances below the horizon are the same to the bit
+as measuring every pair."""
 import numpy as np
 import pytest
 import torch
@@ -21,28 +22,51 @@ def _world(rng) -> W.CollisionWorld:
     return world
 
 
-def test_skipping_far_sets_changes_no_distance(monkeypatch):
+def _every_pair(world: W.CollisionWorld, points: np.ndarray, exclude) -> torch.Tensor:
+    """The reference: every point measured against every member of every included set."""
+    points = torch.as_tensor(points, dtype=torch.float64).reshape(-1, 3)
+    out = torch.full((len(points),), W.FAR, dtype=torch.float64)
+    for name, sets in world.groups.items():
+        if name in exclude or not len(points):
+            continue
+        for s in sets:
+            idx_p, idx_o = (g.reshape(-1) for g in torch.meshgrid(torch.arange(len(points)), torch.arange(len(s)),
+                                                                   indexing="ij"))
+            out = out.scatter_reduce(0, idx_p, s.exact(points, idx_p, idx_o), reduce="amin")
+    return out
+
+
+def test_points_far_from_a_set_are_not_measured_against_it_and_no_distance_changes(monkeypatch):
+    """Below the horizon every distance is the every-pair reference's to the bit (the same
+    member, the same formula); beyond it none is below the horizon; a point's distance does
+    not depend on the other points of its batch; and the sets' bounding balls kept most pairs
+    from being measured at all."""
     rng = np.random.default_rng(0)
     world = _world(rng)
     queries = [rng.normal(c, s, (n, 3)) for c, s, n in
                [((0.3, 0.1, 0.5), 0.05, 300), ((0, 0, 0), 0.5, 500), ((1.2, -1, 0.2), 0.02, 40), ((0, 0, 0), 0.0, 1)]]
     queries.append(np.zeros((0, 3)))
-    skipped = []
-    real_gap = W._box_gap
-
-    def counting_gap(*args):
-        gap = real_gap(*args)
-        skipped.append(gap)
-        return gap
-
-    monkeypatch.setattr(W, "_box_gap", counting_gap)
-    fast = [world.distance(q, horizon, exclude) for q in queries for horizon in (0.05, 0.1)
-            for exclude in ((), ("object:1",))]
-    monkeypatch.setattr(W, "_box_gap", lambda *args: -np.inf)  # never skip
-    full = [world.distance(q, horizon, exclude) for q in queries for horizon in (0.05, 0.1)
-            for exclude in ((), ("object:1",))]
-    assert all(torch.equal(a, b) for a, b in zip(fast, full))
-    assert any(g > 0.2 for g in skipped)  # sets were skipped
+    measured = [0]
+    for sets in world.groups.values():
+        for s in sets:
+            exact = s.exact
+            monkeypatch.setattr(s, "exact", lambda p, i, o, exact=exact: (measured.__setitem__(0, measured[0] + len(i)),
+                                                                          exact(p, i, o))[1])
+    pairs = 0
+    for q in queries:
+        for horizon in (0.05, 0.1):
+            for exclude in ((), ("object:1",)):
+                got = world.distance(q, horizon, exclude)
+                pairs += len(q) * sum(len(s) for n, sets in world.groups.items() if n not in exclude for s in sets)
+                measured_before = measured[0]
+                ref = _every_pair(world, q, exclude)
+                measured[0] = measured_before  # the reference's pairs do not count
+                near = ref < horizon
+                assert torch.equal(got[near], ref[near])
+                assert (got[~near] >= horizon - 1e-9).all()
+                if len(q) > 1:  # one point alone, and in its batch: the same bits
+                    assert torch.equal(world.distance(q[:1], horizon, exclude), got[:1])
+    assert measured[0] < pairs / 10
 
 
 def test_the_bounding_ball_holds_every_member():

@@ -21,6 +21,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 FAR = 10.0  # distance reported where a set has nothing nearby (m)
+#: ``torch.cdist`` point by point: its default matrix-product form rounds a pair's value
+#: differently with the batch around it (and is slower for 3-D points)
+EXACT_CDIST = "donot_use_mm_for_euclid_dist"
 
 
 def _t(x) -> torch.Tensor:
@@ -39,12 +42,6 @@ def pose_matrix(position, quat_wxyz=(1.0, 0.0, 0.0, 0.0)) -> np.ndarray:
     T[:3, :3] = quat_wxyz_to_matrix(quat_wxyz)
     T[:3, 3] = position
     return T
-
-
-def _box_gap(lo: np.ndarray, hi: np.ndarray, center: np.ndarray, radius: float) -> float:
-    """A lower bound of the distance from any point in the box [lo, hi] to any point of a
-    set whose members' bounding spheres all lie in the ball (``center``, ``radius``)."""
-    return float(np.linalg.norm(np.maximum(np.maximum(lo - center, center - hi), 0.0))) - radius
 
 
 def _cluster_balls(points: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -262,30 +259,38 @@ class CollisionWorld:
             raise KeyError(f"unknown world groups {sorted(unknown)}; valid: {', '.join(self.groups)}")
         points = torch.as_tensor(points_base, dtype=torch.float64).reshape(-1, 3)
         out = torch.full((len(points),), FAR, dtype=torch.float64)
-        # The points' bounding box: a set whose members' bounding spheres are all farther than
-        # the horizon from it (with room for rounding) has no pair the broad phase keeps, so it
-        # is skipped whole; the answer is the same to the bit.
-        lo, hi = (points.amin(dim=0).numpy(), points.amax(dim=0).numpy()) if len(points) else (None, None)
+        sets = [s for name, group in self.groups.items() if name not in exclude for s in group]
+        bounded = [k for k, s in enumerate(sets) if getattr(s, "bound_all", None) is not None]
+        # Each point against each set's one bounding ball, all sets in one batch: a point
+        # farther than the horizon from a set's ball (with room for rounding) has no pair
+        # the broad phase keeps, so the set's members are measured only from the points
+        # near it. Distances point by point (no matrix-product form), so a pair's value does
+        # not depend on the other points of the batch.
+        near_set = {}
+        if bounded and len(points):
+            ball_c = torch.as_tensor(np.stack([sets[k].bound_all[0] for k in bounded]))
+            ball_r = torch.as_tensor([sets[k].bound_all[1] for k in bounded], dtype=torch.float64)
+            gap = torch.cdist(points, ball_c, compute_mode=EXACT_CDIST) - ball_r
+            near_set = dict(zip(bounded, (gap < horizon + 1e-6).T))
         balls = _cluster_balls(points, cluster_size) if cluster_size and len(points) else None
-        for name, sets in self.groups.items():
-            if name in exclude:
+        for k, obstacle_set in enumerate(sets):
+            if isinstance(obstacle_set, PointCloudField):
+                out = torch.minimum(out, obstacle_set.distance(points, horizon))
                 continue
-            for obstacle_set in sets:
-                if isinstance(obstacle_set, PointCloudField):
-                    out = torch.minimum(out, obstacle_set.distance(points, horizon))
-                    continue
-                bound_all = getattr(obstacle_set, "bound_all", None)
-                if lo is not None and bound_all is not None and _box_gap(lo, hi, *bound_all) > horizon + 1e-6:
-                    continue
-                if balls is not None:
-                    idx_p, idx_o = _cluster_pairs(points, balls, obstacle_set, horizon)
-                else:  # broad phase: bounding spheres within the horizon
-                    coarse = torch.cdist(points, obstacle_set.bound_center) - obstacle_set.bound_radius
-                    idx_p, idx_o = torch.nonzero(coarse < horizon, as_tuple=True)
-                if len(idx_p) == 0:
-                    continue
-                d = obstacle_set.exact(points, idx_p, idx_o)
-                out = out.scatter_reduce(0, idx_p, d, reduce="amin")
+            near = near_set.get(k)
+            if near is not None and not bool(near.any()):
+                continue
+            if balls is not None:
+                idx_p, idx_o = _cluster_pairs(points, balls, obstacle_set, horizon)
+            else:  # broad phase: bounding spheres within the horizon
+                at = torch.arange(len(points)) if near is None else torch.nonzero(near, as_tuple=True)[0]
+                coarse = torch.cdist(points[at], obstacle_set.bound_center, compute_mode=EXACT_CDIST)
+                idx_p, idx_o = torch.nonzero(coarse - obstacle_set.bound_radius < horizon, as_tuple=True)
+                idx_p = at[idx_p]
+            if len(idx_p) == 0:
+                continue
+            d = obstacle_set.exact(points, idx_p, idx_o)
+            out = out.scatter_reduce(0, idx_p, d, reduce="amin")
         return out
 
 

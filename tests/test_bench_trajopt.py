@@ -99,3 +99,34 @@ def test_the_checker_bench_times_the_segments_the_planners_check():
     checker = CollisionChecker(panda(), shelf_worlds()[0])
     assert bench.configs_per_second(checker, q, batch=4, repeats=2) > 0
     assert checker.n_checked == 2 * len(q)
+
+
+def test_the_throughput_bench_plans_every_problem_and_counts_the_wall_time_of_all_workers():
+    """bench_trajopt_throughput.py: a pass plans every problem in order, batch by batch, with
+    the same plans each pass (counts, not time); throughput is all workers' problems over
+    the span from the first timed start to the last end."""
+    import numpy as np
+
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
+    from fetchbench_ms.planning.ik import solve_ik
+    from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+    from fetchbench_ms.planning.trajopt import TrajoptConfig
+
+    bench = import_script(ROOT / "scripts/bench/bench_trajopt_throughput.py")
+    robot = panda()
+    checker = CollisionChecker(robot, shelf_worlds()[0])
+    goals = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=32,
+                     rng=np.random.default_rng(1)).q[:2]
+    near = Q_DEFAULT + 0.05
+    problems = [dict(checker=checker, q_start=Q_DEFAULT, q_goals=q, start_tolerance=0.0) for q in (goals, near, goals)]
+    cfg = TrajoptConfig(n_waypoints=12, seeds=4, opt_iters=10, collision_substeps=2, rrt_fallback=False, device="cpu")
+    first, again = (bench.plan_pass(problems, cfg, batch=2, time_limit=300.0) for _ in range(2))
+    assert [r.status for r in first] == [r.status for r in again] and first[1].status == "direct"
+    assert first[0].success and all(np.array_equal(a.path, b.path) for a, b in zip(first, again) if a.success)
+    parts = [dict(problems=3, solved=3, searched=2, start=10.0, end=12.0, same_as_warm=True),
+             dict(problems=5, solved=4, searched=1, start=10.5, end=14.0, same_as_warm=True)]
+    out = bench.aggregate(parts)
+    assert out["problems"] == 8 and out["seconds"] == 4.0 and out["problems_per_s"] == 2.0
+    assert out["success"] == 7 / 8 and out["searched"] == 3 and out["same_as_warm"]
+    assert not bench.aggregate([dict(parts[0], same_as_warm=False), parts[1]])["same_as_warm"]

@@ -99,3 +99,23 @@ def robot():
 
     torch.set_num_threads(1)
     return panda()
+
+
+@pytest.fixture(scope="module")
+def shelf_problem(robot):
+    """The hand-made shelf world's planning problem: its checker, its exact meshes and four
+    collision-free IK goals inside the shelf, which the straight segment from the default
+    configuration does not reach."""
+    import numpy as np
+
+    from fetchbench_ms.planning.checker import CollisionChecker
+    from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
+    from fetchbench_ms.planning.ik import solve_ik
+    from fetchbench_ms.planning.robot import Q_DEFAULT
+
+    world, exact = shelf_worlds()
+    checker = CollisionChecker(robot, world)
+    goals = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=32,
+                     rng=np.random.default_rng(1))
+    assert goals.found
+    return checker, exact, goals.q[:4]

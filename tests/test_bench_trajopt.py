@@ -101,25 +101,20 @@ def test_the_checker_bench_times_the_segments_the_planners_check():
     assert checker.n_checked == 2 * len(q)
 
 
-def test_the_throughput_bench_plans_every_problem_and_counts_the_wall_time_of_all_workers():
+def test_the_throughput_bench_plans_every_problem_and_counts_the_wall_time_of_all_workers(shelf_problem):
     """bench_trajopt_throughput.py: a pass plans every problem in order, batch by batch, with
     the same plans each pass (counts, not time); throughput is all workers' problems over
     the span from the first timed start to the last end."""
     import numpy as np
 
-    from fetchbench_ms.planning.checker import CollisionChecker
-    from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
-    from fetchbench_ms.planning.ik import solve_ik
-    from fetchbench_ms.planning.robot import Q_DEFAULT, panda
+    from fetchbench_ms.planning.robot import Q_DEFAULT
     from fetchbench_ms.planning.trajopt import TrajoptConfig
 
     bench = import_script(ROOT / "scripts/bench/bench_trajopt_throughput.py")
-    robot = panda()
-    checker = CollisionChecker(robot, shelf_worlds()[0])
-    goals = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=checker, q_seed=Q_DEFAULT, n_seeds=32,
-                     rng=np.random.default_rng(1)).q[:2]
+    checker, _, goals = shelf_problem
     near = Q_DEFAULT + 0.05
-    problems = [dict(checker=checker, q_start=Q_DEFAULT, q_goals=q, start_tolerance=0.0) for q in (goals, near, goals)]
+    problems = [dict(checker=checker, q_start=Q_DEFAULT, q_goals=q, start_tolerance=0.0)
+                for q in (goals[:2], near, goals[:2])]
     cfg = TrajoptConfig(n_waypoints=12, seeds=4, opt_iters=10, collision_substeps=2, rrt_fallback=False, device="cpu")
     first, again = (bench.plan_pass(problems, cfg, batch=2, time_limit=300.0) for _ in range(2))
     assert [r.status for r in first] == [r.status for r in again] and first[1].status == "direct"

@@ -142,7 +142,9 @@ def _trajectory_costs(robot, worlds):
     from fetchbench_ms.planning.trajopt import _Costs
 
     checkers = _checkers(robot, worlds)
-    cfg = TrajoptConfig(device="cpu")
+    # three collision points a segment (FULL_COUNTS'): more configurations between waypoints,
+    # so that the wild trajectories below bring links near two obstacles of a kind
+    cfg = TrajoptConfig(device="cpu", collision_substeps=3)
     tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], max_planes=cfg.max_planes)
     tr = TorchRobot(robot, checkers)
     return _Costs(tr, tw, cfg, robot.q_min, robot.q_max), tr, cfg
@@ -607,3 +609,18 @@ def test_phase_timer_reports_every_phase_and_changes_no_plan(robot, shelf_proble
     if extra.get("cuda_graph"):
         assert on[0].extras["loop"] == "replayed"
 
+
+
+def test_the_pipelines_planner_takes_the_runs_counts(monkeypatch):
+    """``trajopt.plan`` (the pipeline's entry) plans with the run's ``trajopt_counts`` and with
+    the defaults when the run names none."""
+    from fetchbench_ms.planning import trajopt
+    from fetchbench_ms.planning.rrt import PlanRequest
+
+    seen = []
+    monkeypatch.setattr(trajopt, "plan_trajopt", lambda *a, config=None, **k: seen.append(config))
+    for options in ({"trajopt_counts": "16x80x3"}, {"trajopt_counts": None}, {}):
+        trajopt.plan(PlanRequest(None, np.zeros(7), np.zeros((1, 7)), seed=0, max_checks=10, checks_per_try=10,
+                                 time_limit=1.0, options=options))
+    assert seen[0] == TrajoptConfig(**trajopt.FULL_COUNTS)
+    assert seen[1] == seen[2] == TrajoptConfig() and (seen[1].seeds, seen[1].opt_iters) == (8, 40)

@@ -13,7 +13,7 @@ from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
 from fetchbench_ms.planning.distance import PairCache, SphereGroups, TorchRobot, TorchWorld
 from fetchbench_ms.planning.ik import solve_ik
 from fetchbench_ms.planning.robot import Q_DEFAULT
-from fetchbench_ms.planning.trajopt import CPU_COUNTS, TrajoptConfig, _Costs, plan_trajopt
+from fetchbench_ms.planning.trajopt import FULL_COUNTS, TrajoptConfig, _Costs, plan_trajopt
 from fetchbench_ms.planning.world import ConvexSet
 from test_planning_trajopt import _checkers, worlds  # noqa: F401 (a fixture)
 
@@ -71,7 +71,7 @@ def test_unsorted_broad_phase_gives_the_reference_costs_clearances_and_gradients
         assert torch.equal(a.view(torch.int32), b.view(torch.int32))  # bitwise, zeros' signs too
 
 
-@pytest.mark.parametrize("counts", [{}, CPU_COUNTS], ids=["default", "cpu-counts"])
+@pytest.mark.parametrize("counts", [{}, FULL_COUNTS], ids=["default", "full-counts"])
 def test_plans_are_bitwise_the_reference_plans(robot, reference, counts):
     world, _ = shelf_worlds()
     checker = CollisionChecker(robot, world)

@@ -434,7 +434,9 @@ PLANNER_OPTION_ERRORS = textwrap.dedent("""
     from fetchbench_ms.cli import main
     answers = []
     for method, option in (("cgn-ptd-mppi", "mppi_goal_radius=0"), ("cgn-ptd-mppi", "mppi_goal_region=-1"),
-                           ("ga-ptd-mppi", "mppi_cost=nets"), ("ga-mesh-rrt", "mppi_goal_region=0")):
+                           ("ga-ptd-mppi", "mppi_cost=nets"), ("ga-mesh-rrt", "mppi_goal_region=0"),
+                           ("ga-mesh-trajopt", "trajopt_counts=8x40"), ("cgn-imit-mlp", "trajopt_counts=8x0x2"),
+                           ("ga-mesh-rrt", "trajopt_counts=8x40x2")):
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["eval", "--method", method, "--suite", "val", "--tasks", "0:100",
@@ -453,13 +455,18 @@ def test_bad_planner_options_are_one_line_before_torch_loads(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     answers, heavy = json.loads(out.stdout)
     assert heavy == []
-    assert [code for code, _ in answers] == [2, 2, 2, 2]
+    assert [code for code, _ in answers] == [2] * 7
     lines = [_one_error_line(err) for _, err in answers]
-    valid = "valid: mppi_goal_region=RAD (>= 0; 0 switches the goal credit off); mppi_cost=network|distance"
+    valid = ("valid: mppi_goal_region=RAD (>= 0; 0 switches the goal credit off); mppi_cost=network|distance; "
+             "trajopt_counts=SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3)")
     assert "unknown planner option 'mppi_goal_radius'" in lines[0] and lines[0].endswith(valid)
     assert "mppi_goal_region=-1: bad value" in lines[1] and lines[1].endswith(valid)
     assert "mppi_cost=nets: bad value" in lines[2] and lines[2].endswith(valid)
     assert lines[3].endswith("'mppi_goal_region' applies to cgn-ptd-mppi, ga-ptd-mppi, ga-mesh-mppi, not ga-mesh-rrt")
+    assert "trajopt_counts=8x40: bad value" in lines[4] and lines[4].endswith(valid)
+    assert "trajopt_counts=8x0x2: bad value" in lines[5] and lines[5].endswith(valid)  # the hybrids take it
+    assert "'trajopt_counts' applies to ga-mesh-trajopt, " in lines[6] and ", cgn-imit-mlp, " in lines[6]
+    assert lines[6].endswith("not ga-mesh-rrt")
     assert not (tmp_path / "eval").exists()
 
 
@@ -468,13 +475,21 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     import dataclasses
 
     from fetchbench_ms.planning.mppi import COSTS
+    from fetchbench_ms.planning.trajopt import COUNT_FIELDS, FULL_COUNTS, TrajoptConfig, counts_config
     from fetchbench_ms.method_spec import PLANNERS
-    from fetchbench_ms.solutions.planner_options import MPPI_COSTS, PLANNER_OPTIONS
+    from fetchbench_ms.solutions.planner_options import MPPI_COSTS, PLANNER_OPTIONS, check_trajopt_counts
     from fetchbench_ms.solutions.sense_plan_act import SolveConfig
 
     assert {o for p in PLANNERS.values() for o in p.options} <= set(PLANNER_OPTIONS)
     assert MPPI_COSTS == tuple(COSTS)
     assert set(PLANNER_OPTIONS) <= {f.name for f in dataclasses.fields(SolveConfig)}
+    # trajopt_counts names TrajoptConfig's count fields, in order, written plainly
+    assert set(COUNT_FIELDS) <= {f.name for f in dataclasses.fields(TrajoptConfig)} and set(FULL_COUNTS) == set(COUNT_FIELDS)
+    counts = check_trajopt_counts(" 016x80 x3")
+    assert counts == "16x80x3" and counts_config(counts) == TrajoptConfig(**FULL_COUNTS)
+    default = TrajoptConfig()
+    assert check_trajopt_counts("x".join(str(getattr(default, f)) for f in COUNT_FIELDS)) == "8x40x2"
+    assert counts_config(None) == default
 
 
 def test_ppo_bad_flags_are_one_line_before_torch_loads():

@@ -98,8 +98,9 @@ def add_commands(subparsers) -> None:
                         "(repeatable; recorded in run.json and every record)")
     p.add_argument("--planner-option", action="append", default=None, metavar="KEY=VALUE",
                    help="a planner parameter of the ablation, for the MPPI methods: mppi_goal_region=RAD (the goal "
-                        "credit's region, 0: off) or mppi_cost=network|distance (repeatable; recorded in run.json "
-                        "and every record)")
+                        "credit's region, 0: off) or mppi_cost=network|distance; for the trajopt methods and the "
+                        "hybrids: trajopt_counts=SEEDSxITERSxSUBSTEPS (default 8x40x2) (repeatable; recorded in "
+                        "run.json and every record)")
     from ..robots import DEFAULT_ROBOT, ROBOT_UIDS
 
     p.add_argument("--robot", default=DEFAULT_ROBOT, choices=ROBOT_UIDS,

@@ -54,29 +54,43 @@ def default_device() -> str:
     return os.environ.get("FETCHBENCH_TRAJOPT_DEVICE") or ("cuda" if torch.cuda.is_available() else "cpu")
 
 
-#: Fewer counts, a third of the work: on val 0:120 (42 searched problems) they solve 92 of 102
-#: problems against the defaults' 91, with the same median C-space length and finer-check
-#: validity (results/planning/bench-trajopt-cpu1-val120-{counts,16seeds}.json). The evaluation's
-#: trajopt methods use the defaults: their shipped test records were made with them.
-CPU_COUNTS = {"seeds": 8, "opt_iters": 40, "collision_substeps": 2}
+#: The counts a run names with the planner option ``trajopt_counts=SEEDSxITERSxSUBSTEPS``
+#: (``solutions.planner_options``): ``TrajoptConfig``'s ``seeds``, ``opt_iters`` and
+#: ``collision_substeps``.
+COUNT_FIELDS = ("seeds", "opt_iters", "collision_substeps")
+
+#: Twice the defaults' seeds and iterations and 3 collision points a segment: 2-3x the work
+#: for no better plans. On val 0:120 they solve 91 of 102 problems against the defaults' 92,
+#: with the same median C-space length and finer-check validity
+#: (results/planning/bench-trajopt-cpu1-val120-{16seeds,counts}.json); test runs that carry
+#: ``trajopt_counts=16x80x3`` were made with them.
+FULL_COUNTS = {"seeds": 16, "opt_iters": 80, "collision_substeps": 3}
+
+
+def counts_config(counts: str | None, **fields) -> "TrajoptConfig":
+    """The ``TrajoptConfig`` of a ``trajopt_counts`` value (``"16x80x3"``: seeds, Adam
+    iterations, collision points a segment; None: the defaults), with ``fields`` set too."""
+    if counts:
+        fields = {**dict(zip(COUNT_FIELDS, (int(n) for n in counts.split("x")))), **fields}
+    return TrajoptConfig(**fields)
 
 
 @dataclass
 class TrajoptConfig:
     """The optimiser's work, in counts: the same on every device (the benchmark's rows must
-    not depend on whether a GPU was there). About 1-3 s a searched problem on one CPU core;
-    ``CPU_COUNTS`` about 1 s."""
+    not depend on whether a GPU was there). About 1 s a searched problem on one CPU core
+    (``FULL_COUNTS``: 1-3 s)."""
 
     n_waypoints: int = 24  # including start and goal
-    seeds: int = 16  # per problem: the straight line to each goal, then random via points
+    seeds: int = 8  # per problem: the straight line to each goal, then random via points
     via_noise: float = 0.8  # rad: spread of the random seeds' via point around the midpoint
-    collision_substeps: int = 3  # collision cost at waypoints and between them
+    collision_substeps: int = 2  # collision cost at waypoints and between them
     check_substeps: int = 8  # the spheres' verdict on the result, before the exact check
     mppi_iters: int = 3
     mppi_particles: int = 8  # per seed
     mppi_noise: float = 0.2  # rad: spread of the particles' smooth perturbations
     mppi_temperature: float = 0.1
-    opt_iters: int = 80
+    opt_iters: int = 40
     converged: float = 0.005  # stop early when 10 iterations improve the summed cost less than this
     lr: float = 0.04
     eta: float = 0.03  # m: activation distance of the collision cost
@@ -535,9 +549,12 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
 
 
 def plan(request: PlanRequest) -> PlanResult:
-    """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``)."""
+    """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``), with the
+    run's ``trajopt_counts`` (None: the defaults)."""
+    config = counts_config(request.options.get("trajopt_counts"))
     return plan_trajopt(request.checker, request.q_start, request.q_goals, request.time_limit,
-                        start_tolerance=request.start_tolerance, seed=request.seed, max_checks=request.max_checks)
+                        start_tolerance=request.start_tolerance, config=config, seed=request.seed,
+                        max_checks=request.max_checks)
 
 
 def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_limit: float = 300.0,
@@ -561,5 +578,5 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
     return result
 
 
-__all__ = ["BATCH_PHASES", "PHASES", "TrajoptConfig", "default_device", "plan_trajopt", "plan_trajopt_batch",
+__all__ = ["BATCH_PHASES", "COUNT_FIELDS", "FULL_COUNTS", "PHASES", "TrajoptConfig", "counts_config", "default_device", "plan_trajopt", "plan_trajopt_batch",
            "plan_trajopt_to_pose", "shortcut"]

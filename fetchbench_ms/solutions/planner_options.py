@@ -4,10 +4,13 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
 - ``mppi_goal_region``: rad >= 0, the region of MPPI's goal credit
   (``planning.mppi.MppiConfig.goal_region``, 0.5 by default; 0 switches the credit off);
 - ``mppi_cost``: ``network`` or ``distance``, MPPI's scene-collision cost (by default the
-  method's own).
+  method's own);
+- ``trajopt_counts``: ``SEEDSxITERSxSUBSTEPS``, the trajectory optimiser's seeds per problem,
+  Adam iterations and collision points a segment (``planning.trajopt.COUNT_FIELDS``; by
+  default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``).
 
-A planner takes the options its row names (``method_spec.PlannerSpec.options``): both are
-MPPI's. This module loads no torch (as ``envs.options``), so the command line answers a bad
+A planner takes the options its row names (``method_spec.PlannerSpec.options``): the first
+two are MPPI's, the third the trajectory optimiser's (its methods and the hybrids'). This module loads no torch (as ``envs.options``), so the command line answers a bad
 option before torch and the planners load.
 """
 from __future__ import annotations
@@ -41,11 +44,21 @@ def check_mppi_cost(value) -> str:
     return value.strip()
 
 
+def check_trajopt_counts(value) -> str:
+    """``value`` (``"16x80x3"``) as three whole counts >= 1 joined by ``x``, written plainly
+    (``"016 x 80x3"`` reads ``16x80x3`` in records and folder names)."""
+    parts = str(value).replace(" ", "").split("x")
+    if isinstance(value, bool) or len(parts) != 3 or not all(p.isdigit() and int(p) >= 1 for p in parts):
+        raise ValueError(f"bad trajopt counts {value!r}")
+    return "x".join(str(int(p)) for p in parts)
+
+
 #: Option name (a ``SolveConfig`` field) -> (the function that checks and converts a value,
 #: its valid values in words).
 PLANNER_OPTIONS = {
     "mppi_goal_region": (check_goal_region, "RAD (>= 0; 0 switches the goal credit off)"),
     "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS)),
+    "trajopt_counts": (check_trajopt_counts, "SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3)"),
 }
 
 
@@ -63,7 +76,7 @@ def check_planner_options(method: MethodSpec, options: dict) -> dict:
             raise ValueError(f"unknown planner option {name!r}; valid: {_valid_options()}")
         check, _ = PLANNER_OPTIONS[name]
         if method.planner is None or name not in method.planner.options:
-            methods = [m.name for m in registry().values() if m.family == "sense_plan_act" and name in m.planner.options]
+            methods = [m.name for m in registry().values() if m.planner is not None and name in m.planner.options]
             raise ValueError(f"planner option {name!r} applies to {', '.join(methods)}, not {method.name}")
         try:
             checked[name] = check(value)

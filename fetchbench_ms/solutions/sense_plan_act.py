@@ -161,8 +161,11 @@ class SolveConfig:
     # world's distance fields); None: the method's own (``MethodSpec.collision``).
     mppi_cost: str | None = None
     # MPPI methods: the goal credit's region in rad (0: no credit); None: MppiConfig's default.
-    # (These two are what `fetchbench eval --planner-option` may set: solutions.planner_options.)
     mppi_goal_region: float | None = None
+    # trajopt methods and the hybrids: the optimiser's counts, "SEEDSxITERSxSUBSTEPS"; None:
+    # TrajoptConfig's. (These three are what `fetchbench eval --planner-option` may set:
+    # solutions.planner_options.)
+    trajopt_counts: str | None = None
 
     def __post_init__(self):
         unknown = [i for i in self.improvements if i not in IMPROVEMENTS]

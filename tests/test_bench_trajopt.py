@@ -125,3 +125,12 @@ def test_the_throughput_bench_plans_every_problem_and_counts_the_wall_time_of_al
     assert out["problems"] == 8 and out["seconds"] == 4.0 and out["problems_per_s"] == 2.0
     assert out["success"] == 7 / 8 and out["searched"] == 3 and out["same_as_warm"]
     assert not bench.aggregate([dict(parts[0], same_as_warm=False), parts[1]])["same_as_warm"]
+
+
+def test_records_say_the_counts_they_planned_with():
+    """A record names the optimiser's counts even when its flags set none: the defaults' counts
+    are a fact of the code, not of the record."""
+    bench = import_script(ROOT / "scripts/bench/bench_trajopt.py")
+    assert bench.counts_of({}) == "8x40x2"
+    assert bench.counts_of(bench.config_overrides(["seeds=16", "opt_iters=80", "collision_substeps=3",
+                                                   "world_grid=0.015"])) == "16x80x3"

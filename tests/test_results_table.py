@@ -12,6 +12,7 @@ from pathlib import Path
 from fetchbench_ms.cli import main
 from fetchbench_ms.evaluation import ResultsStore
 from fetchbench_ms.evaluation.results_table import BEGIN, END, load_runs, pack, pipeline_label, tables
+from fetchbench_ms.solutions.sense_plan_act import IMPROVEMENTS
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "results.md"
@@ -131,6 +132,32 @@ def test_planner_option_runs_are_labelled_and_set_beside_the_paper_run(tmp_path)
     assert "| paper-no-goal-credit | paper + mppi_goal_region=0 | 0.500 | -25.0 | +40 % |" in ablation
     assert ("| paper-60hz-distance | paper + sim_freq=60 + mppi_cost=distance + mppi_goal_region=0 | 0.250 | "
             "-50.0 | +79 % |") in ablation
+
+
+def test_runs_of_other_trajopt_counts_are_compared_only_with_their_own(tmp_path):
+    """``trajopt_counts`` sets the planner's counts, not a factor of the pipeline: a run that
+    names it is labelled by it and set beside the `paper` run of the same counts, never beside
+    a run of the defaults (their difference would not be the pipeline's)."""
+    runs = tmp_path / "runs"
+    ok = [record(f"test/{i:04d}", "on_table", 6, True) for i in range(4)]
+    bad = [record(f"test/{i:04d}", "on_table", 1, False, "motion_planning_failure") for i in range(4)]
+    full = {"planner_options": {"trajopt_counts": "16x80x3"}}
+    variants = {"paper": (ok[:2] + bad[2:], "paper", {}),  # 0.50
+                "ours": (ok[:3] + bad[3:], "ours", {}),  # 0.75
+                "paper-full": (ok[:1] + bad[1:], "paper", full),  # 0.25
+                "ours-full": (ok, "ours", full),  # 1.00
+                "ours-minus-retreat-full": (ok[:2] + bad[2:], "ours-minus-retreat", full)}  # 0.50
+    for name, (records, pipeline, extra) in variants.items():
+        improvements = [] if pipeline == "paper" else [i for i in IMPROVEMENTS if i not in pipeline]
+        options = {"retries": 1, "pipeline": pipeline.split("-")[0], "improvements": improvements, **extra}
+        pack(make_run(tmp_path / name, records, method="ga-mesh-trajopt", options=options), name, runs)
+    out = tables(load_runs(runs))
+    assert "| paper + trajopt_counts=16x80x3 |" in out and "| ours + trajopt_counts=16x80x3 |" in out
+    rows = [line for line in out.split("### Ablations")[1].splitlines() if line.startswith("| `ga-mesh-trajopt`")]
+    pairs = {(line.split(" | ")[2], line.split(" | ")[5]) for line in rows}
+    assert pairs == {("paper", "ours"), ("paper-full", "ours-full"), ("paper-full", "ours-minus-retreat-full")}
+    # ours minus retreat's share of the gap is taken against the ours run of its own counts
+    assert "| ours-minus-retreat-full | ours minus retreat + trajopt_counts=16x80x3 | 0.500 | +25.0 | +152 % |" in out
 
 
 def test_pack_refuses_bad_input(tmp_path, capsys):

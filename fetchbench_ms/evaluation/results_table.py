@@ -234,9 +234,21 @@ def method_label(manifest: dict) -> str:
     return label
 
 
-def pipeline_label(manifest: dict) -> str:
+#: Planner options that set a planner's counts rather than a factor of the pipeline: a run is
+#: compared (the ablation table) only with runs of the same values.
+SETTING_OPTIONS = ("trajopt_counts",)
+
+
+def settings(manifest: dict) -> dict:
+    """The run's ``SETTING_OPTIONS`` it names (none: the planners' defaults)."""
+    planner = options(manifest).get("planner_options") or {}
+    return {k: v for k, v in planner.items() if k in SETTING_OPTIONS}
+
+
+def pipeline_label(manifest: dict, with_settings: bool = True) -> str:
     """``legacy``, ``paper``, ``ours`` or ``ours minus X, Y``, then the env options and the
-    planner options (``+ mppi_goal_region=0``)."""
+    planner options (``+ mppi_goal_region=0``); without the ``SETTING_OPTIONS`` when not
+    ``with_settings``."""
     o = options(manifest)
     pipeline = "legacy" if is_legacy(manifest) else str(o["pipeline"])
     if pipeline.startswith("ours-minus-"):  # the runner's name: ours-minus-retreat+start_escape
@@ -247,6 +259,8 @@ def pipeline_label(manifest: dict) -> str:
         off = [i for i in IMPROVEMENTS if i not in o["improvements"]]
         pipeline = "ours minus " + ", ".join(off) if off else "ours"
     env, planner = o.get("env_options") or {}, o.get("planner_options") or {}
+    if not with_settings:
+        planner = {k: v for k, v in planner.items() if k not in SETTING_OPTIONS}
     return pipeline + "".join(f" + {k}={v}" for k, v in [*sorted(env.items()), *sorted(planner.items())])
 
 
@@ -301,10 +315,12 @@ def runs_table(runs: list[Run]) -> str:
 
 
 def _comparable(manifest: dict) -> str:
-    """What two runs must share to be compared: method, options other than the pipeline's, tasks."""
+    """What two runs must share to be compared: method, options other than the pipeline's, the
+    planners' counts (``SETTING_OPTIONS``), tasks."""
     o = {k: v for k, v in options(manifest).items()
          if k not in ("pipeline", "improvements", "env_options", "planner_options")}
-    return canonical_json([manifest["method"], o, manifest.get("selection"), manifest.get("source_sha256")])
+    return canonical_json([manifest["method"], o, settings(manifest), manifest.get("selection"),
+                           manifest.get("source_sha256")])
 
 
 def _points(d: float) -> str:
@@ -320,19 +336,19 @@ def ablation_table(runs: list[Run]) -> str:
     in points and the share of the gap (see docs/results.md, "Ablations")."""
     current = [r for r in runs if not is_legacy(r.manifest)]
     lines = []
-    for base in sorted((r for r in current if pipeline_label(r.manifest) == "paper"), key=lambda r: r.name):
+    for base in sorted((r for r in current if pipeline_label(r.manifest, False) == "paper"), key=lambda r: r.name):
         key, method = _comparable(base.manifest), base.manifest["method"]
         rate = summarize(base.records)["all"]["success_rate"]
         reference = paper_reference(base.manifest)
         paper = None if reference is None else reference[0]
         others = sorted((r for r in current if r is not base and _comparable(r.manifest) == key), key=lambda r: r.name)
-        ours = next((r for r in others if pipeline_label(r.manifest) == "ours"), None)
+        ours = next((r for r in others if pipeline_label(r.manifest, False) == "ours"), None)
         ours_rate = summarize(ours.records)["all"]["success_rate"] if ours else None
         for run in others:
             label, o = pipeline_label(run.manifest), options(run.manifest)
             r = summarize(run.records)["all"]["success_rate"]
             share = "-"
-            if paper is not None and o["pipeline"] == "paper" and (o.get("env_options") or o.get("planner_options")):
+            if paper is not None and o["pipeline"] == "paper" and pipeline_label(run.manifest, False) != "paper":
                 share = _share(rate - r, rate - paper)  # > 0: the factor moves us toward the paper
             elif paper is not None and label.startswith("ours minus ") and ours_rate is not None:
                 share = _share(ours_rate - r, ours_rate - paper)

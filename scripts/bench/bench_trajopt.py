@@ -263,6 +263,15 @@ def summary(rows: dict, recheck: dict) -> dict:
     return out
 
 
+def counts_of(overrides: dict) -> str:
+    """The optimiser's counts a run planned with, ``SEEDSxITERSxSUBSTEPS`` (as the planner
+    option ``trajopt_counts`` spells them): a record says them even when its flags set none."""
+    from fetchbench_ms.planning.trajopt import COUNT_FIELDS, TrajoptConfig
+
+    config = TrajoptConfig(**{k: v for k, v in overrides.items() if k in COUNT_FIELDS})
+    return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
+
+
 def config_overrides(items: list[str]) -> dict:
     """``--config NAME=VALUE`` items as ``TrajoptConfig`` fields (values parsed as Python literals)."""
     import ast
@@ -446,7 +455,8 @@ def main() -> None:
             json.dump(dict(summary(rows, recheck), run=dict(
                 command=" ".join(sys.argv), suite=args.suite, tasks=args.tasks, world=args.world, full=args.full,
                 device=device, batch=args.batch, threads=torch.get_num_threads(), torch=torch.__version__,
-                config=config_overrides(args.config), graph_cache=graph_counts,
+                config=config_overrides(args.config), counts=counts_of(config_overrides(args.config)),
+                graph_cache=graph_counts,
                 problems=len(problems))), f, indent=1)
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_trajopt import config_overrides, is_searched, record_problems  # noqa: E402  (the same problems, --config)
+from bench_trajopt import config_overrides, counts_of, is_searched, record_problems  # noqa: E402  (the same problems, --config)
 
 
 def plan_pass(problems: list[dict], cfg, batch: int, time_limit: float) -> list:
@@ -107,7 +107,8 @@ def main() -> None:
     if args.json:
         record = dict(throughput=result, parts=parts, run=dict(
             command=" ".join(["scripts/bench/bench_trajopt_throughput.py"] + sys.argv[1:]), suite=args.suite,
-            tasks=args.tasks, device=device, batch=args.batch, config=overrides, torch=torch.__version__))
+            tasks=args.tasks, device=device, batch=args.batch, config=overrides, counts=counts_of(overrides),
+            torch=torch.__version__))
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
 

@@ -103,6 +103,9 @@ def test_a_round_end_to_end_on_the_cpu(rounds, tmp_path, capsys):
     for method in ("e2e-mlp", "cgn-imit-mlp"):  # the runs record the obs mode their policy read
         line = (tmp_path / "work/round_01/val" / method / "results.jsonl").read_text().splitlines()[0]
         assert json.loads(line)["policy_obs_mode"] == "composed_pointcloud", method
+    # the hybrid plans its approach with the counts of the earlier rounds' val figures
+    hybrid = json.loads((tmp_path / "work/round_01/val/cgn-imit-mlp/run.json").read_text())
+    assert hybrid["method_options"]["planner_options"] == {"trajopt_counts": rounds.HYBRID_TRAJOPT_COUNTS}
     # The same round again in the same work folder (a round stopped after its val): nothing is
     # trained or exported again, so the val records still name the exported file's bytes.
     pt = tmp_path / "work/round_01/export/imit_mlp.pt"

@@ -62,6 +62,9 @@ FRAME_STRIDE = 3
 #: The frames are the demos' own recorded states, no replay (policies.data.expert_state_episodes).
 LABELS = "expert-states"
 VAL_TASKS = "0:100"
+#: The hybrids' approach planner counts in val runs: every round's val figures, the shipped
+#: checkpoints' among them, were made with these, so a candidate is judged like its rival.
+HYBRID_TRAJOPT_COUNTS = "16x80x3"
 MIN_VAL_TASKS = 100
 
 
@@ -380,6 +383,8 @@ def main(argv=None) -> int:
                         args.val_tasks, "--policy-stride", str(FRAME_STRIDE), "--workers", str(workers), "--out", str(out)]
         if checkpoint is not None:
             eval_command += ["--policy-checkpoint", str(checkpoint)]
+        if method.startswith("cgn-imit-"):
+            eval_command += ["--planner-option", f"trajopt_counts={HYBRID_TRAJOPT_COUNTS}"]
         env = dict(os.environ)
         if gpus is not None:
             env["CUDA_VISIBLE_DEVICES"] = gpus[i % len(gpus)]

@@ -475,7 +475,7 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     import dataclasses
 
     from fetchbench_ms.planning.mppi import COSTS
-    from fetchbench_ms.planning.trajopt import COUNT_FIELDS, FULL_COUNTS, TrajoptConfig, counts_config
+    from fetchbench_ms.planning.trajopt import COUNT_FIELDS, FULL_COUNTS, TrajoptConfig, counts_config, counts_of
     from fetchbench_ms.method_spec import PLANNERS
     from fetchbench_ms.solutions.planner_options import MPPI_COSTS, PLANNER_OPTIONS, check_trajopt_counts
     from fetchbench_ms.solutions.sense_plan_act import SolveConfig
@@ -488,7 +488,7 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     counts = check_trajopt_counts(" 016x80 x3")
     assert counts == "16x80x3" and counts_config(counts) == TrajoptConfig(**FULL_COUNTS)
     default = TrajoptConfig()
-    assert check_trajopt_counts("x".join(str(getattr(default, f)) for f in COUNT_FIELDS)) == "8x40x2"
+    assert check_trajopt_counts(counts_of(default)) == counts_of(default) == "8x40x2"
     assert counts_config(None) == default
 
 

@@ -75,6 +75,11 @@ def counts_config(counts: str | None, **fields) -> "TrajoptConfig":
     return TrajoptConfig(**fields)
 
 
+def counts_of(config: "TrajoptConfig") -> str:
+    """``config``'s counts as ``trajopt_counts`` spells them (``"8x40x2"``)."""
+    return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
+
+
 @dataclass
 class TrajoptConfig:
     """The optimiser's work, in counts: the same on every device (the benchmark's rows must
@@ -578,5 +583,5 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
     return result
 
 
-__all__ = ["BATCH_PHASES", "COUNT_FIELDS", "FULL_COUNTS", "PHASES", "TrajoptConfig", "counts_config", "default_device", "plan_trajopt", "plan_trajopt_batch",
-           "plan_trajopt_to_pose", "shortcut"]
+__all__ = ["BATCH_PHASES", "COUNT_FIELDS", "FULL_COUNTS", "PHASES", "TrajoptConfig", "counts_config", "counts_of",
+           "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose", "shortcut"]

@@ -10,8 +10,9 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
   default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``).
 
 A planner takes the options its row names (``method_spec.PlannerSpec.options``): the first
-two are MPPI's, the third the trajectory optimiser's (its methods and the hybrids'). This module loads no torch (as ``envs.options``), so the command line answers a bad
-option before torch and the planners load.
+two are MPPI's, the third the trajectory optimiser's (its methods and the hybrids'). This
+module loads no torch (as ``envs.options``), so the command line answers a bad option before
+torch and the planners load.
 """
 from __future__ import annotations
 

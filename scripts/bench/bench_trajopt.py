@@ -266,10 +266,9 @@ def summary(rows: dict, recheck: dict) -> dict:
 def counts_of(overrides: dict) -> str:
     """The optimiser's counts a run planned with, ``SEEDSxITERSxSUBSTEPS`` (as the planner
     option ``trajopt_counts`` spells them): a record says them even when its flags set none."""
-    from fetchbench_ms.planning.trajopt import COUNT_FIELDS, TrajoptConfig
+    from fetchbench_ms.planning import trajopt
 
-    config = TrajoptConfig(**{k: v for k, v in overrides.items() if k in COUNT_FIELDS})
-    return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
+    return trajopt.counts_of(trajopt.TrajoptConfig(**{k: v for k, v in overrides.items() if k in trajopt.COUNT_FIELDS}))
 
 
 def config_overrides(items: list[str]) -> dict:

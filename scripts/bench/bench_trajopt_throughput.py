@@ -11,7 +11,7 @@ over the wall time from the first timed pass's start to the last one's end.
 
 Usage (val tasks; the figure is for one device, so pin the processes to it):
   CUDA_VISIBLE_DEVICES=0 python scripts/bench/bench_trajopt_throughput.py --suite val --tasks 0:120 \\
-      --workers 8 --batch 16 --device cuda --config seeds=8 --config opt_iters=40 --config collision_substeps=2
+      --workers 8 --batch 16 --device cuda --config cuda_graph=true --config world_grid=0.015
 """
 from __future__ import annotations
 

@@ -75,6 +75,18 @@ def counts_config(counts: str | None, **fields) -> "TrajoptConfig":
     return TrajoptConfig(**fields)
 
 
+#: The Adam loops a run names with the planner option ``trajopt_loop`` (``eager`` by default):
+#: ``graph`` steps it over fixed shapes, replayed as a CUDA graph on CUDA (uncaptured on a CPU,
+#: where it is slower than ``eager``), with costs equal to the eager loop's up to float rounding;
+#: ``grid`` reads the world in it through a distance grid of 1.5 cm (other costs: other plans).
+#: The plans' checks stay the exact checker's in every loop (docs/trajopt-speed.md).
+LOOPS = {
+    "eager": {},
+    "graph": {"fixed_shape": True, "cuda_graph": True},
+    "grid": {"fixed_shape": True, "cuda_graph": True, "world_grid": 0.015},
+}
+
+
 def counts_of(config: "TrajoptConfig") -> str:
     """``config``'s counts as ``trajopt_counts`` spells them (``"8x40x2"``)."""
     return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
@@ -555,8 +567,8 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
 
 def plan(request: PlanRequest) -> PlanResult:
     """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``), with the
-    run's ``trajopt_counts`` (None: the defaults)."""
-    config = counts_config(request.options.get("trajopt_counts"))
+    run's ``trajopt_counts`` and ``trajopt_loop`` (None: the defaults)."""
+    config = counts_config(request.options.get("trajopt_counts"), **LOOPS[request.options.get("trajopt_loop") or "eager"])
     return plan_trajopt(request.checker, request.q_start, request.q_goals, request.time_limit,
                         start_tolerance=request.start_tolerance, config=config, seed=request.seed,
                         max_checks=request.max_checks)
@@ -583,5 +595,5 @@ def plan_trajopt_to_pose(checker: CollisionChecker, q_start, T_base_tcp, time_li
     return result
 
 
-__all__ = ["BATCH_PHASES", "COUNT_FIELDS", "FULL_COUNTS", "PHASES", "TrajoptConfig", "counts_config", "counts_of",
+__all__ = ["BATCH_PHASES", "COUNT_FIELDS", "FULL_COUNTS", "LOOPS", "PHASES", "TrajoptConfig", "counts_config", "counts_of",
            "default_device", "plan_trajopt", "plan_trajopt_batch", "plan_trajopt_to_pose", "shortcut"]

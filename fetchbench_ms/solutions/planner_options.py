@@ -7,10 +7,12 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
   method's own);
 - ``trajopt_counts``: ``SEEDSxITERSxSUBSTEPS``, the trajectory optimiser's seeds per problem,
   Adam iterations and collision points a segment (``planning.trajopt.COUNT_FIELDS``; by
-  default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``).
+  default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``);
+- ``trajopt_loop``: ``eager`` (the default), ``graph`` or ``grid``, the trajectory
+  optimiser's Adam loop (``planning.trajopt.LOOPS``).
 
 A planner takes the options its row names (``method_spec.PlannerSpec.options``): the first
-two are MPPI's, the third the trajectory optimiser's (its methods and the hybrids'). This
+two are MPPI's, the last two the trajectory optimiser's (its methods and the hybrids'). This
 module loads no torch (as ``envs.options``), so the command line answers a bad option before
 torch and the planners load.
 """
@@ -54,12 +56,25 @@ def check_trajopt_counts(value) -> str:
     return "x".join(str(int(p)) for p in parts)
 
 
+#: ``planning.trajopt.LOOPS``, spelled out because that module loads torch
+#: (tests/test_user_edges.py keeps them the same).
+TRAJOPT_LOOPS = ("eager", "graph", "grid")
+
+
+def check_trajopt_loop(value) -> str:
+    """``value`` as one of ``TRAJOPT_LOOPS``."""
+    if not isinstance(value, str) or value.strip() not in TRAJOPT_LOOPS:
+        raise ValueError(f"unknown trajopt loop {value!r}")
+    return value.strip()
+
+
 #: Option name (a ``SolveConfig`` field) -> (the function that checks and converts a value,
 #: its valid values in words).
 PLANNER_OPTIONS = {
     "mppi_goal_region": (check_goal_region, "RAD (>= 0; 0 switches the goal credit off)"),
     "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS)),
     "trajopt_counts": (check_trajopt_counts, "SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3)"),
+    "trajopt_loop": (check_trajopt_loop, "|".join(TRAJOPT_LOOPS)),
 }
 
 

@@ -163,9 +163,12 @@ class SolveConfig:
     # MPPI methods: the goal credit's region in rad (0: no credit); None: MppiConfig's default.
     mppi_goal_region: float | None = None
     # trajopt methods and the hybrids: the optimiser's counts, "SEEDSxITERSxSUBSTEPS"; None:
-    # TrajoptConfig's. (These three are what `fetchbench eval --planner-option` may set:
-    # solutions.planner_options.)
+    # TrajoptConfig's.
     trajopt_counts: str | None = None
+    # trajopt methods and the hybrids: the optimiser's Adam loop, "eager", "graph" or "grid"
+    # (planning.trajopt.LOOPS); None: eager. (These four are what `fetchbench eval
+    # --planner-option` may set: solutions.planner_options.)
+    trajopt_loop: str | None = None
 
     def __post_init__(self):
         unknown = [i for i in self.improvements if i not in IMPROVEMENTS]

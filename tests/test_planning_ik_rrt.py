@@ -206,3 +206,34 @@ def test_segment_checks_that_look_at_the_first_configurations_first_answer_and_c
     plans = [plan_rrtconnect(c, Q_DEFAULT, q_in, seed=7) for c in (whole, first)]
     assert plans[0].status == plans[1].status == "solved"
     assert plans[0].n_checked == plans[1].n_checked and np.array_equal(plans[0].path, plans[1].path)
+
+
+def test_the_first_valid_of_many_segments_is_found_in_one_first_batch_with_the_same_answer_and_count(robot, shelf):
+    """``CollisionChecker.first_valid_motion`` (the optimiser's direct segments to its goals):
+    the index and the counted checks of ``motion_valid`` called on each segment in turn until
+    one is valid, but every segment's first configurations computed as one batch."""
+    world = shelf[0]
+    in_turn, batched = CollisionChecker(robot, world), CollisionChecker(robot, world)
+    calls, turn_calls = [], []
+    clearance, turn_clearance = batched.clearance, in_turn.clearance
+    batched.clearance = lambda q: (calls.append(len(q)), clearance(q))[1]
+    in_turn.clearance = lambda q: (turn_calls.append(len(q)), turn_clearance(q))[1]
+    rng = np.random.default_rng(5)
+    q_in = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=in_turn, q_seed=Q_DEFAULT, n_seeds=64).q[0]
+    near = [q_in + rng.normal(0, 0.5, 7) for _ in range(12)]
+    judge = CollisionChecker(robot, world)
+    goal_sets = [np.stack([g for g in near if not judge.motion_valid(Q_DEFAULT, g)]),  # all colliding
+                 np.stack([q_in, Q_DEFAULT + rng.normal(0, 0.05, 7), q_in]),  # a valid one after one that collides
+                 np.stack([Q_DEFAULT + rng.normal(0, 0.05, 7) for _ in range(3)]),  # short segments, valid
+                 np.zeros((0, 7))]
+    answers = []
+    for goals in goal_sets:
+        for first, spread in ((16, True), (16, False), (0, False)):
+            n0, m0, k0, j0 = in_turn.n_checked, batched.n_checked, len(calls), len(turn_calls)
+            expected = next((k for k, g in enumerate(goals) if in_turn.motion_valid(Q_DEFAULT, g, 0.02, first, spread)), -1)
+            assert batched.first_valid_motion(Q_DEFAULT, goals, 0.02, first, spread) == expected
+            assert batched.n_checked - m0 == in_turn.n_checked - n0
+            answers.append(expected)
+            if first and goals is goal_sets[0]:  # one first batch, then the rest of those that pass it
+                assert expected == -1 and len(goals) >= 4 and len(calls) - k0 < len(turn_calls) - j0
+    assert -1 in answers and 1 in answers and 0 in answers

@@ -209,6 +209,19 @@ class CollisionChecker:
     #: same search (the same answers: each configuration's clearance does not depend on its batch).
     motion_check_first: int = 0
 
+    @staticmethod
+    def _head(n: int, first: int, spread: bool) -> np.ndarray | None:
+        """The mask of the configurations of an (n, 7) batch that ``all_valid`` computes first,
+        None when it computes the whole batch at once."""
+        if not 0 < first < n:
+            return None
+        head = np.zeros(n, bool)
+        if spread:
+            head[:: -(-n // first)] = True
+        else:
+            head[:first] = True
+        return head
+
     def all_valid(self, q, first: int | None = None, spread: bool = False) -> bool:
         """Whether every configuration of ``q`` (N, 7) is valid: the first ``first`` (default
         ``motion_check_first``) as one batch, the rest only when those are all free; counted
@@ -216,23 +229,51 @@ class CollisionChecker:
         configurations spread evenly over ``q`` (a segment to a goal deep in the scene
         collides anywhere along it, not mostly near its start)."""
         first = self.motion_check_first if first is None else first
-        if 0 < first < len(q):
-            head = np.zeros(len(q), bool)
-            if spread:
-                head[:: -(-len(q) // first)] = True
-            else:
-                head[:first] = True
+        head = self._head(len(q), first, spread)
+        if head is not None:
             if not self.valid(q[head]).all():
                 self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
                 return False
             return bool(self.valid(q[~head]).all())
         return bool(self.valid(q).all())
 
+    @staticmethod
+    def _segment(q_from, q_to, resolution: float) -> np.ndarray:
+        """The straight joint-space segment at ``resolution`` rad (max joint step), both ends in."""
+        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
+        n = max(2, int(np.ceil(np.abs(q_to - q_from).max() / resolution)) + 1)
+        s = np.linspace(0.0, 1.0, n)[:, None]
+        return q_from + s * (q_to - q_from)
+
     def motion_valid(self, q_from, q_to, resolution: float = 0.02, first: int | None = None,
                      spread: bool = False) -> bool:
         """Straight joint-space segment checked at ``resolution`` rad (max joint step);
         ``first``, ``spread``: as ``all_valid``'s."""
-        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
-        n = max(2, int(np.ceil(np.abs(q_to - q_from).max() / resolution)) + 1)
-        s = np.linspace(0.0, 1.0, n)[:, None]
-        return self.all_valid(q_from + s * (q_to - q_from), first, spread)
+        return self.all_valid(self._segment(q_from, q_to, resolution), first, spread)
+
+    def first_valid_motion(self, q_from, q_tos, resolution: float = 0.02, first: int | None = None,
+                           spread: bool = False) -> int:
+        """The index of the first of ``q_tos`` (K, 7) whose straight segment from ``q_from`` is
+        valid (-1: none), with the answers and the ``n_checked`` of ``motion_valid`` called on
+        each in turn until one is; but the first configurations of every segment (``first``,
+        ``spread``: as ``all_valid``'s) are computed as one batch, so that a start whose direct
+        segments all collide early (most searched problems) costs one batch, not one a goal.
+        Each configuration's clearance does not depend on its batch: the same answers."""
+        first = self.motion_check_first if first is None else first
+        segments = [self._segment(q_from, q_to, resolution) for q_to in np.asarray(q_tos, float).reshape(-1, 7)]
+        if first <= 0 or not segments:  # each segment is checked whole: nothing to share
+            return next((k for k, q in enumerate(segments) if self.all_valid(q, first, spread)), -1)
+        # a segment as short as its first batch is that batch whole
+        heads = [h if (h := self._head(len(q), first, spread)) is not None else np.ones(len(q), bool) for q in segments]
+        n0 = self.n_checked
+        head_ok = np.split(self.valid(np.concatenate([q[h] for q, h in zip(segments, heads)])),
+                           np.cumsum([int(h.sum()) for h in heads])[:-1])
+        self.n_checked = n0  # counted below as motion_valid in turn counts: the segments up to the answer
+        for k, (q, head, ok) in enumerate(zip(segments, heads, head_ok)):
+            if not ok.all():
+                self.n_checked += int(self.robot.within_limits(q).sum())
+                continue
+            self.n_checked += int(self.robot.within_limits(q[head]).sum())
+            if not (~head).any() or self.valid(q[~head]).all():
+                return k
+        return -1

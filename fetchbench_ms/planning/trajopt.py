@@ -480,9 +480,9 @@ def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int)
     pr.goals = q_goals[pr.goal_ids]
     if len(pr.goal_ids) == 0:
         return done("no_valid_goal")
-    for g, q_goal in zip(pr.goal_ids, pr.goals):
-        if checker.motion_valid(pr.q_start, q_goal, resolution, first, spread=True):
-            return done("direct", np.concatenate([pr.prefix, [pr.q_start, q_goal]]), int(g))
+    k = checker.first_valid_motion(pr.q_start, pr.goals, resolution, first, spread=True)
+    if k >= 0:
+        return done("direct", np.concatenate([pr.prefix, [pr.q_start, pr.goals[k]]]), int(pr.goal_ids[k]))
     return pr
 
 

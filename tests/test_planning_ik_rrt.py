@@ -237,3 +237,37 @@ def test_the_first_valid_of_many_segments_is_found_in_one_first_batch_with_the_s
             if first and goals is goal_sets[0]:  # one first batch, then the rest of those that pass it
                 assert expected == -1 and len(goals) >= 4 and len(calls) - k0 < len(turn_calls) - j0
     assert -1 in answers and 1 in answers and 0 in answers
+
+
+def test_the_shortcut_keeps_the_waypoints_and_counts_of_checking_its_candidates_in_turn(robot, shelf):
+    """``trajopt.shortcut`` asks ``first_valid_motion`` for the farthest valid of its candidate
+    jumps: the same waypoints and counted checks as trying them farthest first, one by one."""
+    from fetchbench_ms.planning.trajopt import shortcut
+
+    def in_turn(checker, path, resolution, first):  # the candidates one motion_valid at a time
+        keep, i, last = [0], 0, len(path) - 1
+        while i < last:
+            span = last - i
+            for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4, i + 1}, reverse=True):
+                if j == i + 1 or (j > i and checker.motion_valid(path[i], path[j], resolution, first, spread=True)):
+                    break
+            keep.append(j)
+            i = j
+        return path[keep]
+
+    world = shelf[0]
+    a, b = CollisionChecker(robot, world), CollisionChecker(robot, world)
+    rng = np.random.default_rng(11)
+    q_in = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=a, q_seed=Q_DEFAULT, n_seeds=64).q[0]
+    shortened = 0
+    for _ in range(12):  # paths from the start into the shelf through random via points, 24 waypoints
+        via = Q_DEFAULT + rng.normal(0, 0.4, 7)
+        s = np.linspace(0, 1, 12)[:, None]
+        path = np.concatenate([Q_DEFAULT + s * (via - Q_DEFAULT), via + s * (q_in - via)])
+        for first in (16, 0):
+            n0, m0 = a.n_checked, b.n_checked
+            expected = in_turn(a, path, 0.02, first)
+            got = shortcut(b, path, 0.02, first)
+            assert np.array_equal(got, expected) and b.n_checked - m0 == a.n_checked - n0
+            shortened += len(got) < len(path) - 1
+    assert shortened >= 4

@@ -446,15 +446,16 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
 def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float, first: int | None = None) -> np.ndarray:
     """Fewer waypoints: from each kept waypoint, jump to the farthest of a few later ones
     whose straight segment is valid (the next one always is: the path was checked);
-    ``first``: as ``CollisionChecker.all_valid``'s, spread over each segment."""
+    ``first``: as ``CollisionChecker.all_valid``'s, spread over each segment. The candidate
+    segments from a waypoint share one first batch (``first_valid_motion``: the answers and
+    counts of checking them farthest first, in turn)."""
     keep, i, last = [0], 0, len(path) - 1
     while i < last:
         span = last - i
-        for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4, i + 1}, reverse=True):
-            if j == i + 1 or (j > i and checker.motion_valid(path[i], path[j], resolution, first, spread=True)):
-                break
-        keep.append(j)
-        i = j
+        far = [j for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4}, reverse=True) if j > i + 1]
+        k = checker.first_valid_motion(path[i], path[far], resolution, first, spread=True) if far else -1
+        i = far[k] if k >= 0 else i + 1
+        keep.append(i)
     return path[keep]
 
 

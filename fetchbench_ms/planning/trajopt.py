@@ -569,7 +569,8 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
 def plan(request: PlanRequest) -> PlanResult:
     """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``), with the
     run's ``trajopt_counts`` and ``trajopt_loop`` (None: the defaults)."""
-    config = counts_config(request.options.get("trajopt_counts"), **LOOPS[request.options.get("trajopt_loop") or "eager"])
+    loop = LOOPS[request.options.get("trajopt_loop") or "eager"]
+    config = counts_config(request.options.get("trajopt_counts"), **loop)
     return plan_trajopt(request.checker, request.q_start, request.q_goals, request.time_limit,
                         start_tolerance=request.start_tolerance, config=config, seed=request.seed,
                         max_checks=request.max_checks)

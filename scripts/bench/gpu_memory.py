@@ -2,9 +2,10 @@
 
 Prints, for the samples taken while the run's workers were all up (the samples with the most
 processes on the GPUs, from the first in which each of them holds at least a quarter of their
-median: a worker starting up holds only its CUDA context), each GPU's memory used at the first and the last of them and the
-change, the per-process memory (min / median / max over the workers) at both ends, and the
-host's resident memory of all python3 processes; with ``--json`` the same as one object:
+median: a worker starting up holds only its CUDA context), each GPU's memory used at the
+first and the last of them and the change, the per-process memory (min / median / max over
+the workers) at both ends, and the host's resident memory of all python3 processes; with
+``--json`` the same as one object:
 
     python scripts/bench/gpu_memory.py results/logs/ga-mesh-trajopt-paper-test6000-gpu-memory.log.gz
 
@@ -90,8 +91,9 @@ def main(argv=None) -> int:
         return 1
     print(f"{s['samples']} samples over {s['seconds']} s with {s['processes']} processes on the GPUs")
     for index, g in s["gpus"].items():
+        change = "-" if g["change"] is None else f"{100 * g['change']:+.1f} %"
         print(f"GPU {index}: {g['first_mib'] / 1024:.1f} GiB first, {g['last_mib'] / 1024:.1f} GiB last "
-              f"({100 * g['change']:+.1f} %), peak {g['peak_mib'] / 1024:.1f} GiB, median utilisation {g['util_median']:.0f} %")
+              f"({change}), peak {g['peak_mib'] / 1024:.1f} GiB, median utilisation {g['util_median']:.0f} %")
     for end in ("first", "last"):
         p = s["per_process_mib"][end]
         print(f"per process, {end}: min {p['min']} / median {p['median']:.0f} / max {p['max']} MiB")

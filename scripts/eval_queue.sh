@@ -23,10 +23,11 @@ case "$workers" in ''|*[!0-9]*|0) echo "eval_queue: WORKERS_PER_LANE must be a w
 here=$(cd "$(dirname "$0")/.." && pwd)
 python=${PYTHON:-python3}
 gpus=$( (nvidia-smi -L 2>/dev/null || true) | grep -c '^GPU' || true)
-lanes=${gpus:-0}; [ "$lanes" -gt 0 ] || lanes=${LANES:-1}
-if ! grep -qv '^[[:space:]]*\(#.*\)\?$' "$jobs"; then echo "eval_queue: $jobs has no run to do" >&2; exit 1; fi
+lanes=$gpus; [ "$lanes" -gt 0 ] || lanes=${LANES:-1}
+runs=$(grep -v '^[[:space:]]*\(#.*\)\?$' "$jobs" || true)  # without blank lines and comments
+if [ -z "$runs" ]; then echo "eval_queue: $jobs has no run to do" >&2; exit 1; fi
 mkdir -p "$out/logs"
-grep -v '^[[:space:]]*\(#.*\)\?$' "$jobs" >> "$out/queue"
+printf '%s\n' "$runs" >> "$out/queue"
 cores=$(nproc); per=$(( cores / lanes )); [ "$per" -ge 1 ] || per=1
 memlog=
 if [ "$gpus" -gt 0 ]; then

@@ -57,16 +57,16 @@ def summary(samples: list[dict]) -> dict:
         raise ValueError("no process ever held GPU memory in the log")
     full = [s for s in samples if len(s["procs"]) == most]
 
-    def started(s):
-        mib = [m for _, _, m in s["procs"]]
-        return min(mib) >= statistics.median(mib) / 4
-
-    full = full[next((i for i, s in enumerate(full) if started(s)), 0):]
-    first, last = full[0], full[-1]
-
     def per_process(s):
         mib = [m for _, _, m in s["procs"]]
         return {"min": min(mib), "median": statistics.median(mib), "max": max(mib)}
+
+    def started(s):  # every process past its start-up (more than its CUDA context)
+        p = per_process(s)
+        return p["min"] >= p["median"] / 4
+
+    full = full[next((i for i, s in enumerate(full) if started(s)), 0):]
+    first, last = full[0], full[-1]
 
     gpus = {}
     for index in sorted(first["gpus"]):

@@ -7,11 +7,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "eval_queue.sh"
 # Stands in for `python -m fetchbench_ms eval ARGS --workers W --out DIR`: writes its arguments
-# into DIR, and fails for a run whose arguments name --method broken.
+# (and $FETCHBENCH_TRAJOPT_DEVICE, when set) into DIR, and fails for a run whose arguments name --method broken.
 FAKE_PYTHON = """#!/bin/sh
 out=""; prev=""
 for a in "$@"; do [ "$prev" = "--out" ] && out=$a; prev=$a; done
 mkdir -p "$out" && echo "$@" > "$out/args.txt"
+[ -n "${FETCHBENCH_TRAJOPT_DEVICE:-}" ] && echo "$FETCHBENCH_TRAJOPT_DEVICE" > "$out/device.txt"
 case "$*" in *"--method broken"*) exit 3 ;; esac
 """
 
@@ -54,3 +55,13 @@ def test_a_failed_run_fails_the_queue_and_bad_input_is_one_line(tmp_path):
     assert usage.returncode == 2 and usage.stderr.startswith("usage: ") and len(usage.stderr.splitlines()) == 1
     workers = _run(tmp_path, "a --method ga-mesh-rrt\n", "0")
     assert workers.returncode == 2 and "WORKERS_PER_LANE must be a whole number" in workers.stderr
+
+
+def test_assignments_before_the_arguments_set_only_their_runs_environment(tmp_path):
+    done = _run(tmp_path, "on-cpu FETCHBENCH_TRAJOPT_DEVICE=cpu --method ga-mesh-trajopt --tasks 0:2\n"
+                          "default --method ga-mesh-trajopt --tasks 0:2\n", "2", lanes="1")
+    assert done.returncode == 0, done.stderr
+    out = tmp_path / "out"
+    assert (out / "on-cpu" / "device.txt").read_text().strip() == "cpu"
+    assert (out / "on-cpu" / "args.txt").read_text().split()[3:7] == ["--method", "ga-mesh-trajopt", "--tasks", "0:2"]
+    assert not (out / "default" / "device.txt").exists()

@@ -620,10 +620,12 @@ def test_the_pipelines_planner_takes_the_runs_counts_and_loop(monkeypatch):
     seen = []
     monkeypatch.setattr(trajopt, "plan_trajopt", lambda *a, config=None, **k: seen.append(config))
     for options in ({"trajopt_counts": "16x80x3"}, {"trajopt_counts": None, "trajopt_loop": None}, {},
-                    {"trajopt_loop": "graph"}, {"trajopt_counts": "16x80x3", "trajopt_loop": "grid"}):
+                    {"trajopt_loop": "graph"}, {"trajopt_counts": "16x80x3", "trajopt_loop": "grid"},
+                    {"trajopt_loop": "cpu"}):
         trajopt.plan(PlanRequest(None, np.zeros(7), np.zeros((1, 7)), seed=0, max_checks=10, checks_per_try=10,
                                  time_limit=1.0, options=options))
     assert seen[0] == TrajoptConfig(**trajopt.FULL_COUNTS)
     assert seen[1] == seen[2] == TrajoptConfig() and (seen[1].seeds, seen[1].opt_iters) == (8, 40)
     assert seen[3] == TrajoptConfig(fixed_shape=True, cuda_graph=True)
     assert seen[4] == TrajoptConfig(**trajopt.FULL_COUNTS, fixed_shape=True, cuda_graph=True, world_grid=0.015)
+    assert seen[5] == TrajoptConfig(device="cpu")  # on the CPU even where CUDA is

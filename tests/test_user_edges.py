@@ -458,7 +458,7 @@ def test_bad_planner_options_are_one_line_before_torch_loads(tmp_path):
     assert [code for code, _ in answers] == [2] * 8
     lines = [_one_error_line(err) for _, err in answers]
     valid = ("valid: mppi_goal_region=RAD (>= 0; 0 switches the goal credit off); mppi_cost=network|distance; "
-             "trajopt_counts=SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3); trajopt_loop=eager|graph|grid")
+             "trajopt_counts=SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3); trajopt_loop=eager|graph|grid|cpu")
     assert "unknown planner option 'mppi_goal_radius'" in lines[0] and lines[0].endswith(valid)
     assert "mppi_goal_region=-1: bad value" in lines[1] and lines[1].endswith(valid)
     assert "mppi_cost=nets: bad value" in lines[2] and lines[2].endswith(valid)

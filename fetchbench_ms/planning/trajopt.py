@@ -78,12 +78,16 @@ def counts_config(counts: str | None, **fields) -> "TrajoptConfig":
 #: The Adam loops a run names with the planner option ``trajopt_loop`` (``eager`` by default):
 #: ``graph`` steps it over fixed shapes, replayed as a CUDA graph on CUDA (uncaptured on a CPU,
 #: where it is slower than ``eager``), with costs equal to the eager loop's up to float rounding;
-#: ``grid`` reads the world in it through a distance grid of 1.5 cm (other costs: other plans).
+#: ``grid`` reads the world in it through a distance grid of 1.5 cm (other costs: other plans);
+#: ``cpu`` is the eager loop on the CPU whatever the machine has (``default_device``'s choice
+#: is CUDA when there is one): a GPU node's evaluation workers each optimise on their own core,
+#: leaving the GPU to the renderer (the same work: only the arithmetic differs).
 #: The plans' checks stay the exact checker's in every loop (docs/trajopt-speed.md).
 LOOPS = {
     "eager": {},
     "graph": {"fixed_shape": True, "cuda_graph": True},
     "grid": {"fixed_shape": True, "cuda_graph": True, "world_grid": 0.015},
+    "cpu": {"device": "cpu"},
 }
 
 

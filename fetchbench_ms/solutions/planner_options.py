@@ -8,8 +8,8 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
 - ``trajopt_counts``: ``SEEDSxITERSxSUBSTEPS``, the trajectory optimiser's seeds per problem,
   Adam iterations and collision points a segment (``planning.trajopt.COUNT_FIELDS``; by
   default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``);
-- ``trajopt_loop``: ``eager`` (the default), ``graph`` or ``grid``, the trajectory
-  optimiser's Adam loop (``planning.trajopt.LOOPS``).
+- ``trajopt_loop``: ``eager`` (the default), ``graph``, ``grid`` or ``cpu``, the trajectory
+  optimiser's Adam loop and where it runs (``planning.trajopt.LOOPS``).
 
 A planner takes the options its row names (``method_spec.PlannerSpec.options``): the first
 two are MPPI's, the last two the trajectory optimiser's (its methods and the hybrids'). This
@@ -58,7 +58,7 @@ def check_trajopt_counts(value) -> str:
 
 #: ``planning.trajopt.LOOPS``, spelled out because that module loads torch
 #: (tests/test_user_edges.py keeps them the same).
-TRAJOPT_LOOPS = ("eager", "graph", "grid")
+TRAJOPT_LOOPS = ("eager", "graph", "grid", "cpu")
 
 
 def check_trajopt_loop(value) -> str:

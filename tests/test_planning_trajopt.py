@@ -511,6 +511,35 @@ def test_fixed_shape_warm_start_moves_the_seeds_as_the_sparse_one(robot, shelf_p
         assert np.array_equal(out[name][1], out["sparse"][1])
 
 
+def test_a_captured_block_updates_its_state_in_place_so_loops_can_share_one_pool(robot, shelf_problem):
+    """``graph_pool="shared"`` (the default) captures every loop of a process into one memory
+    pool. That is safe because a block allocates nothing that outlives it: every tensor it
+    reads or writes between replays (the trajectories, Adam's moments, the convergence state,
+    the counts) is allocated with the loop and updated in place, so a block leaves its
+    storage where it found it. ``"loop"`` gives each graph a pool of its own (None); another
+    name is one line naming the choices."""
+    from fetchbench_ms.planning import trajopt_graph
+
+    checker, _, goals = shelf_problem
+    cfg = TrajoptConfig(cuda_graph=True, graph_capacity=(16, 4, 8), **SMALL)
+    assert cfg.graph_pool == "shared" and cfg.graph_pool in trajopt_graph.GRAPH_POOLS
+    cache = trajopt_graph.graph_cache(cfg.graph_cache)
+    cache.clear()
+    plan_trajopt_batch([(checker, Q_DEFAULT, goals)], config=cfg)
+    (loop, _, _), = cache.entries.values()
+    buffers = loop._state() + [loop.start, loop.goal, loop.block_corrections]
+    before = [(t.data_ptr(), t.clone()) for t in buffers]
+    loop.load(loop.interior + 0.01, loop.start, loop.goal)  # a new problem's values, then a block
+    loop.block(trajopt_graph.CHECK_EVERY, check=True)
+    after = loop._state() + [loop.start, loop.goal, loop.block_corrections]
+    assert [t.data_ptr() for t in after] == [ptr for ptr, _ in before]
+    assert not torch.equal(loop.interior, before[0][1])  # the block did step, in place
+    cache.clear()
+    assert trajopt_graph.graph_pool("loop", torch.device("cpu")) is None
+    with pytest.raises(ValueError, match="unknown graph_pool 'pooled'; valid: shared, loop"):
+        trajopt_graph.graph_pool("pooled", torch.device("cpu"))
+
+
 def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(robot, shelf_problem):
     """``cuda_graph`` (on a CPU: the same bookkeeping, uncaptured): the worlds are padded to
     the graph capacities, so two different problems (other scenes, starts and goals) share

@@ -149,6 +149,11 @@ class TrajoptConfig:
     # pre-grasp worlds have up to 46 boxes, 28 cylinders, 161 convex parts
     graph_capacity: tuple[int, int, int] = (48, 32, 192)
     graph_cache: int = 4  # cuda_graph: captured loops kept (by shape), least recently used dropped
+    # cuda_graph: where a captured loop's memory comes from: "shared", one pool per process and
+    # device for all its loops (a block leaves no tensor of the pool alive, and one loop replays
+    # at a time), so the cached loops cost one loop's memory; "loop", a pool each (CUDA graphs'
+    # default: the cache costs its loops' sum). The plans are the same either way.
+    graph_pool: str = "shared"
     # fixed_shape: the Adam loop's cost function (forward and backward) through torch.compile with
     # this backend, e.g. "inductor" (fused kernels: Triton on CUDA, a C++ compiler on a CPU;
     # compiled once per loop shape); None: eager. The costs are the same up to float rounding.

@@ -38,7 +38,10 @@ capacities (``pad_world``: ``TrajoptConfig.graph_capacity`` boxes, cylinders and
 parts, convex parts to ``max_planes`` planes; a kind with more obstacles is padded to the
 next multiple of its capacity, a shape of its own), and ``GraphCache`` keeps the loops by
 the shapes of every tensor they read, at most ``graph_cache`` of them (least recently used
-dropped, with its graph's memory pool). A problem of a cached shape copies its world,
+dropped). Their graphs take their memory from one pool per process and device
+(``graph_pool="shared"``): a block's tensors are all allocated before its capture and
+updated in place, so a capture leaves nothing of the pool alive and the next capture reuses
+its memory; the loops of a process cost the memory of its largest one, not their sum. A problem of a cached shape copies its world,
 robot and seeds into that loop's buffers and replays its graph: no capture. On a CPU the
 same cache and copies run, uncaptured (the tests' view of the bookkeeping).
 """
@@ -257,7 +260,7 @@ class _AdamLoop:
             self.block(1, check=True)
         torch.cuda.current_stream().wait_stream(side)
         graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
+        with torch.cuda.graph(graph, pool=graph_pool(self.cfg.graph_pool, self.interior.device)):
             self.block(CHECK_EVERY, check=True)
         for t, s in zip(self._state(), saved):
             t.copy_(s)
@@ -284,6 +287,24 @@ class _AdamLoop:
             self.block_corrections.copy_(self.corrections[full * CHECK_EVERY: (full + 1) * CHECK_EVERY])
             self.block(tail, check=False)
         return self.interior
+
+
+#: ``TrajoptConfig.graph_pool``'s choices.
+GRAPH_POOLS = ("shared", "loop")
+_POOLS: dict = {}
+
+
+def graph_pool(kind: str, device: torch.device):
+    """The memory pool a loop's capture takes (``torch.cuda.graph``'s ``pool``): for "shared",
+    the process's one pool on ``device`` (kept for the process, so its memory is reused by
+    the next capture after a loop is dropped); for "loop", None (a pool of its own)."""
+    if kind not in GRAPH_POOLS:
+        raise ValueError(f"unknown graph_pool {kind!r}; valid: {', '.join(GRAPH_POOLS)}")
+    if kind == "loop":
+        return None
+    if device not in _POOLS:
+        _POOLS[device] = torch.cuda.graph_pool_handle()
+    return _POOLS[device]
 
 
 # -- one captured loop reused across problems --------------------------------------------------

@@ -184,8 +184,8 @@ def test_segment_checks_that_look_at_the_first_configurations_first_answer_and_c
     whole, first = CollisionChecker(robot, world), CollisionChecker(robot, world)
     first.motion_check_first = 16
     computed = []
-    clearance = first.clearance
-    first.clearance = lambda q: (computed.append(len(q)), clearance(q))[1]
+    clearance = first._clearance_parts
+    first._clearance_parts = lambda q, bound=None: (computed.append(len(q)), clearance(q, bound))[1]
     rng = np.random.default_rng(3)
     q_in = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=whole, q_seed=Q_DEFAULT, n_seeds=64).q[0]
     pairs = [(Q_DEFAULT, q_in), (q_in, Q_DEFAULT)] + [
@@ -215,9 +215,9 @@ def test_the_first_valid_of_many_segments_is_found_in_one_first_batch_with_the_s
     world = shelf[0]
     in_turn, batched = CollisionChecker(robot, world), CollisionChecker(robot, world)
     calls, turn_calls = [], []
-    clearance, turn_clearance = batched.clearance, in_turn.clearance
-    batched.clearance = lambda q: (calls.append(len(q)), clearance(q))[1]
-    in_turn.clearance = lambda q: (turn_calls.append(len(q)), turn_clearance(q))[1]
+    clearance, turn_clearance = batched._clearance_parts, in_turn._clearance_parts
+    batched._clearance_parts = lambda q, bound=None: (calls.append(len(q)), clearance(q, bound))[1]
+    in_turn._clearance_parts = lambda q, bound=None: (turn_calls.append(len(q)), turn_clearance(q, bound))[1]
     rng = np.random.default_rng(5)
     q_in = solve_ik(robot, hand_pose([0.68, -0.1, 0.12]), checker=in_turn, q_seed=Q_DEFAULT, n_seeds=64).q[0]
     near = [q_in + rng.normal(0, 0.5, 7) for _ in range(12)]
@@ -271,3 +271,54 @@ def test_the_shortcut_keeps_the_waypoints_and_counts_of_checking_its_candidates_
             assert np.array_equal(got, expected) and b.n_checked - m0 == a.n_checked - n0
             shortened += len(got) < len(path) - 1
     assert shortened >= 4
+
+
+# A segment in the shelf world whose configurations at 0.02 rad are all valid but which
+# grazes the shelf between two of them (found by sampling segments between IK solutions).
+GRAZING = (np.array([-1.540007668654732, 1.1401490094113504, 0.9257619024343691, -2.162810301453754,
+                     2.798101023949373, 2.386425013991971, 0.23859416246194587]),
+           np.array([-1.2203688239487942, 1.4475002017957612, 1.09449417547454, -2.239731722457559,
+                     2.661909308623716, 2.1437622703739323, 0.01647551396649166]))
+
+
+def test_joint_reach_bounds_how_far_a_move_carries_every_sphere(robot):
+    """``CollisionChecker.joint_reach``: over random moves anywhere in the joint limits, no
+    sphere centre moves farther than ``abs(dq) @ joint_reach()`` (what ``certified`` rests on),
+    and every joint moves something."""
+    checker = CollisionChecker(robot, shelf_worlds()[0])
+    reach = checker.joint_reach()
+    assert reach.shape == (7,) and (reach > 0).all() and reach[0] >= reach[-1]
+    rng = np.random.default_rng(0)
+    q = rng.uniform(robot.q_min, robot.q_max, (300, 7))
+    dq = rng.normal(0, 1, (300, 7)) * rng.uniform(0.005, 0.3, (300, 1))
+    q2 = np.clip(q + dq, robot.q_min, robot.q_max)
+    c1 = robot.sphere_centers(torch.as_tensor(q), checker.finger)
+    c2 = robot.sphere_centers(torch.as_tensor(q2), checker.finger)
+    moved = (c2 - c1).norm(dim=2).amax(dim=1).numpy()
+    assert (moved <= np.abs(q2 - q) @ reach + 1e-12).all()
+
+
+def test_a_certified_check_rejects_a_segment_that_grazes_between_its_configurations(robot, shelf):
+    """``certify``: the moves between a segment's checked configurations must be free too.
+    The grazing segment passes the 0.02 rad check and fails a 0.001 one; certified, it fails,
+    having checked midpoints (counted). Certified segments are free at 0.001 rad, and the
+    default check's answers and counts do not change."""
+    world = shelf[0]
+    checker, plain = CollisionChecker(robot, world), CollisionChecker(robot, world)
+    a, b = GRAZING
+    assert checker.motion_valid(a, b, 0.02) and not checker.motion_valid(a, b, 0.001)
+    n0 = checker.n_checked
+    assert not checker.motion_valid(a, b, 0.02, certify=0.005)
+    assert checker.n_checked - n0 > len(CollisionChecker._segment(a, b, 0.02))  # the midpoints it checked
+    rng = np.random.default_rng(1)
+    certified = 0
+    for _ in range(40):
+        a = np.clip(GRAZING[0] + rng.normal(0, 0.3, 7), robot.q_min, robot.q_max)
+        b = np.clip(GRAZING[1] + rng.normal(0, 0.3, 7), robot.q_min, robot.q_max)
+        n0, m0 = checker.n_checked, plain.n_checked
+        answer = checker.motion_valid(a, b, 0.02)
+        assert answer == plain.motion_valid(a, b, 0.02) and checker.n_checked - n0 == plain.n_checked - m0
+        if checker.motion_valid(a, b, 0.02, certify=0.005):
+            certified += 1
+            assert answer and plain.motion_valid(a, b, 0.001)
+    assert certified >= 5

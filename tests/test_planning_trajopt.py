@@ -361,8 +361,8 @@ def test_checking_the_first_configurations_first_plans_the_same_with_fewer_compu
     shelf's direct segments collide along the way)."""
     checker, _, goals = shelf_problem
     calls = []
-    clearance = checker.clearance
-    checker.clearance = lambda q: (calls.append(len(q)), clearance(q))[1]
+    clearance = checker._clearance_parts
+    checker._clearance_parts = lambda q, bound=None: (calls.append(len(q)), clearance(q, bound))[1]
     try:
         plans, computed = [], []
         for first in (0, 16):
@@ -370,7 +370,7 @@ def test_checking_the_first_configurations_first_plans_the_same_with_fewer_compu
             plans.append(plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(motion_check_first=first, **SMALL)))
             computed.append(sum(calls[k0:]))
     finally:
-        del checker.clearance
+        del checker._clearance_parts
     whole, first = plans
     assert whole.status == first.status == "solved" and whole.goal_index == first.goal_index
     assert np.array_equal(whole.path, first.path) and whole.n_checked == first.n_checked
@@ -658,3 +658,16 @@ def test_the_pipelines_planner_takes_the_runs_counts_and_loop(monkeypatch):
     assert seen[3] == TrajoptConfig(fixed_shape=True, cuda_graph=True)
     assert seen[4] == TrajoptConfig(**trajopt.FULL_COUNTS, fixed_shape=True, cuda_graph=True, world_grid=0.015)
     assert seen[5] == TrajoptConfig(device="cpu")  # on the CPU even where CUDA is
+
+
+def test_certified_checks_give_paths_free_at_any_finer_step(robot, shelf_problem):
+    """``TrajoptConfig.certify``: the optimiser's direct segments, chosen path and shortcuts are
+    certified free between their checked configurations (``CollisionChecker.certified``), so
+    the plan is valid re-checked ten times finer than it was planned; the default check
+    counts only the configurations, and certifying costs midpoints on top."""
+    checker, _, goals = shelf_problem
+    plain = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(**SMALL))
+    sure = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(certify=0.005, **SMALL))
+    assert plain.status == sure.status == "solved"
+    assert all(checker.motion_valid(a, b, 0.002) for a, b in zip(sure.path[:-1], sure.path[1:]))
+    assert sure.n_checked > plain.n_checked

@@ -109,6 +109,42 @@ class CollisionChecker:
             valid[i, : len(b)] = True
         self.pair_table, self.pair_valid = torch.as_tensor(table), torch.as_tensor(valid)
 
+    #: m past the margin (and the largest sphere) to which the world's distances are measured
+    #: (the broad phase's horizon): ``certify`` reads world clearances up to this bound.
+    WORLD_BOUND = 0.02
+
+    def joint_reach(self) -> np.ndarray:
+        """(7,) for each arm joint, a bound on the distance of every sphere centre it moves (the
+        robot's and the carried object's) from its axis, in any configuration: the distance
+        from the joint's origin along the kinematic tree (each later joint's offset, a
+        prismatic finger's opening) plus the centre's offset in its link. A straight move by
+        ``dq`` in joint space moves no sphere centre farther than ``abs(dq) @ joint_reach()``
+        (a turn by ``a`` about an axis moves a point at distance ``r`` from it by at most
+        ``r * a``)."""
+        if getattr(self, "_reach", None) is not None:
+            return self._reach
+        robot, fk = self.robot, self.robot.fk
+        gripper = dict(zip(robot.gripper_joints, robot.gripper_q(self.finger)[0].abs().tolist()))
+        unmoved = np.full(robot.n_arm, -np.inf)  # -inf: the link is not moved by that joint
+        reach = {fk.root_link: unmoved}
+        for joint in fk.joints:  # parents first
+            d = reach[joint.parent] + np.linalg.norm(joint.T_parent_joint[:3, 3])
+            if joint.kind == "prismatic":
+                d = d + gripper.get(joint.name, 0.0)
+            if joint.name in robot.arm_joints:
+                d = d.copy()
+                d[robot.arm_joints.index(joint.name)] = 0.0
+            reach[joint.child] = d
+        sp = robot.spheres
+        offset = np.linalg.norm(sp.centers_link, axis=1)
+        per_sphere = np.stack([reach[sp.links[l]] for l in sp.link_index]) + offset[:, None]  # (S, 7)
+        bound = per_sphere.max(axis=0)
+        if self.attachment is not None:
+            att = reach[robot.hand_link] + np.linalg.norm(self.attachment.centers_hand, axis=1).max()
+            bound = np.maximum(bound, att)
+        self._reach = np.where(np.isfinite(bound), bound, 0.0)
+        return self._reach
+
     def _self_clearance(self, poses, centers) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, P) clearance per link pair: the bounding-sphere distance where that is
         positive, else the smallest sphere-pair distance of the pair."""
@@ -127,30 +163,44 @@ class CollisionChecker:
 
     def clearance(self, q) -> torch.Tensor:
         """Smallest signed clearance per config (B,): < 0 means collision (ignoring limits)."""
+        return self._clearance_parts(q)[0]
+
+    def _clearance_parts(self, q, bound: float | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``clearance`` (B,), and two lower bounds ``certify`` reads: the world clearance of
+        the robot's and the carried object's spheres, at most ``bound`` (default
+        ``WORLD_BOUND``) beyond the margin (farther obstacles are not measured; a larger bound
+        measures more of them, with the same ``clearance > margin`` answers), and the self
+        clearance of the spheres (the robot's pairs, the object against the arm) before the
+        exact meshes decide."""
+        bound = self.WORLD_BOUND if bound is None else bound
         q = torch.as_tensor(np.asarray(q), dtype=torch.float64).reshape(-1, 7)
         B = len(q)
         self.n_checked += B
         poses = self.robot.link_poses(q, self.finger)
         centers = self.robot.sphere_centers(q, poses=poses)  # (B, S, 3)
-        horizon = float(self.radii.max()) + self.margin + 0.02
+        horizon = float(self.radii.max()) + self.margin + bound
         c_world = centers[:, self.world_mask].reshape(-1, 3)
         r_world = self.radii[self.world_mask].repeat(B)
         d = self.world.distance(c_world, horizon, self.exclude) - r_world
         clear = d.reshape(B, -1).amin(dim=1)
+        # A sphere whose centre is beyond the horizon reads some value past it: its clearance is
+        # only known to be at least the horizon less its radius.
+        world = clear.clamp(max=self.margin + bound)
         pair_clear = self._self_clearance(poses, centers)
-        self_clear = pair_clear.amin(dim=1)
+        self_clear = spheres = pair_clear.amin(dim=1)
         if self.exact_self:
             self_clear = self._exact_self_clearance(poses, pair_clear, self_clear)
         clear = torch.minimum(clear, self_clear)
         if self.attachment is not None:
             T = poses[self.robot.hand_link]
             att = torch.einsum("bij,mj->bmi", T[:, :3, :3], self.att_c) + T[:, None, :3, 3]  # (B, M, 3)
-            d_att = self.world.distance(att.reshape(-1, 3), float(self.att_r.max()) + 0.02, self.exclude)
+            d_att = self.world.distance(att.reshape(-1, 3), float(self.att_r.max()) + bound, self.exclude)
             d_att = (d_att.reshape(B, -1) - self.att_r).amin(dim=1)
             arm = centers[:, self.att_arm_mask]
             d_arm = (torch.cdist(att, arm) - self.att_r[:, None] - self.radii[self.att_arm_mask][None]).amin(dim=(1, 2))
             clear = torch.minimum(clear, torch.minimum(d_att, d_arm))
-        return clear
+            world, spheres = torch.minimum(world, d_att.clamp(max=bound)), torch.minimum(spheres, d_arm)
+        return clear, world, spheres
 
     def hand_clearance(self, T_base_hand) -> np.ndarray:
         """World clearance (N,) of the hand alone (hand, fingers and the rigidly attached
@@ -196,11 +246,19 @@ class CollisionChecker:
         return out
 
     def valid(self, q) -> np.ndarray:
+        return self._valid_parts(q)[0]
+
+    def _valid_parts(self, q, bound: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``valid`` (N,), and the world and self bounds of ``_clearance_parts`` (N,) (-inf for
+        a configuration outside the joint limits: not measured)."""
         q = np.asarray(q, dtype=float).reshape(-1, 7)
         ok = self.robot.within_limits(q)
+        world, spheres = np.full(len(q), -np.inf), np.full(len(q), -np.inf)
         if ok.any():
-            ok[ok] = (self.clearance(q[ok]) > self.margin).numpy()
-        return ok
+            clear, w, s = self._clearance_parts(q[ok], bound)
+            world[ok], spheres[ok] = w.numpy(), s.numpy()
+            ok[ok] = (clear > self.margin).numpy()
+        return ok, world, spheres
 
     #: ``motion_valid`` checks a segment's first this many configurations as one batch and the
     #: rest only when they are all free (0: the whole segment as one batch). Most segments a
@@ -222,20 +280,73 @@ class CollisionChecker:
             head[:first] = True
         return head
 
-    def all_valid(self, q, first: int | None = None, spread: bool = False) -> bool:
+    def all_valid(self, q, first: int | None = None, spread: bool = False, certify: float | None = None) -> bool:
         """Whether every configuration of ``q`` (N, 7) is valid: the first ``first`` (default
         ``motion_check_first``) as one batch, the rest only when those are all free; counted
         in ``n_checked`` as one batch either way. ``spread``: that first batch is ``first``
         configurations spread evenly over ``q`` (a segment to a goal deep in the scene
-        collides anywhere along it, not mostly near its start)."""
+        collides anywhere along it, not mostly near its start). ``certify`` (rad): ``q`` is a
+        path's consecutive configurations, and the straight moves between them must be free
+        too (``certified``, down to steps of ``certify``)."""
         first = self.motion_check_first if first is None else first
+        bound = None if certify is None else self.CERTIFY_BOUND
         head = self._head(len(q), first, spread)
-        if head is not None:
-            if not self.valid(q[head]).all():
-                self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
+        if head is None:
+            ok, world, spheres = self._valid_parts(q, bound)
+            return bool(ok.all()) and (certify is None or self.certified(q, world, spheres, certify))
+        ok, w_head, s_head = self._valid_parts(q[head], bound)
+        if not ok.all():
+            self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
+            return False
+        ok, w_tail, s_tail = self._valid_parts(q[~head], bound)
+        if not ok.all():
+            return False
+        return certify is None or self.certified(q, *self._merge(head, (w_head, s_head), (w_tail, s_tail)), certify)
+
+    @staticmethod
+    def _merge(head: np.ndarray, at_head, at_tail) -> list[np.ndarray]:
+        """Per-configuration arrays measured for ``q[head]`` and ``q[~head]``, in ``q``'s order."""
+        merged = []
+        for h, t in zip(at_head, at_tail):
+            m = np.empty(len(head))
+            m[head], m[~head] = h, t
+            merged.append(m)
+        return merged
+
+    #: m past the margin to which a certified check measures world distances (``WORLD_BOUND``
+    #: otherwise): a straight move of 0.02 rad on every joint can carry a sphere ~9 cm
+    #: (``joint_reach``), and a clearance known only up to 2 cm certifies none of it.
+    CERTIFY_BOUND = 0.06
+
+    def certified(self, q, world, spheres, floor: float) -> bool:
+        """Whether the straight joint-space moves between consecutive valid configurations
+        ``q`` (N, 7), with their world and sphere self clearances (``_valid_parts``), are free.
+        A move is certified when no sphere can reach an obstacle (or another sphere) on it:
+        every sphere centre moves at most ``move = abs(dq) @ joint_reach()`` and distances
+        are 1-Lipschitz, so the world is clear when the two ends' world clearances beyond the
+        margin sum to more than ``move``, the self pairs when theirs sum to more than twice
+        it (both spheres move). A move not certified is halved at its midpoint, checked (False
+        when it collides), until its largest joint step is at most ``floor`` rad, where a
+        move between valid ends is accepted. The midpoints count in ``n_checked``."""
+        reach, margin = self.joint_reach(), self.margin
+        a, b = np.asarray(q[:-1], float), np.asarray(q[1:], float)
+        wa, wb, sa, sb = world[:-1], world[1:], spheres[:-1], spheres[1:]
+        while len(a):
+            step = np.abs(b - a)
+            move = step @ reach
+            clear = (wa + wb - 2 * margin > move) & (sa + sb - 2 * margin > 2 * move)
+            split = ~clear & (step.max(axis=1) > floor)
+            if not split.any():
+                return True
+            a, b, wa, wb, sa, sb = (x[split] for x in (a, b, wa, wb, sa, sb))
+            mid = (a + b) / 2
+            ok, wm, sm = self._valid_parts(mid, self.CERTIFY_BOUND)
+            if not ok.all():
                 return False
-            return bool(self.valid(q[~head]).all())
-        return bool(self.valid(q).all())
+            a, b = np.concatenate([a, mid]), np.concatenate([mid, b])
+            wa, wb, sa, sb = np.concatenate([wa, wm]), np.concatenate([wm, wb]), np.concatenate([sa, sm]), \
+                np.concatenate([sm, sb])
+        return True
 
     @staticmethod
     def _segment(q_from, q_to, resolution: float) -> np.ndarray:
@@ -246,34 +357,40 @@ class CollisionChecker:
         return q_from + s * (q_to - q_from)
 
     def motion_valid(self, q_from, q_to, resolution: float = 0.02, first: int | None = None,
-                     spread: bool = False) -> bool:
+                     spread: bool = False, certify: float | None = None) -> bool:
         """Straight joint-space segment checked at ``resolution`` rad (max joint step);
-        ``first``, ``spread``: as ``all_valid``'s."""
-        return self.all_valid(self._segment(q_from, q_to, resolution), first, spread)
+        ``first``, ``spread``, ``certify``: as ``all_valid``'s."""
+        return self.all_valid(self._segment(q_from, q_to, resolution), first, spread, certify)
 
     def first_valid_motion(self, q_from, q_tos, resolution: float = 0.02, first: int | None = None,
-                           spread: bool = False) -> int:
+                           spread: bool = False, certify: float | None = None) -> int:
         """The index of the first of ``q_tos`` (K, 7) whose straight segment from ``q_from`` is
         valid (-1: none), with the answers and the ``n_checked`` of ``motion_valid`` called on
         each in turn until one is; but the first configurations of every segment (``first``,
         ``spread``: as ``all_valid``'s) are computed as one batch, so that a start whose direct
         segments all collide early (most searched problems) costs one batch, not one a goal.
-        Each configuration's clearance does not depend on its batch: the same answers."""
+        Each configuration's clearance does not depend on its batch: the same answers.
+        ``certify``: as ``all_valid``'s (a valid segment not certified is not the answer)."""
         first = self.motion_check_first if first is None else first
+        bound = None if certify is None else self.CERTIFY_BOUND
         segments = [self._segment(q_from, q_to, resolution) for q_to in np.asarray(q_tos, float).reshape(-1, 7)]
         if first <= 0 or not segments:  # each segment is checked whole: nothing to share
-            return next((k for k, q in enumerate(segments) if self.all_valid(q, first, spread)), -1)
+            return next((k for k, q in enumerate(segments) if self.all_valid(q, first, spread, certify)), -1)
         # a segment as short as its first batch is that batch whole
         heads = [h if (h := self._head(len(q), first, spread)) is not None else np.ones(len(q), bool) for q in segments]
         n0 = self.n_checked
-        head_ok = np.split(self.valid(np.concatenate([q[h] for q, h in zip(segments, heads)])),
-                           np.cumsum([int(h.sum()) for h in heads])[:-1])
+        cuts = np.cumsum([int(h.sum()) for h in heads])[:-1]
+        at_heads = [np.split(x, cuts) for x in self._valid_parts(np.concatenate([q[h] for q, h in zip(segments, heads)]),
+                                                                 bound)]
         self.n_checked = n0  # counted below as motion_valid in turn counts: the segments up to the answer
-        for k, (q, head, ok) in enumerate(zip(segments, heads, head_ok)):
+        for k, (q, head, ok, w_head, s_head) in enumerate(zip(segments, heads, *at_heads)):
             if not ok.all():
                 self.n_checked += int(self.robot.within_limits(q).sum())
                 continue
             self.n_checked += int(self.robot.within_limits(q[head]).sum())
-            if not (~head).any() or self.valid(q[~head]).all():
+            ok, w_tail, s_tail = self._valid_parts(q[~head], bound)
+            if not ok.all():
+                continue
+            if certify is None or self.certified(q, *self._merge(head, (w_head, s_head), (w_tail, s_tail)), certify):
                 return k
         return -1

@@ -103,10 +103,11 @@ def densify(path: np.ndarray, resolution: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def path_valid(checker: CollisionChecker, path: np.ndarray, resolution: float, first: int | None = None) -> bool:
-    """Every configuration of the path densified at ``resolution`` valid (``first``: as
-    ``CollisionChecker.all_valid``'s)."""
-    return checker.all_valid(densify(np.asarray(path, float), resolution), first)
+def path_valid(checker: CollisionChecker, path: np.ndarray, resolution: float, first: int | None = None,
+               certify: float | None = None) -> bool:
+    """Every configuration of the path densified at ``resolution`` valid (``first``,
+    ``certify``: as ``CollisionChecker.all_valid``'s)."""
+    return checker.all_valid(densify(np.asarray(path, float), resolution), first, certify=certify)
 
 
 ESCAPE_RADII = (0.03, 0.06, 0.12, 0.25)  # rad: the boxes around the start searched in turn

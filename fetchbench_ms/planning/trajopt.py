@@ -129,6 +129,11 @@ class TrajoptConfig:
     # one of its spheres moved this far (distance.PairCache): speed only, the costs are the same
     broad_phase_slack: float = 0.03
     resolution: float = 0.02  # rad: dense check step, as RRTConnect's
+    # rad: the optimiser's checks (the direct segments, the chosen path, its shortcuts) also
+    # certify the moves between their configurations free (``CollisionChecker.certified``:
+    # sphere clearances against how far a move can carry a sphere), halving those they cannot
+    # down to steps of this; None: the configurations only. Not the RRT fallback's checks.
+    certify: float | None = None
     # The exact checks of a segment or path (the direct segments, the seeds' paths, the
     # shortcuts) compute this many of its configurations before the rest, spread over a
     # segment (``CollisionChecker.all_valid``), and stop there when one collides. Speed only:
@@ -452,23 +457,24 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     return traj, goal_of, total, clearance
 
 
-def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float, first: int | None = None) -> np.ndarray:
+def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float, first: int | None = None,
+             certify: float | None = None) -> np.ndarray:
     """Fewer waypoints: from each kept waypoint, jump to the farthest of a few later ones
     whose straight segment is valid (the next one always is: the path was checked);
-    ``first``: as ``CollisionChecker.all_valid``'s, spread over each segment. The candidate
+    ``first``, ``certify``: as ``CollisionChecker.all_valid``'s, spread over each segment. The candidate
     segments from a waypoint share one first batch (``first_valid_motion``: the answers and
     counts of checking them farthest first, in turn)."""
     keep, i, last = [0], 0, len(path) - 1
     while i < last:
         span = last - i
         far = [j for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4}, reverse=True) if j > i + 1]
-        k = checker.first_valid_motion(path[i], path[far], resolution, first, spread=True) if far else -1
+        k = checker.first_valid_motion(path[i], path[far], resolution, first, spread=True, certify=certify) if far else -1
         i = far[k] if k >= 0 else i + 1
         keep.append(i)
     return path[keep]
 
 
-def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int) -> _Problem:
+def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int, certify: float | None = None) -> _Problem:
     """Start escape, valid goals and the direct segment, as plan_rrtconnect does them."""
     t0, n0 = time.perf_counter(), checker.n_checked
     q_start = np.asarray(q_start, float).reshape(7)
@@ -490,7 +496,7 @@ def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int)
     pr.goals = q_goals[pr.goal_ids]
     if len(pr.goal_ids) == 0:
         return done("no_valid_goal")
-    k = checker.first_valid_motion(pr.q_start, pr.goals, resolution, first, spread=True)
+    k = checker.first_valid_motion(pr.q_start, pr.goals, resolution, first, spread=True, certify=certify)
     if k >= 0:
         return done("direct", np.concatenate([pr.prefix, [pr.q_start, pr.goals[k]]]), int(pr.goal_ids[k]))
     return pr
@@ -504,8 +510,8 @@ def _select(pr: _Problem, traj, goal_of, total, clearance, cfg: TrajoptConfig) -
     order = np.lexsort((np.where(free, length, total), ~free))
     checker = pr.checker
     for i in order[: cfg.max_verify]:
-        if path_valid(checker, traj[i], cfg.resolution, cfg.motion_check_first):
-            path = shortcut(checker, traj[i], cfg.resolution, cfg.motion_check_first)
+        if path_valid(checker, traj[i], cfg.resolution, cfg.motion_check_first, cfg.certify):
+            path = shortcut(checker, traj[i], cfg.resolution, cfg.motion_check_first, cfg.certify)
             pr.result = PlanResult("solved", np.concatenate([pr.prefix, path]), time.perf_counter() - pr.t0,
                                    checker.n_checked - pr.n0, int(pr.goal_ids[goal_of[i]]),
                                    start_escaped=len(pr.prefix) > 0, planner="trajopt")
@@ -525,7 +531,7 @@ def plan_trajopt_batch(problems: Sequence[tuple], time_limit: float = 300.0, con
     timer = _PhaseTimer(cfg.phase_times, cfg.device or default_device())
     prepared = []
     for c, q, g in problems:
-        prepared.append(_prepare(c, q, g, start_tolerance, cfg.resolution, cfg.motion_check_first))
+        prepared.append(_prepare(c, q, g, start_tolerance, cfg.resolution, cfg.motion_check_first, cfg.certify))
         timer.lap("prepare", prepared[-1])
     todo = [pr for pr in prepared if pr.result is None]
     out_of_time = False

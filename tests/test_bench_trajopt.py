@@ -74,12 +74,15 @@ def test_show_reprints_a_records_figures_and_phases(capsys):
 
 def test_config_items_parse_literals_booleans_and_bare_words():
     """--config NAME=VALUE: Python literals, true/false, a bare word as a string; an unknown
-    field is one line naming the valid ones."""
+    field, or a value the config refuses, is one line naming the valid ones."""
     bench = import_script(ROOT / "scripts/bench/bench_trajopt.py")
     got = bench.config_overrides(["seeds=8", "cuda_graph=true", "compile_backend=inductor", "graph_capacity=(8, 4, 16)"])
     assert got == {"seeds": 8, "cuda_graph": True, "compile_backend": "inductor", "graph_capacity": (8, 4, 16)}
     with pytest.raises(SystemExit, match="unknown TrajoptConfig field 'nope'; valid: .*compile_backend"):
         bench.config_overrides(["nope=1"])
+    with pytest.raises(SystemExit, match="bad --config: unknown graph_pool 'own'; valid: shared, loop"):
+        bench.config_overrides(["graph_pool=own"])
+    assert bench.config_overrides(["certify=0.005", "graph_pool=loop"]) == {"certify": 0.005, "graph_pool": "loop"}
 
 
 def test_the_checker_bench_times_the_segments_the_planners_check():

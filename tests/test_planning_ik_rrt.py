@@ -322,3 +322,5 @@ def test_a_certified_check_rejects_a_segment_that_grazes_between_its_configurati
             certified += 1
             assert answer and plain.motion_valid(a, b, 0.001)
     assert certified >= 5
+    with pytest.raises(ValueError, match="certify needs a step floor > 0 rad, not 0"):
+        checker.motion_valid(*GRAZING, 0.02, certify=0)

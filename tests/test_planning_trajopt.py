@@ -538,6 +538,10 @@ def test_a_captured_block_updates_its_state_in_place_so_loops_can_share_one_pool
     assert trajopt_graph.graph_pool("loop", torch.device("cpu")) is None
     with pytest.raises(ValueError, match="unknown graph_pool 'pooled'; valid: shared, loop"):
         trajopt_graph.graph_pool("pooled", torch.device("cpu"))
+    with pytest.raises(ValueError, match="unknown graph_pool 'pooled'; valid: shared, loop"):
+        TrajoptConfig(graph_pool="pooled")
+    with pytest.raises(ValueError, match="certify needs a step floor > 0 rad"):
+        TrajoptConfig(certify=0.0)
 
 
 def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(robot, shelf_problem):

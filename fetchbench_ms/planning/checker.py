@@ -328,6 +328,8 @@ class CollisionChecker:
         it (both spheres move). A move not certified is halved at its midpoint, checked (False
         when it collides), until its largest joint step is at most ``floor`` rad, where a
         move between valid ends is accepted. The midpoints count in ``n_checked``."""
+        if not floor > 0:  # a floor of 0 would halve a move that grazes forever
+            raise ValueError(f"certify needs a step floor > 0 rad, not {floor!r}")
         reach, margin = self.joint_reach(), self.margin
         a, b = np.asarray(q[:-1], float), np.asarray(q[1:], float)
         wa, wb, sa, sb = world[:-1], world[1:], spheres[:-1], spheres[1:]

@@ -96,6 +96,10 @@ def counts_of(config: "TrajoptConfig") -> str:
     return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
 
 
+#: ``TrajoptConfig.graph_pool``'s choices (``trajopt_graph.graph_pool``).
+GRAPH_POOLS = ("shared", "loop")
+
+
 @dataclass
 class TrajoptConfig:
     """The optimiser's work, in counts: the same on every device (the benchmark's rows must
@@ -174,6 +178,12 @@ class TrajoptConfig:
     # Wall seconds per phase into each result's ``extras["phase_s"]`` (``PHASES``): a report, the
     # plans are the same; on CUDA it waits for the device at every phase boundary
     phase_times: bool = False
+
+    def __post_init__(self):
+        if self.graph_pool not in GRAPH_POOLS:
+            raise ValueError(f"unknown graph_pool {self.graph_pool!r}; valid: {', '.join(GRAPH_POOLS)}")
+        if self.certify is not None and not self.certify > 0:
+            raise ValueError(f"certify needs a step floor > 0 rad (or None), not {self.certify!r}")
 
     @classmethod
     def for_device(cls, device: str | None = None, **overrides) -> "TrajoptConfig":
@@ -468,13 +478,15 @@ def shortcut(checker: CollisionChecker, path: np.ndarray, resolution: float, fir
     while i < last:
         span = last - i
         far = [j for j in sorted({last, i + 3 * span // 4, i + span // 2, i + span // 4}, reverse=True) if j > i + 1]
-        k = checker.first_valid_motion(path[i], path[far], resolution, first, spread=True, certify=certify) if far else -1
+        k = (checker.first_valid_motion(path[i], path[far], resolution, first, spread=True, certify=certify)
+             if far else -1)
         i = far[k] if k >= 0 else i + 1
         keep.append(i)
     return path[keep]
 
 
-def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int, certify: float | None = None) -> _Problem:
+def _prepare(checker, q_start, q_goals, start_tolerance, resolution, first: int,
+             certify: float | None = None) -> _Problem:
     """Start escape, valid goals and the direct segment, as plan_rrtconnect does them."""
     t0, n0 = time.perf_counter(), checker.n_checked
     q_start = np.asarray(q_start, float).reshape(7)

@@ -41,9 +41,10 @@ the shapes of every tensor they read, at most ``graph_cache`` of them (least rec
 dropped). Their graphs take their memory from one pool per process and device
 (``graph_pool="shared"``): a block's tensors are all allocated before its capture and
 updated in place, so a capture leaves nothing of the pool alive and the next capture reuses
-its memory; the loops of a process cost the memory of its largest one, not their sum. A problem of a cached shape copies its world,
-robot and seeds into that loop's buffers and replays its graph: no capture. On a CPU the
-same cache and copies run, uncaptured (the tests' view of the bookkeeping).
+its memory; the loops of a process cost the memory of its largest one, not their sum. A
+problem of a cached shape copies its world, robot and seeds into that loop's buffers and
+replays its graph: no capture. On a CPU the same cache and copies run, uncaptured (the
+tests' view of the bookkeeping).
 """
 from __future__ import annotations
 
@@ -57,7 +58,7 @@ import torch
 
 from .distance import (_FAR_CENTER, FAR, SphereGroups, TorchRobot, TorchWorld, _Primitives, _smooth_norm,
                        collision_cost, distance_to_every, plane_max)
-from .trajopt import _Costs
+from .trajopt import GRAPH_POOLS, _Costs
 
 CHECK_EVERY = 10  # iterations between convergence tests (the sparse loop's ``it % 10 == 9``)
 BETA1, BETA2 = 0.9, 0.999
@@ -289,8 +290,6 @@ class _AdamLoop:
         return self.interior
 
 
-#: ``TrajoptConfig.graph_pool``'s choices.
-GRAPH_POOLS = ("shared", "loop")
 _POOLS: dict = {}
 
 

@@ -291,6 +291,10 @@ def config_overrides(items: list[str]) -> dict:
             out[name] = ast.literal_eval(value)
         except (ValueError, SyntaxError):  # a bare word: a string (--config compile_backend=inductor)
             out[name] = value
+    try:
+        TrajoptConfig(**out)  # the config's own checks
+    except (TypeError, ValueError) as err:
+        raise SystemExit(f"bad --config: {err}") from None
     return out
 
 
@@ -407,6 +411,7 @@ def main() -> None:
         parser.error("--profile and --kernel-profile take one worker (--workers 1)")
     if args.suite == "test":
         print("note: the test suite is for final figures; planner tuning belongs on val")
+    config_overrides(args.config)  # a bad --config is answered before any task is recorded
     torch.set_num_threads(args.threads)
     from fetchbench_ms.planning.trajopt import default_device
 

@@ -282,9 +282,10 @@ GRAZING = (np.array([-1.540007668654732, 1.1401490094113504, 0.9257619024343691,
 
 
 def test_joint_reach_bounds_how_far_a_move_carries_every_sphere(robot):
-    """``CollisionChecker.joint_reach``: over random moves anywhere in the joint limits, no
-    sphere centre moves farther than ``abs(dq) @ joint_reach()`` (what ``certified`` rests on),
-    and every joint moves something."""
+    """``CollisionChecker.joint_reach`` and ``move_bound``: over random moves anywhere in the
+    joint limits, no sphere centre moves farther than ``move_bound`` from the axis distances
+    at the move's ends, which is at most ``abs(dq) @ joint_reach()`` (what ``certified`` rests
+    on) and well under it; every joint moves something."""
     checker = CollisionChecker(robot, shelf_worlds()[0])
     reach = checker.joint_reach()
     assert reach.shape == (7,) and (reach > 0).all() and reach[0] >= reach[-1]
@@ -295,7 +296,11 @@ def test_joint_reach_bounds_how_far_a_move_carries_every_sphere(robot):
     c1 = robot.sphere_centers(torch.as_tensor(q), checker.finger)
     c2 = robot.sphere_centers(torch.as_tensor(q2), checker.finger)
     moved = (c2 - c1).norm(dim=2).amax(dim=1).numpy()
-    assert (moved <= np.abs(q2 - q) @ reach + 1e-12).all()
+    _, facts = checker._valid_parts(q, checker.CERTIFY_BOUND)
+    _, facts2 = checker._valid_parts(q2, checker.CERTIFY_BOUND)
+    bound = checker.move_bound(np.abs(q2 - q), facts[:, 2:], facts2[:, 2:])
+    assert (moved <= bound + 1e-12).all() and (bound <= np.abs(q2 - q) @ reach + 1e-12).all()
+    assert np.median(bound / (np.abs(q2 - q) @ reach)) < 0.8
 
 
 def test_a_certified_check_rejects_a_segment_that_grazes_between_its_configurations(robot, shelf):

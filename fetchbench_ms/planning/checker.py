@@ -138,6 +138,7 @@ class CollisionChecker:
         sp = robot.spheres
         offset = np.linalg.norm(sp.centers_link, axis=1)
         per_sphere = np.stack([reach[sp.links[l]] for l in sp.link_index]) + offset[:, None]  # (S, 7)
+        self._moved_by = torch.as_tensor(np.isfinite(per_sphere))  # (S, 7): sphere s moves with joint j
         bound = per_sphere.max(axis=0)
         if self.attachment is not None:
             att = reach[robot.hand_link] + np.linalg.norm(self.attachment.centers_hand, axis=1).max()
@@ -165,14 +166,15 @@ class CollisionChecker:
         """Smallest signed clearance per config (B,): < 0 means collision (ignoring limits)."""
         return self._clearance_parts(q)[0]
 
-    def _clearance_parts(self, q, bound: float | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``clearance`` (B,), and two lower bounds ``certify`` reads: the world clearance of
-        the robot's and the carried object's spheres, at most ``bound`` (default
-        ``WORLD_BOUND``) beyond the margin (farther obstacles are not measured; a larger bound
-        measures more of them, with the same ``clearance > margin`` answers), and the self
-        clearance of the spheres (the robot's pairs, the object against the arm) before the
-        exact meshes decide."""
-        bound = self.WORLD_BOUND if bound is None else bound
+    def _clearance_parts(self, q, bound: float | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``clearance`` (B,), and with ``bound`` (a certified check) what ``certified`` reads
+        of each configuration, (B, 9): the world clearance of the robot's and the carried
+        object's spheres, at most ``bound`` beyond the margin (farther obstacles are not
+        measured; the world is measured to ``bound`` instead of ``WORLD_BOUND``, with the same
+        ``clearance > margin`` answers); the self clearance of the spheres (the robot's pairs,
+        the object against the arm) before the exact meshes decide; and per arm joint the
+        largest distance from its axis of a sphere centre it moves."""
+        facts, bound = bound is not None, self.WORLD_BOUND if bound is None else bound
         q = torch.as_tensor(np.asarray(q), dtype=torch.float64).reshape(-1, 7)
         B = len(q)
         self.n_checked += B
@@ -188,6 +190,7 @@ class CollisionChecker:
         world = clear.clamp(max=self.margin + bound)
         pair_clear = self._self_clearance(poses, centers)
         self_clear = spheres = pair_clear.amin(dim=1)
+        att = None
         if self.exact_self:
             self_clear = self._exact_self_clearance(poses, pair_clear, self_clear)
         clear = torch.minimum(clear, self_clear)
@@ -200,7 +203,24 @@ class CollisionChecker:
             d_arm = (torch.cdist(att, arm) - self.att_r[:, None] - self.radii[self.att_arm_mask][None]).amin(dim=(1, 2))
             clear = torch.minimum(clear, torch.minimum(d_att, d_arm))
             world, spheres = torch.minimum(world, d_att.clamp(max=bound)), torch.minimum(spheres, d_arm)
-        return clear, world, spheres
+        if not facts:
+            return clear, None
+        return clear, torch.cat([world[:, None], spheres[:, None], self._axis_distances(poses, centers, att)], dim=1)
+
+    def _axis_distances(self, poses, centers, att) -> torch.Tensor:
+        """(B, 7) per arm joint, the largest distance from its axis of a sphere centre it moves
+        (the robot's ``centers`` (B, S, 3), the carried object's ``att`` (B, M, 3) or None)."""
+        self.joint_reach()  # the spheres each joint moves
+        fk, out = self.robot.fk, []
+        for j, name in enumerate(self.robot.arm_joints):
+            T = poses[fk.joint_child[name]]  # the axis passes through the child frame's origin
+            u = T[:, :3, :3] @ fk.joint_axis((name,))[0]  # (B, 3)
+            points = centers[:, self._moved_by[:, j]]
+            if att is not None:
+                points = torch.cat([points, att], dim=1)
+            v = points - T[:, None, :3, 3]
+            out.append((v - (v * u[:, None]).sum(dim=2, keepdim=True) * u[:, None]).norm(dim=2).amax(dim=1))
+        return torch.stack(out, dim=1)
 
     def hand_clearance(self, T_base_hand) -> np.ndarray:
         """World clearance (N,) of the hand alone (hand, fingers and the rigidly attached
@@ -248,17 +268,18 @@ class CollisionChecker:
     def valid(self, q) -> np.ndarray:
         return self._valid_parts(q)[0]
 
-    def _valid_parts(self, q, bound: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``valid`` (N,), and the world and self bounds of ``_clearance_parts`` (N,) (-inf for
-        a configuration outside the joint limits: not measured)."""
+    def _valid_parts(self, q, bound: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """``valid`` (N,), and with ``bound`` the facts of ``_clearance_parts`` (N, 9) (-inf
+        clearances for a configuration outside the joint limits: not measured)."""
         q = np.asarray(q, dtype=float).reshape(-1, 7)
         ok = self.robot.within_limits(q)
-        world, spheres = np.full(len(q), -np.inf), np.full(len(q), -np.inf)
+        facts = None if bound is None else np.full((len(q), 9), -np.inf)
         if ok.any():
-            clear, w, s = self._clearance_parts(q[ok], bound)
-            world[ok], spheres[ok] = w.numpy(), s.numpy()
+            clear, measured = self._clearance_parts(q[ok], bound)
+            if facts is not None:
+                facts[ok] = measured.numpy()
             ok[ok] = (clear > self.margin).numpy()
-        return ok, world, spheres
+        return ok, facts
 
     #: ``motion_valid`` checks a segment's first this many configurations as one batch and the
     #: rest only when they are all free (0: the whole segment as one batch). Most segments a
@@ -292,62 +313,71 @@ class CollisionChecker:
         bound = None if certify is None else self.CERTIFY_BOUND
         head = self._head(len(q), first, spread)
         if head is None:
-            ok, world, spheres = self._valid_parts(q, bound)
-            return bool(ok.all()) and (certify is None or self.certified(q, world, spheres, certify))
-        ok, w_head, s_head = self._valid_parts(q[head], bound)
+            ok, facts = self._valid_parts(q, bound)
+            return bool(ok.all()) and (certify is None or self.certified(q, facts, certify))
+        ok, at_head = self._valid_parts(q[head], bound)
         if not ok.all():
             self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
             return False
-        ok, w_tail, s_tail = self._valid_parts(q[~head], bound)
+        ok, at_tail = self._valid_parts(q[~head], bound)
         if not ok.all():
             return False
-        return certify is None or self.certified(q, *self._merge(head, (w_head, s_head), (w_tail, s_tail)), certify)
+        return certify is None or self.certified(q, self._merge(head, at_head, at_tail), certify)
 
     @staticmethod
-    def _merge(head: np.ndarray, at_head, at_tail) -> list[np.ndarray]:
-        """Per-configuration arrays measured for ``q[head]`` and ``q[~head]``, in ``q``'s order."""
-        merged = []
-        for h, t in zip(at_head, at_tail):
-            m = np.empty(len(head))
-            m[head], m[~head] = h, t
-            merged.append(m)
+    def _merge(head: np.ndarray, at_head: np.ndarray, at_tail: np.ndarray) -> np.ndarray:
+        """Per-configuration rows measured for ``q[head]`` and ``q[~head]``, in ``q``'s order."""
+        merged = np.empty((len(head), at_head.shape[1]))
+        merged[head], merged[~head] = at_head, at_tail
         return merged
 
     #: m past the margin to which a certified check measures world distances (``WORLD_BOUND``
-    #: otherwise): a straight move of 0.02 rad on every joint can carry a sphere ~9 cm
-    #: (``joint_reach``), and a clearance known only up to 2 cm certifies none of it.
+    #: otherwise): a straight move of 0.02 rad on every joint can carry a sphere several cm, and
+    #: a clearance known only up to 2 cm certifies little of it.
     CERTIFY_BOUND = 0.06
 
-    def certified(self, q, world, spheres, floor: float) -> bool:
+    def move_bound(self, step: np.ndarray, axis_a: np.ndarray, axis_b: np.ndarray) -> np.ndarray:
+        """(P,) how far the straight moves by ``step`` (P, 7) (absolute joint steps) can carry a
+        sphere centre, from the axis distances at their two ends (``_axis_distances``, (P, 7)).
+        Joint j turns a point at speed |dq_j| times its distance to j's axis; along the move
+        that distance grows only through the later joints (the earlier ones carry the axis
+        with the point): by at most ``sum_{k>j} |dq_k| joint_reach()[k]`` from either end's,
+        and it never exceeds ``joint_reach()[j]``."""
+        reach = self.joint_reach()
+        carried = step * reach
+        later = np.cumsum(carried[:, ::-1], axis=1)[:, ::-1] - carried  # sum over k > j
+        radius = np.minimum(np.minimum(axis_a, axis_b) + later, reach)
+        return (step * radius).sum(axis=1)
+
+    def certified(self, q, facts, floor: float) -> bool:
         """Whether the straight joint-space moves between consecutive valid configurations
-        ``q`` (N, 7), with their world and sphere self clearances (``_valid_parts``), are free.
-        A move is certified when no sphere can reach an obstacle (or another sphere) on it:
-        every sphere centre moves at most ``move = abs(dq) @ joint_reach()`` and distances
-        are 1-Lipschitz, so the world is clear when the two ends' world clearances beyond the
-        margin sum to more than ``move``, the self pairs when theirs sum to more than twice
-        it (both spheres move). A move not certified is halved at its midpoint, checked (False
-        when it collides), until its largest joint step is at most ``floor`` rad, where a
-        move between valid ends is accepted. The midpoints count in ``n_checked``."""
+        ``q`` (N, 7), with their facts (``_valid_parts``: clearances and axis distances), are
+        free. A move is certified when no sphere can reach an obstacle (or another sphere) on
+        it: no sphere centre moves farther than ``move_bound`` and distances are 1-Lipschitz,
+        so the world is clear when the two ends' world clearances beyond the margin sum to
+        more than that, the self pairs when theirs sum to more than twice it (both spheres
+        move). A move not certified is halved at its midpoint, checked (False when it
+        collides), until its largest joint step is at most ``floor`` rad, where a move between
+        valid ends is accepted. The midpoints count in ``n_checked``."""
         if not floor > 0:  # a floor of 0 would halve a move that grazes forever
             raise ValueError(f"certify needs a step floor > 0 rad, not {floor!r}")
-        reach, margin = self.joint_reach(), self.margin
+        margin = self.margin
         a, b = np.asarray(q[:-1], float), np.asarray(q[1:], float)
-        wa, wb, sa, sb = world[:-1], world[1:], spheres[:-1], spheres[1:]
+        fa, fb = facts[:-1], facts[1:]
         while len(a):
             step = np.abs(b - a)
-            move = step @ reach
-            clear = (wa + wb - 2 * margin > move) & (sa + sb - 2 * margin > 2 * move)
+            move = self.move_bound(step, fa[:, 2:], fb[:, 2:])
+            clear = (fa[:, 0] + fb[:, 0] - 2 * margin > move) & (fa[:, 1] + fb[:, 1] - 2 * margin > 2 * move)
             split = ~clear & (step.max(axis=1) > floor)
             if not split.any():
                 return True
-            a, b, wa, wb, sa, sb = (x[split] for x in (a, b, wa, wb, sa, sb))
+            a, b, fa, fb = a[split], b[split], fa[split], fb[split]
             mid = (a + b) / 2
-            ok, wm, sm = self._valid_parts(mid, self.CERTIFY_BOUND)
+            ok, fm = self._valid_parts(mid, self.CERTIFY_BOUND)
             if not ok.all():
                 return False
             a, b = np.concatenate([a, mid]), np.concatenate([mid, b])
-            wa, wb, sa, sb = np.concatenate([wa, wm]), np.concatenate([wm, wb]), np.concatenate([sa, sm]), \
-                np.concatenate([sm, sb])
+            fa, fb = np.concatenate([fa, fm]), np.concatenate([fm, fb])
         return True
 
     @staticmethod
@@ -382,17 +412,18 @@ class CollisionChecker:
         heads = [h if (h := self._head(len(q), first, spread)) is not None else np.ones(len(q), bool) for q in segments]
         n0 = self.n_checked
         cuts = np.cumsum([int(h.sum()) for h in heads])[:-1]
-        at_heads = [np.split(x, cuts) for x in self._valid_parts(np.concatenate([q[h] for q, h in zip(segments, heads)]),
-                                                                 bound)]
+        ok, facts = self._valid_parts(np.concatenate([q[h] for q, h in zip(segments, heads)]), bound)
+        head_ok = np.split(ok, cuts)
+        at_heads = np.split(facts, cuts) if facts is not None else [None] * len(segments)
         self.n_checked = n0  # counted below as motion_valid in turn counts: the segments up to the answer
-        for k, (q, head, ok, w_head, s_head) in enumerate(zip(segments, heads, *at_heads)):
+        for k, (q, head, ok, at_head) in enumerate(zip(segments, heads, head_ok, at_heads)):
             if not ok.all():
                 self.n_checked += int(self.robot.within_limits(q).sum())
                 continue
             self.n_checked += int(self.robot.within_limits(q[head]).sum())
-            ok, w_tail, s_tail = self._valid_parts(q[~head], bound)
+            ok, at_tail = self._valid_parts(q[~head], bound)
             if not ok.all():
                 continue
-            if certify is None or self.certified(q, *self._merge(head, (w_head, s_head), (w_tail, s_tail)), certify):
+            if certify is None or self.certified(q, self._merge(head, at_head, at_tail), certify):
                 return k
         return -1

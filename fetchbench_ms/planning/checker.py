@@ -110,7 +110,7 @@ class CollisionChecker:
         self.pair_table, self.pair_valid = torch.as_tensor(table), torch.as_tensor(valid)
 
     #: m past the margin (and the largest sphere) to which the world's distances are measured
-    #: (the broad phase's horizon): ``certify`` reads world clearances up to this bound.
+    #: (the broad phase's horizon; ``CERTIFY_BOUND`` in a certified check).
     WORLD_BOUND = 0.02
 
     def joint_reach(self) -> np.ndarray:
@@ -135,6 +135,10 @@ class CollisionChecker:
                 d = d.copy()
                 d[robot.arm_joints.index(joint.name)] = 0.0
             reach[joint.child] = d
+        # ``move_bound`` takes the arm joints as one chain, each moving all later ones.
+        children = [np.isfinite(reach[fk.joint_child[name]]) for name in robot.arm_joints]
+        if not all(children[k][:k + 1].all() for k in range(robot.n_arm)):
+            raise ValueError(f"{robot.uid}: the arm joints are not one chain in order")
         sp = robot.spheres
         offset = np.linalg.norm(sp.centers_link, axis=1)
         per_sphere = np.stack([reach[sp.links[l]] for l in sp.link_index]) + offset[:, None]  # (S, 7)

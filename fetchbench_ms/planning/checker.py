@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -121,8 +122,11 @@ class CollisionChecker:
         ``dq`` in joint space moves no sphere centre farther than ``abs(dq) @ joint_reach()``
         (a turn by ``a`` about an axis moves a point at distance ``r`` from it by at most
         ``r * a``)."""
-        if getattr(self, "_reach", None) is not None:
-            return self._reach
+        return self._kinematic_reach[0]
+
+    @cached_property
+    def _kinematic_reach(self) -> tuple[np.ndarray, torch.Tensor]:
+        """``joint_reach()``, and (S, 7) whether each robot sphere moves with each arm joint."""
         robot, fk = self.robot, self.robot.fk
         gripper = dict(zip(robot.gripper_joints, robot.gripper_q(self.finger)[0].abs().tolist()))
         unmoved = np.full(robot.n_arm, -np.inf)  # -inf: the link is not moved by that joint
@@ -142,13 +146,11 @@ class CollisionChecker:
         sp = robot.spheres
         offset = np.linalg.norm(sp.centers_link, axis=1)
         per_sphere = np.stack([reach[sp.links[l]] for l in sp.link_index]) + offset[:, None]  # (S, 7)
-        self._moved_by = torch.as_tensor(np.isfinite(per_sphere))  # (S, 7): sphere s moves with joint j
         bound = per_sphere.max(axis=0)
         if self.attachment is not None:
             att = reach[robot.hand_link] + np.linalg.norm(self.attachment.centers_hand, axis=1).max()
             bound = np.maximum(bound, att)
-        self._reach = np.where(np.isfinite(bound), bound, 0.0)
-        return self._reach
+        return np.where(np.isfinite(bound), bound, 0.0), torch.as_tensor(np.isfinite(per_sphere))
 
     def _self_clearance(self, poses, centers) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, P) clearance per link pair: the bounding-sphere distance where that is
@@ -214,12 +216,11 @@ class CollisionChecker:
     def _axis_distances(self, poses, centers, att) -> torch.Tensor:
         """(B, 7) per arm joint, the largest distance from its axis of a sphere centre it moves
         (the robot's ``centers`` (B, S, 3), the carried object's ``att`` (B, M, 3) or None)."""
-        self.joint_reach()  # the spheres each joint moves
-        fk, out = self.robot.fk, []
+        moved_by, fk, out = self._kinematic_reach[1], self.robot.fk, []
         for j, name in enumerate(self.robot.arm_joints):
             T = poses[fk.joint_child[name]]  # the axis passes through the child frame's origin
             u = T[:, :3, :3] @ fk.joint_axis((name,))[0]  # (B, 3)
-            points = centers[:, self._moved_by[:, j]]
+            points = centers[:, moved_by[:, j]]
             if att is not None:
                 points = torch.cat([points, att], dim=1)
             v = points - T[:, None, :3, 3]
@@ -323,17 +324,19 @@ class CollisionChecker:
         if not ok.all():
             self.n_checked += int(self.robot.within_limits(q[~head]).sum())  # as if checked at once
             return False
-        ok, at_tail = self._valid_parts(q[~head], bound)
+        return self._rest_valid(q, head, at_head, certify)
+
+    def _rest_valid(self, q, head: np.ndarray, at_head: np.ndarray | None, certify: float | None) -> bool:
+        """``all_valid``'s answer for ``q`` whose configurations ``head`` were all valid (their
+        facts ``at_head`` when certifying): the rest checked, then the moves certified."""
+        ok, at_tail = self._valid_parts(q[~head], None if certify is None else self.CERTIFY_BOUND)
         if not ok.all():
             return False
-        return certify is None or self.certified(q, self._merge(head, at_head, at_tail), certify)
-
-    @staticmethod
-    def _merge(head: np.ndarray, at_head: np.ndarray, at_tail: np.ndarray) -> np.ndarray:
-        """Per-configuration rows measured for ``q[head]`` and ``q[~head]``, in ``q``'s order."""
-        merged = np.empty((len(head), at_head.shape[1]))
-        merged[head], merged[~head] = at_head, at_tail
-        return merged
+        if certify is None:
+            return True
+        facts = np.empty((len(head), at_head.shape[1]))
+        facts[head], facts[~head] = at_head, at_tail
+        return self.certified(q, facts, certify)
 
     #: m past the margin to which a certified check measures world distances (``WORLD_BOUND``
     #: otherwise): a straight move of 0.02 rad on every joint can carry a sphere several cm, and
@@ -425,9 +428,6 @@ class CollisionChecker:
                 self.n_checked += int(self.robot.within_limits(q).sum())
                 continue
             self.n_checked += int(self.robot.within_limits(q[head]).sum())
-            ok, at_tail = self._valid_parts(q[~head], bound)
-            if not ok.all():
-                continue
-            if certify is None or self.certified(q, self._merge(head, at_head, at_tail), certify):
+            if self._rest_valid(q, head, at_head, certify):
                 return k
         return -1

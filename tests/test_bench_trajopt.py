@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from fetchbench_ms.planning.rrt import PlanResult
 from script_modules import import_script
@@ -137,3 +138,21 @@ def test_records_say_the_counts_they_planned_with():
     assert bench.counts_of({}) == "8x40x2"
     assert bench.counts_of(bench.config_overrides(["seeds=16", "opt_iters=80", "collision_substeps=3",
                                                    "world_grid=0.015"])) == "16x80x3"
+
+
+def test_the_world_grid_bench_bakes_uncached_and_the_same_values_at_any_chunk():
+    """``bench_world_grid.bake_ms`` measures a real bake each time (the world's cache is not
+    read nor left filled), restores ``BAKED_CHUNK``, and two chunk sizes bake equal grids."""
+    from fetchbench_ms.planning import distance
+    from fetchbench_ms.planning.demo_worlds import shelf_worlds
+
+    bench = import_script(ROOT / "scripts/bench/bench_world_grid.py")
+    world, _ = shelf_worlds()
+    chunks = dict(distance.BAKED_CHUNK)
+    device = torch.device("cpu")
+    ms_a, a, peak = bench.bake_ms(world, (), 0.05, device, 1 << 10, 24)
+    ms_b, b, _ = bench.bake_ms(world, (), 0.05, device, 1 << 14, 24)
+    assert torch.equal(a, b) and a.shape == tuple(distance.grid_shape(0.05))
+    assert ms_a > 0 and ms_b > 0 and peak == 0
+    assert distance.BAKED_CHUNK == chunks and "_baked_grids" not in world.__dict__
+    assert (a < distance.GRID_TRUNCATION).any() and (a == distance.GRID_TRUNCATION).any()  # near and far vertices

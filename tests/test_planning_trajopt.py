@@ -646,7 +646,7 @@ def test_phase_timer_reports_every_phase_and_changes_no_plan(robot, shelf_proble
 
 def test_the_pipelines_planner_takes_the_runs_counts_and_loop(monkeypatch):
     """``trajopt.plan`` (the pipeline's entry) plans with the run's ``trajopt_counts`` and
-    ``trajopt_loop``, and with the defaults when the run names none."""
+    ``trajopt_loop`` and ``trajopt_certify``, and with the defaults when the run names none."""
     from fetchbench_ms.planning import trajopt
     from fetchbench_ms.planning.rrt import PlanRequest
 
@@ -654,7 +654,8 @@ def test_the_pipelines_planner_takes_the_runs_counts_and_loop(monkeypatch):
     monkeypatch.setattr(trajopt, "plan_trajopt", lambda *a, config=None, **k: seen.append(config))
     for options in ({"trajopt_counts": "16x80x3"}, {"trajopt_counts": None, "trajopt_loop": None}, {},
                     {"trajopt_loop": "graph"}, {"trajopt_counts": "16x80x3", "trajopt_loop": "grid"},
-                    {"trajopt_loop": "cpu"}):
+                    {"trajopt_loop": "cpu"}, {"trajopt_certify": 0.005, "trajopt_loop": "graph"},
+                    {"trajopt_certify": "off"}):
         trajopt.plan(PlanRequest(None, np.zeros(7), np.zeros((1, 7)), seed=0, max_checks=10, checks_per_try=10,
                                  time_limit=1.0, options=options))
     assert seen[0] == TrajoptConfig(**trajopt.FULL_COUNTS)
@@ -662,6 +663,8 @@ def test_the_pipelines_planner_takes_the_runs_counts_and_loop(monkeypatch):
     assert seen[3] == TrajoptConfig(fixed_shape=True, cuda_graph=True)
     assert seen[4] == TrajoptConfig(**trajopt.FULL_COUNTS, fixed_shape=True, cuda_graph=True, world_grid=0.015)
     assert seen[5] == TrajoptConfig(device="cpu")  # on the CPU even where CUDA is
+    assert seen[6] == TrajoptConfig(fixed_shape=True, cuda_graph=True, certify=0.005)
+    assert seen[7] == TrajoptConfig(certify=None)
 
 
 def test_certified_checks_give_paths_free_at_any_finer_step(robot, shelf_problem):

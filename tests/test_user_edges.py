@@ -436,7 +436,8 @@ PLANNER_OPTION_ERRORS = textwrap.dedent("""
     for method, option in (("cgn-ptd-mppi", "mppi_goal_radius=0"), ("cgn-ptd-mppi", "mppi_goal_region=-1"),
                            ("ga-ptd-mppi", "mppi_cost=nets"), ("ga-mesh-rrt", "mppi_goal_region=0"),
                            ("ga-mesh-trajopt", "trajopt_counts=8x40"), ("cgn-imit-mlp", "trajopt_counts=8x0x2"),
-                           ("ga-mesh-rrt", "trajopt_counts=8x40x2"), ("ga-ptd-trajopt", "trajopt_loop=compiled")):
+                           ("ga-mesh-rrt", "trajopt_counts=8x40x2"), ("ga-ptd-trajopt", "trajopt_loop=compiled"),
+                           ("ga-mesh-trajopt", "trajopt_certify=0"), ("cgn-ptd-trajopt", "trajopt_certify=on")):
         err = io.StringIO()
         with contextlib.redirect_stderr(err):
             code = main(["eval", "--method", method, "--suite", "val", "--tasks", "0:100",
@@ -455,10 +456,11 @@ def test_bad_planner_options_are_one_line_before_torch_loads(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     answers, heavy = json.loads(out.stdout)
     assert heavy == []
-    assert [code for code, _ in answers] == [2] * 8
+    assert [code for code, _ in answers] == [2] * 10
     lines = [_one_error_line(err) for _, err in answers]
     valid = ("valid: mppi_goal_region=RAD (>= 0; 0 switches the goal credit off); mppi_cost=network|distance; "
-             "trajopt_counts=SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3); trajopt_loop=eager|graph|grid|cpu")
+             "trajopt_counts=SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3); trajopt_loop=eager|graph|grid|cpu; "
+             "trajopt_certify=RAD (> 0, the bisection floor)|off")
     assert "unknown planner option 'mppi_goal_radius'" in lines[0] and lines[0].endswith(valid)
     assert "mppi_goal_region=-1: bad value" in lines[1] and lines[1].endswith(valid)
     assert "mppi_cost=nets: bad value" in lines[2] and lines[2].endswith(valid)
@@ -468,6 +470,8 @@ def test_bad_planner_options_are_one_line_before_torch_loads(tmp_path):
     assert "'trajopt_counts' applies to ga-mesh-trajopt, " in lines[6] and ", cgn-imit-mlp, " in lines[6]
     assert lines[6].endswith("not ga-mesh-rrt")
     assert "trajopt_loop=compiled: bad value" in lines[7] and lines[7].endswith(valid)
+    assert "trajopt_certify=0: bad value" in lines[8] and lines[8].endswith(valid)
+    assert "trajopt_certify=on: bad value" in lines[9] and lines[9].endswith(valid)
     assert not (tmp_path / "eval").exists()
 
 
@@ -478,7 +482,8 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     from fetchbench_ms.planning.mppi import COSTS
     from fetchbench_ms.planning.trajopt import COUNT_FIELDS, FULL_COUNTS, LOOPS, TrajoptConfig, counts_config, counts_of
     from fetchbench_ms.method_spec import PLANNERS
-    from fetchbench_ms.solutions.planner_options import (MPPI_COSTS, PLANNER_OPTIONS, TRAJOPT_LOOPS, check_trajopt_counts,
+    from fetchbench_ms.solutions.planner_options import (MPPI_COSTS, PLANNER_OPTIONS, TRAJOPT_LOOPS,
+                                                         check_trajopt_certify, check_trajopt_counts,
                                                          check_trajopt_loop)
     from fetchbench_ms.solutions.sense_plan_act import SolveConfig
 
@@ -495,6 +500,9 @@ def test_planner_options_spell_the_planners_methods_costs_and_fields():
     # trajopt_loop names the loops of trajopt.LOOPS, each a set of TrajoptConfig fields
     assert TRAJOPT_LOOPS == tuple(LOOPS) and check_trajopt_loop(" graph ") == "graph"
     assert all(TrajoptConfig(**fields) for fields in LOOPS.values()) and LOOPS["eager"] == {}
+    # trajopt_certify is TrajoptConfig.certify's floor, a float (folder names read 0.005), or off
+    assert check_trajopt_certify(" 0.005 ") == 0.005 and check_trajopt_certify(" off") == "off"
+    assert TrajoptConfig(certify=check_trajopt_certify("1e-3")).certify == 0.001
 
 
 def test_ppo_bad_flags_are_one_line_before_torch_loads():

@@ -99,8 +99,9 @@ def add_commands(subparsers) -> None:
     p.add_argument("--planner-option", action="append", default=None, metavar="KEY=VALUE",
                    help="a planner parameter of the ablation, for the MPPI methods: mppi_goal_region=RAD (the goal "
                         "credit's region, 0: off) or mppi_cost=network|distance; for the trajopt methods and the "
-                        "hybrids: trajopt_counts=SEEDSxITERSxSUBSTEPS (default 8x40x2) or trajopt_loop=eager|graph|grid|cpu "
-                        "(the Adam loop; default eager) (repeatable; recorded in "
+                        "hybrids: trajopt_counts=SEEDSxITERSxSUBSTEPS (default 8x40x2), trajopt_loop=eager|graph|grid|cpu "
+                        "(the Adam loop; default eager) or trajopt_certify=RAD|off (certified checks; default off) "
+                        "(repeatable; recorded in "
                         "run.json and every record)")
     from ..robots import DEFAULT_ROBOT, ROBOT_UIDS
 

@@ -234,9 +234,9 @@ def method_label(manifest: dict) -> str:
     return label
 
 
-#: Planner options that set a planner's counts or its loop rather than a factor of the
+#: Planner options that set a planner's counts, its loop or its checks rather than a factor of the
 #: pipeline: a run is compared (the ablation table) only with runs of the same values.
-SETTING_OPTIONS = ("trajopt_counts", "trajopt_loop")
+SETTING_OPTIONS = ("trajopt_counts", "trajopt_loop", "trajopt_certify")
 
 
 def settings(manifest: dict) -> dict:

@@ -595,9 +595,12 @@ def plan_trajopt(checker: CollisionChecker, q_start, q_goals, time_limit: float 
 
 def plan(request: PlanRequest) -> PlanResult:
     """The trajectory optimiser for the pipeline (``planning.rrt.PlanRequest``), with the
-    run's ``trajopt_counts`` and ``trajopt_loop`` (None: the defaults)."""
-    loop = LOOPS[request.options.get("trajopt_loop") or "eager"]
-    config = counts_config(request.options.get("trajopt_counts"), **loop)
+    run's ``trajopt_counts``, ``trajopt_loop`` and ``trajopt_certify`` (None: the defaults)."""
+    fields = dict(LOOPS[request.options.get("trajopt_loop") or "eager"])
+    certify = request.options.get("trajopt_certify")
+    if certify is not None:
+        fields["certify"] = None if certify == "off" else float(certify)
+    config = counts_config(request.options.get("trajopt_counts"), **fields)
     return plan_trajopt(request.checker, request.q_start, request.q_goals, request.time_limit,
                         start_tolerance=request.start_tolerance, config=config, seed=request.seed,
                         max_checks=request.max_checks)

@@ -9,10 +9,12 @@ methods (``fetchbench eval --planner-option KEY=VALUE``, repeatable):
   Adam iterations and collision points a segment (``planning.trajopt.COUNT_FIELDS``; by
   default ``TrajoptConfig``'s, 8x40x2), e.g. ``16x80x3`` (``trajopt.FULL_COUNTS``);
 - ``trajopt_loop``: ``eager`` (the default), ``graph``, ``grid`` or ``cpu``, the trajectory
-  optimiser's Adam loop and where it runs (``planning.trajopt.LOOPS``).
+  optimiser's Adam loop and where it runs (``planning.trajopt.LOOPS``);
+- ``trajopt_certify``: rad > 0, the trajectory optimiser's certified checks with that
+  bisection floor (``planning.trajopt.TrajoptConfig.certify``), or ``off`` (the default).
 
 A planner takes the options its row names (``method_spec.PlannerSpec.options``): the first
-two are MPPI's, the last two the trajectory optimiser's (its methods and the hybrids'). This
+two are MPPI's, the last three the trajectory optimiser's (its methods and the hybrids'). This
 module loads no torch (as ``envs.options``), so the command line answers a bad option before
 torch and the planners load.
 """
@@ -68,6 +70,19 @@ def check_trajopt_loop(value) -> str:
     return value.strip()
 
 
+def check_trajopt_certify(value) -> float | str:
+    """``value`` as a certified checks' floor in rad (finite, > 0, as a float: ``0.005``), or
+    ``"off"``."""
+    if isinstance(value, str) and value.strip() == "off":
+        return "off"
+    if isinstance(value, bool):
+        raise ValueError(f"bad trajopt certify floor {value!r}")
+    floor = float(value.strip() if isinstance(value, str) else value)  # not a number: ValueError
+    if not math.isfinite(floor) or floor <= 0:
+        raise ValueError(f"bad trajopt certify floor {value!r}")
+    return floor
+
+
 #: Option name (a ``SolveConfig`` field) -> (the function that checks and converts a value,
 #: its valid values in words).
 PLANNER_OPTIONS = {
@@ -75,6 +90,7 @@ PLANNER_OPTIONS = {
     "mppi_cost": (check_mppi_cost, "|".join(MPPI_COSTS)),
     "trajopt_counts": (check_trajopt_counts, "SEEDSxITERSxSUBSTEPS (whole counts >= 1, e.g. 16x80x3)"),
     "trajopt_loop": (check_trajopt_loop, "|".join(TRAJOPT_LOOPS)),
+    "trajopt_certify": (check_trajopt_certify, "RAD (> 0, the bisection floor)|off"),
 }
 
 

@@ -166,9 +166,12 @@ class SolveConfig:
     # TrajoptConfig's.
     trajopt_counts: str | None = None
     # trajopt methods and the hybrids: the optimiser's Adam loop, "eager", "graph" or "grid"
-    # (planning.trajopt.LOOPS); None: eager. (These four are what `fetchbench eval
-    # --planner-option` may set: solutions.planner_options.)
+    # (planning.trajopt.LOOPS); None: eager.
     trajopt_loop: str | None = None
+    # trajopt methods and the hybrids: certified checks' floor in rad, or "off"; None:
+    # TrajoptConfig's. (These five are what `fetchbench eval --planner-option` may set:
+    # solutions.planner_options.)
+    trajopt_certify: float | str | None = None
 
     def __post_init__(self):
         unknown = [i for i in self.improvements if i not in IMPROVEMENTS]

@@ -245,8 +245,10 @@ def distance_to_every(kind, x: torch.Tensor) -> torch.Tensor:
 
 # Grid vertices measured per call while baking: bounds the broad phase's memory (vertices x
 # obstacles); a GPU takes larger calls (each call reads pair counts back to the host once per
-# obstacle kind). The values do not depend on it.
-BAKED_CHUNK = {"cpu": 1 << 17, "cuda": 1 << 19}
+# obstacle kind). The values do not depend on it. On an H200 a val world bakes in a median
+# 16.8 ms at 2^19, 12.4 ms at 2^20 (1.6 GB peak), 11.4 ms at 2^21 (3.1 GB)
+# (results/planning/bench-world-grid-h200-val40.json): 2^20, the memory of 16 workers a GPU.
+BAKED_CHUNK = {"cpu": 1 << 17, "cuda": 1 << 20}
 BAKED_CACHE = 4  # baked grids kept per world (by resolution, device and included obstacle sets)
 
 

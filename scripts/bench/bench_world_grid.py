@@ -6,6 +6,7 @@ chunk: the bench checks each world's grids are equal bit for bit and fails if no
 
 Usage (val tasks):
   python scripts/bench/bench_world_grid.py --suite val --tasks 0:20 --device cuda --chunks 19 20 21 22 [--json PATH]
+  python scripts/bench/bench_world_grid.py --show results/planning/bench-world-grid-h200-val40.json
 """
 from __future__ import annotations
 
@@ -47,6 +48,15 @@ def bake_ms(world, exclude, resolution: float, device: torch.device, chunk: int,
     return ms, values, peak
 
 
+def print_table(record: dict) -> None:
+    run = record["run"]
+    print(f"{run['worlds']} worlds of {run['suite']} {run['tasks']} on {run['device']} (torch {run['torch']}), "
+          f"median of {run['repeats']} bakes each; the same values at every chunk")
+    print(f"{'chunk':>6} {'median ms':>10} {'max ms':>8} {'peak MB':>8}")
+    for name, r in record["chunks"].items():
+        print(f"{name:>6} {r['median_ms']:10.1f} {r['max_ms']:8.1f} {r['peak_mb']:8.0f}")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--suite", default="val")
@@ -56,7 +66,11 @@ def main(argv=None) -> int:
                         help="chunk sizes as powers of two (19: 524,288 vertices a call)")
     parser.add_argument("--repeats", type=int, default=3, help="bakes per world and chunk (the median counts)")
     parser.add_argument("--json", default=None, metavar="PATH")
+    parser.add_argument("--show", default=None, metavar="JSON", help="print a record's table and exit")
     args = parser.parse_args(argv)
+    if args.show:
+        print_table(json.loads(Path(args.show).read_text()))
+        return 0
     if any(not 10 <= c <= 26 for c in args.chunks) or args.repeats < 1:
         print("bench_world_grid: --chunks are powers of two from 10 to 26, --repeats >= 1", file=sys.stderr)
         return 2
@@ -85,15 +99,11 @@ def main(argv=None) -> int:
                 return 1
     rows = {f"2^{c}": dict(median_ms=statistics.median(r["ms"]), max_ms=max(r["ms"]),
                            peak_mb=max(r["peak_mb"])) for c, r in per_chunk.items()}
-    print(f"{len(per_chunk[args.chunks[0]]['ms'])} worlds on {device} (torch {torch.__version__}), "
-          f"grid {cfg.world_grid} m; the same values at every chunk")
-    print(f"{'chunk':>6} {'median ms':>10} {'max ms':>8} {'peak MB':>8}")
-    for name, r in rows.items():
-        print(f"{name:>6} {r['median_ms']:10.1f} {r['max_ms']:8.1f} {r['peak_mb']:8.0f}")
+    record = dict(run=dict(command=" ".join(["scripts/bench/bench_world_grid.py", *sys.argv[1:]]),
+                           suite=args.suite, tasks=args.tasks, device=str(device), torch=torch.__version__,
+                           worlds=len(per_chunk[args.chunks[0]]["ms"]), repeats=args.repeats), chunks=rows)
+    print_table(record)
     if args.json:
-        record = dict(run=dict(command=" ".join(["scripts/bench/bench_world_grid.py", *sys.argv[1:]]),
-                               suite=args.suite, tasks=args.tasks, device=str(device), torch=torch.__version__,
-                               worlds=len(per_chunk[args.chunks[0]]["ms"]), repeats=args.repeats), chunks=rows)
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(record, indent=1) + "\n")
     return 0

@@ -11,11 +11,11 @@
 # Lines appended to OUT/queue while it runs are run too. A run goes to OUT/NAME (a run already
 # there resumes), its log to OUT/logs/NAME.log, its lane, start, end (unix s) and exit status to
 # OUT/logs/times.txt; on a GPU machine, memory is sampled into OUT/logs/gpu-memory.log
-# (scripts/bench/log_gpu_memory.sh). Lanes: the GPUs nvidia-smi lists (CUDA_VISIBLE_DEVICES),
+# (scripts/bench/log_gpu_memory.sh, every $MEMLOG_SECONDS s, default 20). Lanes: the GPUs nvidia-smi lists (CUDA_VISIBLE_DEVICES),
 # or $LANES lanes on the CPU when it lists none; the cores are split between the lanes
 # (taskset) and each worker runs one torch thread. $PYTHON: the interpreter (default python3).
 set -euo pipefail
-case "${1:-}" in -h|--help) sed -n '2,18p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
+case "${1:-}" in -h|--help) sed -n '2,16p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;; esac
 if [ $# -lt 2 ] || [ ! -f "$1" ]; then
   echo "usage: bash scripts/eval_queue.sh JOBS OUT [WORKERS_PER_LANE]  (JOBS: a file of 'NAME ARGS...' lines; --help)" >&2
   exit 2
@@ -33,7 +33,7 @@ printf '%s\n' "$runs" >> "$out/queue"
 cores=$(nproc); per=$(( cores / lanes )); [ "$per" -ge 1 ] || per=1
 memlog=
 if [ "$gpus" -gt 0 ]; then
-  bash "$here/scripts/bench/log_gpu_memory.sh" "$out/logs/gpu-memory.log" & memlog=$!
+  bash "$here/scripts/bench/log_gpu_memory.sh" "$out/logs/gpu-memory.log" "${MEMLOG_SECONDS:-20}" & memlog=$!
   trap 'kill $memlog 2>/dev/null || true' EXIT
 fi
 echo "[eval_queue] $lanes lane(s), $per cores and $workers workers each; queue $out/queue"

@@ -65,3 +65,10 @@ def test_assignments_before_the_arguments_set_only_their_runs_environment(tmp_pa
     assert (out / "on-cpu" / "device.txt").read_text().strip() == "cpu"
     assert (out / "on-cpu" / "args.txt").read_text().split()[3:7] == ["--method", "ga-mesh-trajopt", "--tasks", "0:2"]
     assert not (out / "default" / "device.txt").exists()
+
+
+def test_help_prints_the_header_and_no_code():
+    out = subprocess.run(["bash", str(SCRIPT), "--help"], capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0
+    assert out.stdout.startswith("Many evaluations on one machine") and "MEMLOG_SECONDS" in out.stdout
+    assert out.stdout.rstrip().endswith("(default python3).") and "set -euo" not in out.stdout

@@ -58,3 +58,22 @@ def test_cli_prints_and_writes_the_summary_and_fails_on_an_empty_log(tmp_path, c
     empty.write_text("# nothing sampled\n")
     assert gpu_memory.main([str(empty)]) == 1
     assert "no samples" in capsys.readouterr().err
+
+
+def test_window_medians_smooth_a_swinging_series(tmp_path):
+    """The first and last ``window`` seconds' medians: one sample's swing (a worker holding a
+    task's transient tensors at that moment) does not decide the change."""
+    lines = []
+    procs = [(0, 1, 1000), (0, 2, 1000)]
+    for t, mib in enumerate([1000, 1400, 1000, 1000, 1000, 1000, 1100, 1000]):  # a swing at each end
+        lines += _sample(20 * t, [mib], procs, 100)
+    path = tmp_path / "swing.log"
+    path.write_text("\n".join(lines) + "\n")
+    s = gpu_memory.summary(gpu_memory.read_samples(str(path)), window=40)
+    g = s["gpus"]["0"]
+    assert (g["first_mib"], g["last_mib"]) == (1000, 1000) and g["change"] == 0
+    assert (g["first_window_mib"], g["last_window_mib"]) == (1000, 1000)  # 3 samples each, medians
+    s = gpu_memory.summary(gpu_memory.read_samples(str(path)), window=20)  # 2 samples: their mean
+    assert s["gpus"]["0"]["first_window_mib"] == 1200 and s["gpus"]["0"]["last_window_mib"] == 1050
+    assert s["gpus"]["0"]["window_change"] == pytest.approx(-0.125)
+    assert gpu_memory.main([str(path), "--window", "-1"]) == 2

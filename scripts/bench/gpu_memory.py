@@ -3,7 +3,9 @@
 Prints, for the samples taken while the run's workers were all up (the samples with the most
 processes on the GPUs, from the first in which each of them holds at least a quarter of their
 median: a worker starting up holds only its CUDA context), each GPU's memory used at the
-first and the last of them and the change, the per-process memory (min / median / max over
+first and the last of them and the change, the medians of the samples within ``--window``
+seconds (60) of both ends and their change (a sample swings with what the workers' tasks hold
+at that moment), the per-process memory (min / median / max over
 the workers) at both ends, and the host's resident memory of all python3 processes; with
 ``--json`` the same as one object:
 
@@ -47,9 +49,10 @@ def read_samples(path: str) -> list[dict]:
     return samples
 
 
-def summary(samples: list[dict]) -> dict:
+def summary(samples: list[dict], window: float = 60.0) -> dict:
     """First and last of the samples with every worker up (the most GPU processes, each past
-    its start-up)."""
+    its start-up); per GPU also the median of those samples within ``window`` seconds of the
+    first and of the last (a single sample swings with the tasks' transient tensors)."""
     if not samples:
         raise ValueError("no samples in the log")
     most = max(len(s["procs"]) for s in samples)
@@ -72,9 +75,14 @@ def summary(samples: list[dict]) -> dict:
     for index in sorted(first["gpus"]):
         a, b = first["gpus"][index], last["gpus"].get(index, float("nan"))
         peak = max(s["gpus"].get(index, 0) for s in full)
+        head = statistics.median(s["gpus"].get(index, 0) for s in full if s["t"] <= first["t"] + window)
+        tail = statistics.median(s["gpus"].get(index, 0) for s in full if s["t"] >= last["t"] - window)
         gpus[index] = {"first_mib": a, "last_mib": b, "peak_mib": peak, "change": (b - a) / a if a else None,
+                       "first_window_mib": head, "last_window_mib": tail,
+                       "window_change": (tail - head) / head if head else None,
                        "util_median": statistics.median(s["util"].get(index, 0) for s in full)}
-    return {"samples": len(full), "processes": most, "seconds": last["t"] - first["t"], "gpus": gpus,
+    return {"samples": len(full), "processes": most, "seconds": last["t"] - first["t"], "window_s": window,
+            "gpus": gpus,
             "per_process_mib": {"first": per_process(first), "last": per_process(last)},
             "host_rss_mb": {"first": first.get("rss_mb"), "last": last.get("rss_mb")}}
 
@@ -83,9 +91,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("log", help="a log of scripts/bench/log_gpu_memory.sh (.gz or plain)")
     ap.add_argument("--json", help="also write the summary to this file")
+    ap.add_argument("--window", type=float, default=60.0, metavar="SECONDS",
+                    help="the medians over the first and last SECONDS of the samples (default 60)")
     args = ap.parse_args(argv)
+    if not args.window > 0:
+        print(f"gpu_memory: --window must be > 0 seconds, not {args.window}", file=sys.stderr)
+        return 2
     try:
-        s = summary(read_samples(args.log))
+        s = summary(read_samples(args.log), args.window)
     except (OSError, ValueError) as e:
         print(f"gpu_memory: {args.log}: {e}", file=sys.stderr)
         return 1
@@ -94,6 +107,9 @@ def main(argv=None) -> int:
         change = "-" if g["change"] is None else f"{100 * g['change']:+.1f} %"
         print(f"GPU {index}: {g['first_mib'] / 1024:.1f} GiB first, {g['last_mib'] / 1024:.1f} GiB last "
               f"({change}), peak {g['peak_mib'] / 1024:.1f} GiB, median utilisation {g['util_median']:.0f} %")
+        wchange = "-" if g["window_change"] is None else f"{100 * g['window_change']:+.1f} %"
+        print(f"  median of the first and last {s['window_s']:g} s: {g['first_window_mib'] / 1024:.1f} and "
+              f"{g['last_window_mib'] / 1024:.1f} GiB ({wchange})")
     for end in ("first", "last"):
         p = s["per_process_mib"][end]
         print(f"per process, {end}: min {p['min']} / median {p['median']:.0f} / max {p['max']} MiB")

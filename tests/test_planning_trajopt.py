@@ -378,6 +378,33 @@ def test_checking_the_first_configurations_first_plans_the_same_with_fewer_compu
     assert computed[1] < whole.n_checked
 
 
+def test_particle_pieces_bound_the_dense_broad_phase_and_change_no_plan(monkeypatch, shelf_problem):
+    """``max_dense``: the fixed-shape particle rounds evaluate their trajectories in pieces
+    whose broad-phase tensor (configurations x link groups x every padded obstacle's planes)
+    stays within it; each trajectory's costs are its own, so the plan is bitwise the same."""
+    from fetchbench_ms.planning import trajopt_graph
+
+    checker, _, goals = shelf_problem
+    shapes = []
+    real = trajopt_graph.FixedShapeCosts.__call__
+
+    def spy(self, traj, cache=None):
+        shapes.append((tuple(traj.shape), self.dense_per_config()))
+        return real(self, traj, cache)
+
+    monkeypatch.setattr(trajopt_graph.FixedShapeCosts, "__call__", spy)
+    whole = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(cuda_graph=True, max_dense=1 << 40, **SMALL))
+    n_whole = len(shapes)
+    pieces = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(cuda_graph=True, max_dense=1 << 22, **SMALL))
+    assert whole.status == pieces.status == "solved" and np.array_equal(whole.path, pieces.path)
+    (_, S8, T, _), dense = shapes[0]
+    per_config = (T - 1) * SMALL["collision_substeps"] + 1  # the particle rounds' dense configurations
+    assert dense == 11 * (192 * 24 + 48 * 3 + 32 * 3)  # the padded world: 11 link groups
+    piece = shapes[n_whole][0][1]
+    assert piece < S8 and piece * per_config * dense <= 1 << 22 < (piece + 1) * per_config * dense
+    assert len(shapes) - n_whole == n_whole + TrajoptConfig().mppi_iters * (-(-S8 // piece) - 1)  # more calls
+
+
 def test_fixed_shape_loop_plans_as_the_sparse_loop(robot, shelf_problem):
     """The fixed-shape Adam loop (blocks of ten iterations, the convergence test on the
     device; on CUDA it is replayed as a graph) plans the shelf problem as the default sparse

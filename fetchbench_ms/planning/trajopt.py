@@ -127,6 +127,11 @@ class TrajoptConfig:
     w_acceleration: float = 0.01
     w_jerk: float = 0.0001
     max_configs: int = 50_000  # configurations per cost evaluation of the particles, at most
+    # fixed_shape: elements of the broad phase's dense tensor (configurations x link groups x
+    # obstacles x planes, every padded part) per cost evaluation of the particles, at most: a
+    # piece's transient memory (2^25: 128 MB in float32; the padded world's particle round
+    # would take ~0.6 GB at once). Each trajectory's costs are its own, whatever the pieces.
+    max_dense: int = 1 << 25
     max_planes: int | None = 24  # per convex part (more are thinned: a larger, conservative polytope)
     max_verify: int = 4  # seeds checked by the exact checker per problem, best first
     # m: the Adam steps reuse the broad phase's sphere-obstacle pairs of a configuration until
@@ -394,6 +399,14 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     def full(x):
         return torch.cat([start, x, goal], dim=2)
 
+    def particle_piece(per_traj: int) -> int:
+        """Trajectories (of each problem) per cost evaluation of the particles."""
+        piece = cfg.max_configs // per_traj
+        dense = fixed.dense_per_config() if fixed is not None else 0
+        if dense:
+            piece = min(piece, cfg.max_dense // (per_traj * dense))
+        return max(1, piece)
+
     # Particle warm start: smooth perturbations of each seed, exponentially weighted.
     basis = _smooth_basis(T - 2, 4).to(**dd)
     N = cfg.mppi_particles
@@ -410,8 +423,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             # In pieces of at most ``max_configs`` configurations: the pair tensors of a
             # large batch would not fit a GPU at once.
             per_traj = P * ((T - 1) * cfg.collision_substeps + 1)
-            c = torch.cat([warm_costs(part)[0] for part in x.split(max(1, cfg.max_configs // per_traj), dim=1)],
-                          dim=1)
+            c = torch.cat([warm_costs(part)[0] for part in x.split(particle_piece(per_traj), dim=1)], dim=1)
             c = c.reshape(P, S, N)
             spread = (c.mean(dim=2, keepdim=True) - c.amin(dim=2, keepdim=True)).clamp(min=1e-9)
             w = torch.softmax(-(c - c.amin(dim=2, keepdim=True)) / (cfg.mppi_temperature * spread), dim=2)

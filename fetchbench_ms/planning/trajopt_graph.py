@@ -98,6 +98,14 @@ class FixedShapeCosts(_Costs):
     def world_penalty(self, centers, radii, cache=None):
         return self._penalty(centers, radii, self.link_groups)
 
+    def dense_per_config(self) -> int:
+        """Elements of ``_penalty``'s largest broad-phase tensor per configuration: each link
+        group against every obstacle of a kind (``distance_to_every``; a convex part's every
+        plane, 3 coordinates for the others). 0 for a world read through its grid alone."""
+        G = self.link_groups.table.shape[0]
+        return G * sum(kind.O * (kind.t["planes"].shape[2] if kind.kind == "convex" else 3)
+                       for kind in self.world.kinds)
+
     def attached_penalty(self, att, radii):
         return self._penalty(att, radii, self.att_groups)
 

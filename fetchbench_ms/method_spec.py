@@ -125,7 +125,8 @@ class PaperRow:
 _NETWORKS = "fetchbench_ms.policies.networks"
 PLANNERS: dict[str, PlannerSpec] = {p.name: p for p in (
     PlannerSpec("rrt", "fetchbench_ms.planning.rrt:plan", "RRTConnect"),
-    PlannerSpec("trajopt", "fetchbench_ms.planning.trajopt:plan", "CuRobo", options=("trajopt_counts", "trajopt_loop", "trajopt_certify")),
+    PlannerSpec("trajopt", "fetchbench_ms.planning.trajopt:plan", "CuRobo",
+                options=("trajopt_counts", "trajopt_loop", "trajopt_certify")),
     # MPPI executes while it plans and is bounded by its replans, not by collision checks; its
     # collision cost is the learned scene-collision network on the observed cloud, or (the
     # mesh oracle) the meshes' distance fields.

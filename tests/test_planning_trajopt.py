@@ -393,7 +393,8 @@ def test_particle_pieces_bound_the_dense_broad_phase_and_change_no_plan(monkeypa
         return real(self, traj, cache)
 
     monkeypatch.setattr(trajopt_graph.FixedShapeCosts, "__call__", spy)
-    whole = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(cuda_graph=True, max_dense=1 << 40, **SMALL))
+    whole = plan_trajopt(checker, Q_DEFAULT, goals,
+                         config=TrajoptConfig(cuda_graph=True, max_dense=1 << 40, **SMALL))
     n_whole = len(shapes)
     pieces = plan_trajopt(checker, Q_DEFAULT, goals, config=TrajoptConfig(cuda_graph=True, max_dense=1 << 22, **SMALL))
     assert whole.status == pieces.status == "solved" and np.array_equal(whole.path, pieces.path)

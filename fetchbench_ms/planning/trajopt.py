@@ -420,8 +420,8 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
             particles = torch.minimum(torch.maximum(interior[:, :, None] + noise, q_lo), q_hi)
             x = particles.reshape(P, S * N, T - 2, 7)
             x = torch.cat([start.repeat_interleave(N, 1), x, goal.repeat_interleave(N, 1)], dim=2)
-            # In pieces of at most ``max_configs`` configurations: the pair tensors of a
-            # large batch would not fit a GPU at once.
+            # In pieces of at most ``max_configs`` configurations (and ``max_dense`` broad-phase
+            # elements): the pair tensors of a large batch would not fit a GPU at once.
             per_traj = P * ((T - 1) * cfg.collision_substeps + 1)
             c = torch.cat([warm_costs(part)[0] for part in x.split(particle_piece(per_traj), dim=1)], dim=1)
             c = c.reshape(P, S, N)

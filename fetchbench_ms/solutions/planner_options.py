@@ -30,14 +30,23 @@ from ..method_spec import MethodSpec, registry
 MPPI_COSTS = ("network", "distance")
 
 
+def _finite(value, what: str) -> float:
+    """``value`` (a number, or a string such as ``"0.25"``) as a finite float; a bool (an int:
+    True would read as 1), a non-number or an infinity is a ValueError naming ``what``."""
+    if isinstance(value, bool):
+        raise ValueError(f"bad {what} {value!r}")
+    number = float(value.strip() if isinstance(value, str) else value)  # not a number: ValueError
+    if not math.isfinite(number):
+        raise ValueError(f"bad {what} {value!r}")
+    return number
+
+
 def check_goal_region(value) -> float:
     """``value`` (a number, or a string such as ``"0.25"``) as a goal region in rad: finite and
     >= 0. A whole number comes back as an int, so that 0 reads ``0`` in records, labels and
     folder names, however it was typed."""
-    if isinstance(value, bool):  # bool is an int: True would read as 1
-        raise ValueError(f"bad goal region {value!r}")
-    region = float(value.strip() if isinstance(value, str) else value)  # not a number: ValueError
-    if not math.isfinite(region) or region < 0:
+    region = _finite(value, "goal region")
+    if region < 0:
         raise ValueError(f"bad goal region {value!r}")
     return int(region) if region.is_integer() else region
 
@@ -75,10 +84,8 @@ def check_trajopt_certify(value) -> float | str:
     ``"off"``."""
     if isinstance(value, str) and value.strip() == "off":
         return "off"
-    if isinstance(value, bool):
-        raise ValueError(f"bad trajopt certify floor {value!r}")
-    floor = float(value.strip() if isinstance(value, str) else value)  # not a number: ValueError
-    if not math.isfinite(floor) or floor <= 0:
+    floor = _finite(value, "trajopt certify floor")
+    if floor <= 0:
         raise ValueError(f"bad trajopt certify floor {value!r}")
     return floor
 

@@ -10,7 +10,15 @@ the first and last tasks' figures with the sizes of the caches a worker keeps ac
 
 RSS is the process's resident memory (VmRSS); on a GPU, ``cuda_allocated_mb`` is what live
 tensors hold and ``cuda_reserved_mb`` what torch's caching allocator holds from the device
-(the renderer's memory is not in either: see nvidia-smi).
+(the renderer's memory is not in either: see nvidia-smi); ``cuda_graph_pools_mb`` is the part
+of it in the private pools of captured CUDA graphs (``trajopt_loop=graph``), which emptying
+the cache between tasks cannot return while a graph of the pool lives, and ``graph_loops``
+the process's cached captured loops and their counts (``trajopt_graph.GraphCache``).
+
+``--planner-option`` is ``fetchbench eval``'s; ``--config FIELD=VALUE`` changes a
+``TrajoptConfig`` field of the run's trajectory-optimiser loop (a diagnosis: such a run is
+not one of the tables' settings), e.g. ``--planner-option trajopt_loop=graph --config
+graph_cache=1``.
 """
 from __future__ import annotations
 
@@ -38,12 +46,32 @@ def cuda_mb() -> dict:
             "cuda_reserved_mb": round(torch.cuda.memory_reserved() / 2**20, 1)}
 
 
+def graph_figures() -> dict:
+    """The CUDA graphs' private pools' reserved memory and the cached loops' counts."""
+    import torch
+
+    out = {}
+    if torch.cuda.is_initialized():
+        private = sum(seg["total_size"] for seg in torch.cuda.memory_snapshot()
+                      if tuple(seg.get("segment_pool_id", (0, 0))) != (0, 0))
+        out["cuda_graph_pools_mb"] = round(private / 2**20, 1)
+    from fetchbench_ms.planning import trajopt_graph
+
+    if trajopt_graph._CACHE is not None:
+        out["graph_loops"] = {"cached": len(trajopt_graph._CACHE.entries), **trajopt_graph._CACHE.counts}
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--method", default="ga-mesh-trajopt")
     parser.add_argument("--pipeline", choices=("paper", "ours"), default="paper")
     parser.add_argument("--suite", default="val", help="task suite: test, val, smoke, or a suite file")
     parser.add_argument("--tasks", default="0:40", help="START:END slice of the suite's tasks")
+    parser.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="as fetchbench eval's (e.g. trajopt_loop=graph)")
+    parser.add_argument("--config", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a TrajoptConfig field of the run's trajopt loop (a diagnosis, not a table setting)")
     parser.add_argument("--json", default=None, metavar="PATH", help="write every task's figures here")
     args = parser.parse_args()
 
@@ -54,13 +82,22 @@ def main() -> None:
     from fetchbench_ms.evaluation.runner import open_suite, parse_range, suite_items
     from fetchbench_ms.evaluation.worker_caches import cache_sizes
     from fetchbench_ms.method_spec import IMPROVEMENTS
+    from fetchbench_ms.planning import trajopt
+    from fetchbench_ms.solutions.planner_options import parse_planner_options
 
     try:
         suite, _, _ = open_suite(args.suite)
         items = suite_items(suite, parse_range(args.tasks, len(suite.tasks)))
-        run = resolve_run(args.method, improvements=IMPROVEMENTS if args.pipeline == "ours" else ())
+        options = parse_planner_options(args.planner_option)
+        run = resolve_run(args.method, improvements=IMPROVEMENTS if args.pipeline == "ours" else (),
+                          planner_options=options)
     except (ValueError, KeyError, FileNotFoundError) as error:  # the message names what is valid
         parser.error(str(error).strip("'\""))
+    if args.config:
+        from bench_trajopt import config_overrides
+
+        loop = options.get("trajopt_loop") or "eager"
+        trajopt.LOOPS[loop] = {**trajopt.LOOPS[loop], **config_overrides(args.config)}
 
     torch.set_num_threads(1)  # as a worker (evaluation.local)
     runner = TaskRunner(run)
@@ -70,10 +107,12 @@ def main() -> None:
         for item in items:
             record = runner(item)
             rows.append({"task_id": item.task_id, "success": record["success"], "failure": record.get("failure"),
-                         "wall_time": record["wall_time"], "rss_mb": round(rss_mb(), 1), **cuda_mb(),
+                         "wall_time": record["wall_time"], "rss_mb": round(rss_mb(), 1), **cuda_mb(), **graph_figures(),
                          "caches": {c.name: c.size for c in cache_sizes()}})
             print(f"{len(rows):4d} {item.task_id}  rss {rows[-1]['rss_mb']:7.1f} MB  "
                   + "".join(f"{k[:-3]} {v:.1f} MB  " for k, v in rows[-1].items() if k.startswith("cuda"))
+                  + "".join(f"loops {v['cached']} ({v['new']} new, {v['evicted']} evicted)  "
+                            for k, v in rows[-1].items() if k == "graph_loops")
                   + f"{record['wall_time']:.1f} s", flush=True)
     finally:
         runner.close()
@@ -85,15 +124,18 @@ def main() -> None:
           f"{time.perf_counter() - start:.0f} s on {run_device()}")
     print(f"RSS after the first task {first['rss_mb']:.0f} MB, after the last {last['rss_mb']:.0f} MB, "
           f"largest {max(r['rss_mb'] for r in rows):.0f} MB")
-    for key in ("cuda_allocated_mb", "cuda_reserved_mb"):
+    for key in ("cuda_allocated_mb", "cuda_reserved_mb", "cuda_graph_pools_mb"):
         if key in last:
             print(f"{key}: first {first.get(key, 0.0):.1f}, last {last[key]:.1f}, "
                   f"largest {max(r.get(key, 0.0) for r in rows):.1f}")
+    if "graph_loops" in last:
+        print("captured loops at the end: " + ", ".join(f"{k} {v}" for k, v in last["graph_loops"].items()))
     print("caches at the end (entries / bound): "
           + ", ".join(f"{name} {size}/{bounds[name]}" for name, size in last["caches"].items()))
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"method": args.method, "pipeline": args.pipeline, "suite": args.suite, "tasks": args.tasks,
+                   "planner_options": options, "config": args.config,
                        "device": run_device(), "torch_threads": torch.get_num_threads(),
                        "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
                        "cache_bounds": bounds, "per_task": rows}, f, indent=1)

@@ -275,18 +275,6 @@ class _AdamLoop:
             t.copy_(s)
         return graph
 
-    def release(self) -> None:
-        """Drop the graph and every buffer now (a loop the cache evicts): on CUDA its buffers
-        were seen to outlive the dropped loop, so nothing is left to whatever still refers to it."""
-        graph = getattr(self, "graph", None)
-        if graph is not None:
-            graph.reset()
-        self.graph = None
-        for obj in (self, self.costs):
-            for name, value in list(vars(obj).items()):
-                if isinstance(value, (torch.Tensor, _Groups, TorchWorld, TorchRobot)) or name == "cost_fn":
-                    delattr(obj, name)
-
     def run(self, capture: bool, check_time: Callable[[], None], graph=None) -> torch.Tensor:
         """All ``opt_iters`` iterations (fewer when converged); the final interior. ``graph``:
         one this loop captured before (its buffers now hold another problem)."""
@@ -471,15 +459,11 @@ class GraphCache:
         loop.graph = None
         self.entries[key] = (loop, tensors, keep)
         while len(self.entries) > self.size:
-            dropped = self.entries.popitem(last=False)[1][0]
-            if dropped is not loop:  # (a cache of size 0 drops the new loop after its plan)
-                dropped.release()
+            self.entries.popitem(last=False)
             self.counts["evicted"] += 1
         return loop, False
 
     def clear(self) -> None:
-        for loop, _, _ in self.entries.values():
-            loop.release()
         self.entries.clear()
 
 
@@ -493,7 +477,7 @@ def graph_cache(size: int) -> GraphCache:
         _CACHE = GraphCache(size)
     _CACHE.size = size
     while len(_CACHE.entries) > size:
-        _CACHE.entries.popitem(last=False)[1][0].release()
+        _CACHE.entries.popitem(last=False)
         _CACHE.counts["evicted"] += 1
     return _CACHE
 

@@ -626,16 +626,6 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     over = TrajoptConfig(cuda_graph=True, graph_cache=2, graph_capacity=(4, 4, 8), **SMALL)
     a_over = plan_trajopt_batch([first], config=over)[0]
     assert np.array_equal(a_over.path, a.path) and len(cache.entries) == 2
-    # graph_oversize="once": that loop runs for its plan alone, outside the cache (and, on
-    # CUDA, its pool): the cache keeps what it had, the plan is the same.
-    kept, n1 = list(cache.entries), dict(cache.counts)
-    once = plan_trajopt_batch([first], config=dataclasses.replace(over, graph_oversize="once"))[0]
-    assert np.array_equal(once.path, a.path) and once.extras["loop"] == "eager"
-    assert list(cache.entries) == kept and cache.counts == dict(n1, uncached=n1["uncached"] + 1)
-    assert plan_trajopt_batch([first], config=dataclasses.replace(cfg, graph_oversize="once"))[0].extras["loop"] \
-        == "replayed"  # within the capacities: cached as before
-    with pytest.raises(ValueError, match="unknown graph_oversize 'drop'; valid: cache, once"):
-        TrajoptConfig(graph_oversize="drop")
     # Bounded: three more shapes through a cache of two.
     for seeds in (5, 6, 7):
         plan_trajopt_batch([first], config=TrajoptConfig(**dict(vars(cfg), seeds=seeds)))

@@ -98,8 +98,6 @@ def counts_of(config: "TrajoptConfig") -> str:
 
 #: ``TrajoptConfig.graph_pool``'s choices (``trajopt_graph.graph_pool``).
 GRAPH_POOLS = ("shared", "loop")
-#: ``TrajoptConfig.graph_oversize``'s choices.
-GRAPH_OVERSIZE = ("cache", "once")
 
 
 @dataclass
@@ -170,11 +168,6 @@ class TrajoptConfig:
     # at a time), so the cached loops cost one loop's memory; "loop", a pool each (CUDA graphs'
     # default: the cache costs its loops' sum). The plans are the same either way.
     graph_pool: str = "shared"
-    # cuda_graph: the loop of a world over a capacity (a rare, larger shape): "cache", kept in the
-    # cache and the pool like any other (the shared pool then keeps the larger loop's memory for
-    # the process); "once", captured in a pool of its own for its plan and dropped, so that its
-    # memory goes back between tasks. The plans are the same either way.
-    graph_oversize: str = "cache"
     # fixed_shape: the Adam loop's cost function (forward and backward) through torch.compile with
     # this backend, e.g. "inductor" (fused kernels: Triton on CUDA, a C++ compiler on a CPU;
     # compiled once per loop shape); None: eager. The costs are the same up to float rounding.
@@ -194,8 +187,6 @@ class TrajoptConfig:
     def __post_init__(self):
         if self.graph_pool not in GRAPH_POOLS:
             raise ValueError(f"unknown graph_pool {self.graph_pool!r}; valid: {', '.join(GRAPH_POOLS)}")
-        if self.graph_oversize not in GRAPH_OVERSIZE:
-            raise ValueError(f"unknown graph_oversize {self.graph_oversize!r}; valid: {', '.join(GRAPH_OVERSIZE)}")
         if self.certify is not None and not self.certify > 0:
             raise ValueError(f"certify needs a step floor > 0 rad (or None), not {self.certify!r}")
 
@@ -447,8 +438,7 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
                 raise _OutOfTime
 
         warm_over_cap = fixed.over_cap.clone()
-        cached = not (over_capacity and cfg.graph_oversize == "once")
-        interior, over_cap, how = optimise_fixed_shape(fixed, interior, start, goal, cfg, check_time, cached)
+        interior, over_cap, how = optimise_fixed_shape(fixed, interior, start, goal, cfg, check_time)
         for pr, n, w in zip(problems, over_cap.tolist(), warm_over_cap.tolist()):
             pr.extras.update(over_cap=n, over_cap_warm=w, loop=how)
         sparse_iters = 0  # done: the sparse loop below is the default's

@@ -429,16 +429,15 @@ class GraphCache:
     def __init__(self, size: int):
         self.size = size
         self.entries: OrderedDict = OrderedDict()
-        self.counts = {"new": 0, "reused": 0, "evicted": 0, "uncached": 0}
+        self.counts = {"new": 0, "reused": 0, "evicted": 0}
 
     def loop(self, fixed: FixedShapeCosts, interior, start, goal, cfg) -> tuple["_AdamLoop", bool]:
         """The cached loop for ``fixed``'s shapes, loaded with this problem (True), or a new
         one, cached (False)."""
         tensors, signature, keep = {}, [], []
         _walk(fixed, (), tensors, signature, keep)
-        # The phase timer is outside the captured block, and graph_oversize decides only what is
-        # cached: plans that differ in these share a loop.
-        key = (repr(dataclasses.replace(cfg, phase_times=False, graph_oversize="cache")), tuple(interior.shape), interior.dtype,
+        # The phase timer is outside the captured block: timed and untimed plans share a loop.
+        key = (repr(dataclasses.replace(cfg, phase_times=False)), tuple(interior.shape), interior.dtype,
                interior.device, tuple(signature))
         entry = self.entries.get(key)
         if entry is not None:
@@ -494,27 +493,21 @@ def fixed_shape_costs(costs, cfg) -> tuple[FixedShapeCosts, bool]:
 
 
 def optimise_fixed_shape(fixed: FixedShapeCosts, interior: torch.Tensor, start: torch.Tensor, goal: torch.Tensor,
-                         cfg, check_time: Callable[[], None], cached: bool = True) -> tuple[torch.Tensor, torch.Tensor, str]:
+                         cfg, check_time: Callable[[], None]) -> tuple[torch.Tensor, torch.Tensor, str]:
     """Adam on ``interior`` (P, S, T - 2, 7) between ``start`` and ``goal`` (P, S, 1, 7) with
     the fixed-shape costs ``fixed``; a CUDA graph when ``cfg.cuda_graph`` and the tensors are
     on CUDA. With ``cuda_graph`` (on any device) the loop comes from the process's
-    ``GraphCache``: a problem of a cached shape reuses its buffers (and, on CUDA, its graph);
-    with ``cached`` False (a world over a capacity, ``TrajoptConfig.graph_oversize="once"``)
-    the loop is captured in a pool of its own, left out of the cache and dropped after this
-    plan. ``check_time`` raises past the deadline (between blocks). Returns the final interior
-    and, per problem, the (configuration, link, kind) triples that had more near obstacles
-    than ``cfg.max_obstacles`` (summed over iterations), and how the loop ran: ``eager``,
-    ``captured``, ``captured once`` (not cached) or ``replayed`` (a graph captured for an
-    earlier problem; on a CPU, its buffers reused)."""
+    ``GraphCache``: a problem of a cached shape reuses its buffers (and, on CUDA, its graph).
+    ``check_time`` raises past the deadline (between blocks). Returns the final interior and,
+    per problem, the (configuration, link, kind) triples that had more near obstacles than
+    ``cfg.max_obstacles`` (summed over iterations), and how the loop ran: ``eager``,
+    ``captured`` or ``replayed`` (a graph captured for an earlier problem; on a CPU, its
+    buffers reused)."""
     capture = bool(cfg.cuda_graph) and interior.is_cuda
     fixed.over_cap.zero_()  # the Adam iterations' count (a cached loop's is reset by its load)
     if not cfg.cuda_graph:
         loop = _AdamLoop(fixed, interior, start, goal, cfg)
         return loop.run(False, check_time), fixed.over_cap, "eager"
-    if not cached:  # its own pool: nothing of it outlives the plan (``graph_pool("loop")``)
-        loop = _AdamLoop(fixed, interior, start, goal, dataclasses.replace(cfg, graph_pool="loop"))
-        graph_cache(cfg.graph_cache).counts["uncached"] += 1
-        return loop.run(capture, check_time), fixed.over_cap, "captured once" if capture else "eager"
     cache = graph_cache(cfg.graph_cache)
     loop, reused = cache.loop(fixed, interior, start, goal, cfg)
     how = "replayed" if reused else ("captured" if capture else "eager")

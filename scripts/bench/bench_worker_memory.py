@@ -15,6 +15,11 @@ of it in the private pools of captured CUDA graphs (``trajopt_loop=graph``), whi
 the cache between tasks cannot return while a graph of the pool lives, and ``graph_loops``
 the process's cached captured loops and their counts (``trajopt_graph.GraphCache``).
 
+With ``--live-tensors N`` (CUDA only) torch records where every CUDA allocation was made, and
+the end prints the N Python lines of this package that hold the most live CUDA memory (each
+live block charged to the innermost ``fetchbench_ms`` frame of its allocation): what a
+growing ``cuda_allocated_mb`` is made of.
+
 ``--planner-option`` is ``fetchbench eval``'s; ``--config FIELD=VALUE`` changes a
 ``TrajoptConfig`` field of the run's trajectory-optimiser loop (a diagnosis: such a run is
 not one of the tables' settings), e.g. ``--planner-option trajopt_loop=graph --config
@@ -62,6 +67,27 @@ def graph_figures() -> dict:
     return out
 
 
+def live_tensor_lines(top: int) -> list[str]:
+    """The ``top`` lines of this package holding the most live CUDA memory now (torch's
+    allocation history must be on), as "MB  blocks  file:line function"."""
+    import collections
+
+    import torch
+
+    held, count = collections.Counter(), collections.Counter()
+    for segment in torch.cuda.memory._snapshot()["segments"]:
+        for block in segment["blocks"]:
+            if block["state"] != "active_allocated":
+                continue
+            frames = block.get("frames") or []
+            ours = [f for f in frames if "fetchbench_ms" in f["filename"]]
+            where = (f"{ours[0]['filename'].split('fetchbench_ms/')[-1]}:{ours[0]['line']} {ours[0]['name']}"
+                     if ours else "(no fetchbench_ms frame)")
+            held[where] += block["size"]
+            count[where] += 1
+    return [f"{held[w] / 2**20:9.1f} MB {count[w]:6d}  {w}" for w, _ in held.most_common(top)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--method", default="ga-mesh-trajopt")
@@ -72,6 +98,8 @@ def main() -> None:
                         help="as fetchbench eval's (e.g. trajopt_loop=graph)")
     parser.add_argument("--config", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TrajoptConfig field of the run's trajopt loop (a diagnosis, not a table setting)")
+    parser.add_argument("--live-tensors", type=int, default=0, metavar="N",
+                        help="CUDA: record allocations and print the N lines holding the most live memory at the end")
     parser.add_argument("--json", default=None, metavar="PATH", help="write every task's figures here")
     args = parser.parse_args()
 
@@ -100,6 +128,11 @@ def main() -> None:
         trajopt.LOOPS[loop] = {**trajopt.LOOPS[loop], **config_overrides(args.config)}
 
     torch.set_num_threads(1)  # as a worker (evaluation.local)
+    if args.live_tensors and not torch.cuda.is_available():
+        parser.error("--live-tensors needs a CUDA device (torch records CUDA allocations only)")
+    if args.live_tensors:
+        torch.cuda.memory._record_memory_history(enabled="all", context="alloc", stacks="python",
+                                                 max_entries=100_000)
     runner = TaskRunner(run)
     rows = []
     start = time.perf_counter()
@@ -128,6 +161,9 @@ def main() -> None:
         if key in last:
             print(f"{key}: first {first.get(key, 0.0):.1f}, last {last[key]:.1f}, "
                   f"largest {max(r.get(key, 0.0) for r in rows):.1f}")
+    if args.live_tensors:
+        print("live CUDA memory by the line that allocated it:")
+        print("\n".join(live_tensor_lines(args.live_tensors)))
     if "graph_loops" in last:
         print("captured loops at the end: " + ", ".join(f"{k} {v}" for k, v in last["graph_loops"].items()))
     print("caches at the end (entries / bound): "

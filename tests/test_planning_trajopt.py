@@ -138,8 +138,9 @@ def test_ga_mesh_trajopt_runs_a_smoke_task_end_to_end(tmp_path, monkeypatch):
 
 
 def _trajectory_costs(robot, worlds):
-    """The optimiser's costs (``trajopt._Costs``) of the four checkers' problems, its robot and config."""
-    from fetchbench_ms.planning.trajopt import _Costs
+    """The optimiser's costs (``trajopt_costs.TrajectoryCosts``) of the four checkers' problems, its
+    robot and config."""
+    from fetchbench_ms.planning.trajopt_costs import TrajectoryCosts
 
     checkers = _checkers(robot, worlds)
     # three collision points a segment (FULL_COUNTS'): more configurations between waypoints,
@@ -147,7 +148,7 @@ def _trajectory_costs(robot, worlds):
     cfg = TrajoptConfig(device="cpu", collision_substeps=3)
     tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], max_planes=cfg.max_planes)
     tr = TorchRobot(robot, checkers)
-    return _Costs(tr, tw, cfg, robot.q_min, robot.q_max), tr, cfg
+    return TrajectoryCosts(tr, tw, cfg, robot.q_min, robot.q_max), tr, cfg
 
 
 def test_grouped_broad_phase_gives_the_flat_costs_and_gradients(robot, worlds):
@@ -599,7 +600,7 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
     assert a.status == "solved" and b.success
     assert cache.counts["new"] - n0["new"] == 1 and cache.counts["reused"] - n0["reused"] == 1
     # The cached loop's costs are now the second problem's, bitwise, and not the first one's.
-    from fetchbench_ms.planning.trajopt import _Costs
+    from fetchbench_ms.planning.trajopt_costs import TrajectoryCosts
 
     (loop, _, _), = cache.entries.values()
     rng = np.random.default_rng(4)
@@ -607,8 +608,8 @@ def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(r
                                    robot.q_max), dtype=torch.float32)
     fresh = []
     for c in (first[0], cluttered):
-        own = _Costs(TorchRobot(robot, [c]), TorchWorld([c.world], [c.exclude], max_planes=cfg.max_planes), cfg,
-                     robot.q_min, robot.q_max)
+        own_world = TorchWorld([c.world], [c.exclude], max_planes=cfg.max_planes)
+        own = TrajectoryCosts(TorchRobot(robot, [c]), own_world, cfg, robot.q_min, robot.q_max)
         with torch.no_grad():
             fresh.append(trajopt_graph.fixed_shape_costs(own, cfg)[0](traj)[1])
     with torch.no_grad():

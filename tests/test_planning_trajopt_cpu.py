@@ -13,7 +13,8 @@ from fetchbench_ms.planning.demo_worlds import hand_pose, shelf_worlds
 from fetchbench_ms.planning.distance import PairCache, SphereGroups, TorchRobot, TorchWorld
 from fetchbench_ms.planning.ik import solve_ik
 from fetchbench_ms.planning.robot import Q_DEFAULT
-from fetchbench_ms.planning.trajopt import FULL_COUNTS, TrajoptConfig, _Costs, plan_trajopt
+from fetchbench_ms.planning.trajopt import FULL_COUNTS, TrajoptConfig, plan_trajopt
+from fetchbench_ms.planning.trajopt_costs import TrajectoryCosts
 from fetchbench_ms.planning.world import ConvexSet
 from test_planning_trajopt import _checkers, worlds  # noqa: F401 (a fixture)
 
@@ -39,7 +40,7 @@ def reference(monkeypatch):
 
 def _costs(robot, checkers, cfg):
     tw = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], max_planes=cfg.max_planes)
-    return _Costs(TorchRobot(robot, checkers), tw, cfg, robot.q_min, robot.q_max)
+    return TrajectoryCosts(TorchRobot(robot, checkers), tw, cfg, robot.q_min, robot.q_max)
 
 
 def _evaluate(robot, checkers, traj, steps):

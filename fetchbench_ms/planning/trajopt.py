@@ -45,8 +45,10 @@ import numpy as np
 import torch
 
 from .checker import CollisionChecker
-from .distance import PairCache, TorchRobot, TorchWorld, collision_cost
+from .distance import PairCache, TorchRobot, TorchWorld
 from .rrt import PlanRequest, PlanResult, escape_start, path_valid, plan_rrtconnect
+from .trajopt_costs import TrajectoryCosts
+from .trajopt_graph import GRAPH_POOLS, fixed_shape_costs, optimise_fixed_shape
 
 
 def default_device() -> str:
@@ -96,8 +98,6 @@ def counts_of(config: "TrajoptConfig") -> str:
     return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
 
 
-#: ``TrajoptConfig.graph_pool``'s choices (``trajopt_graph.graph_pool``).
-GRAPH_POOLS = ("shared", "loop")
 
 
 @dataclass
@@ -262,76 +262,6 @@ def _smooth_basis(n_interior: int, n_knots: int) -> torch.Tensor:
     return torch.as_tensor(np.clip(1 - np.abs(s[:, None] - knots[None, 1:-1]) / width, 0, None))
 
 
-class _Costs:
-    """Trajectory costs for a batch of problems (P, B trajectories each)."""
-
-    def __init__(self, robot: TorchRobot, world: TorchWorld, cfg: TrajoptConfig, q_min, q_max):
-        self.robot, self.world, self.cfg = robot, world, cfg
-        dd = dict(device=robot.device, dtype=robot.dtype)
-        self.q_min, self.q_max = torch.as_tensor(q_min, **dd), torch.as_tensor(q_max, **dd)
-        self.dd = dd
-
-    def dense(self, traj: torch.Tensor, k: int | None = None) -> torch.Tensor:
-        """(P, B, (T-1)*k + 1, 7): waypoints and ``k - 1`` points between neighbours."""
-        k = k or self.cfg.collision_substeps
-        sub = torch.arange(k, **self.dd) / k  # fractions between neighbouring waypoints
-        a, b = traj[:, :, :-1], traj[:, :, 1:]
-        mid = a[:, :, :, None] + sub[:, None] * (b - a)[:, :, :, None]
-        return torch.cat([mid.flatten(2, 3), traj[:, :, -1:]], dim=2)
-
-    def __call__(self, traj: torch.Tensor, cache: PairCache | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """(total cost (P, B), collision part (P, B)) of trajectories (P, B, T, 7); ``cache``
-        keeps the world broad phase's pairs between calls on the same trajectories."""
-        cfg, robot = self.cfg, self.robot
-        P, B, T, _ = traj.shape
-        q = self.dense(traj)
-        n = q.shape[2]
-        centers, att = robot.spheres(q.reshape(P, B * n, 7))
-        S = centers.shape[2]
-        radii = (robot.world_radii + robot.margin[:, None])[:, None].expand(P, B * n, S)
-        coll = self.world_penalty(centers.reshape(P, -1, 3), radii, cache).reshape(P, B, -1).sum(2)
-        self_cost = self.self_penalty(centers, cache).reshape(P, B, n).sum(2)
-        if att is not None:
-            M = att.shape[2]
-            r_att = (robot.att_r + robot.margin[:, None])[:, None].expand(P, B * n, M)
-            coll = coll + self.attached_penalty(att.reshape(P, -1, 3), r_att).reshape(P, B, -1).sum(2)
-            d_arm = robot.attachment_arm_distance(centers, att)
-            self_cost = self_cost + collision_cost(d_arm, 0.01).reshape(P, B, -1).sum(2)
-        # Normalise by the samples per trajectory so weights do not depend on its length.
-        coll, self_cost = coll / n, self_cost / n
-        limits = ((traj - self.q_max).clamp(min=0) ** 2 + (self.q_min - traj).clamp(min=0) ** 2).sum((2, 3))
-        vel = torch.diff(traj, dim=2)
-        acc = torch.diff(vel, dim=2)
-        jerk = torch.diff(acc, dim=2)
-        # Integrals of squared derivatives over a trajectory of unit duration (dt = 1 / (T - 1)).
-        h = T - 1
-        smooth = (cfg.w_velocity * (vel ** 2).sum((2, 3)) * h + cfg.w_acceleration * (acc ** 2).sum((2, 3)) * h ** 3
-                  + cfg.w_jerk * (jerk ** 2).sum((2, 3)) * h ** 5)
-        collision = cfg.w_collision * coll + cfg.w_self * self_cost
-        return collision + cfg.w_limits * limits + smooth, collision
-
-    # The world and self-collision parts, per sphere or configuration: the sparse pair lists
-    # of ``distance.py`` here (fast on a CPU); ``trajopt_graph.FixedShapeCosts`` overrides
-    # them with fixed-shape tensors (no host syncs, capturable in a CUDA graph).
-    def world_penalty(self, centers: torch.Tensor, radii: torch.Tensor, cache: PairCache | None) -> torch.Tensor:
-        """(P, N) collision cost of the robot's spheres (P, N, 3) of radii (P, N)."""
-        return self.world.penalty(centers, radii, self.cfg.eta, self.robot.groups, cache)
-
-    def attached_penalty(self, att: torch.Tensor, radii: torch.Tensor) -> torch.Tensor:
-        """(P, N) collision cost of the carried object's spheres (P, N, 3)."""
-        return self.world.penalty(att, radii, self.cfg.eta)
-
-    def self_penalty(self, centers: torch.Tensor, cache: PairCache | None) -> torch.Tensor:
-        """(P * B * n,) self-collision cost per configuration of sphere centres (P, B * n, S, 3)."""
-        # Only the pairs nearer than the cost's activation (the rest cost exactly 0), with a
-        # 0.1 mm margin for float rounding.
-        cfg, robot = self.cfg, self.robot
-        horizon = 0.01 - cfg.self_tolerance
-        idx, d_self = robot.self_pairs(centers, horizon, within=horizon + 1e-4, cache=cache)
-        per_config = torch.zeros(centers.shape[0] * centers.shape[1], device=centers.device, dtype=centers.dtype)
-        return per_config.index_add(0, idx, collision_cost(d_self + cfg.self_tolerance, 0.01))
-
-
 def _problem_seed(pr: _Problem, seed: int) -> int:
     """A seed from the problem's own numbers: its plan does not depend on its batch."""
     return zlib.crc32(np.ascontiguousarray(np.concatenate([pr.q_start, pr.goals.ravel()])).tobytes()) ^ seed
@@ -377,11 +307,9 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     world = TorchWorld([c.world for c in checkers], [c.exclude for c in checkers], device, cfg.dtype,
                        max_planes=cfg.max_planes, baked_grid=cfg.world_grid)
     robot = TorchRobot(robot_model, checkers, device, cfg.dtype)
-    costs = _Costs(robot, world, cfg, robot_model.q_min, robot_model.q_max)
+    costs = TrajectoryCosts(robot, world, cfg, robot_model.q_min, robot_model.q_max)
     fixed = None
     if cfg.fixed_shape or cfg.cuda_graph:  # the warm start and Adam over fixed shapes: no host syncs
-        from .trajopt_graph import fixed_shape_costs
-
         fixed, over_capacity = fixed_shape_costs(costs, cfg)
         for pr in problems:
             pr.extras["over_capacity"] = over_capacity
@@ -431,8 +359,6 @@ def _optimise(problems: list[_Problem], robot_model, cfg: TrajoptConfig, deadlin
     timer.lap("particles")
     sparse_iters = cfg.opt_iters
     if fixed is not None:
-        from .trajopt_graph import optimise_fixed_shape
-
         def check_time():
             if time.perf_counter() > deadline:
                 raise _OutOfTime

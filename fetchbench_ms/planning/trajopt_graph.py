@@ -1,6 +1,6 @@
 """The trajectory optimiser's Adam loop over fixed-shape tensors, replayable as a CUDA graph.
 
-``trajopt._Costs`` measures only the sphere-obstacle and sphere-sphere pairs that can cost
+``trajopt_costs.TrajectoryCosts`` measures only the sphere-obstacle and sphere-sphere pairs that can cost
 something: pair lists found by ``torch.nonzero``, whose lengths the host must read every
 iteration (on a GPU, a sync and dozens of small launches per call; most of a plan's time).
 ``FixedShapeCosts`` computes the same costs with every shape fixed by the problem sizes:
@@ -58,8 +58,10 @@ import torch
 
 from .distance import (_FAR_CENTER, FAR, SphereGroups, TorchRobot, TorchWorld, _Primitives, _smooth_norm,
                        collision_cost, distance_to_every, plane_max)
-from .trajopt import GRAPH_POOLS, _Costs
+from .trajopt_costs import TrajectoryCosts
 
+#: ``TrajoptConfig.graph_pool``'s choices (``graph_pool``).
+GRAPH_POOLS = ("shared", "loop")
 CHECK_EVERY = 10  # iterations between convergence tests (the sparse loop's ``it % 10 == 9``)
 BETA1, BETA2 = 0.9, 0.999
 
@@ -75,8 +77,8 @@ class _Groups:
         self.slots = torch.nonzero(valid.reshape(-1), as_tuple=True)[0]  # once, at construction
 
 
-class FixedShapeCosts(_Costs):
-    """``trajopt._Costs`` with fixed-shape world and self-collision parts (module docstring):
+class FixedShapeCosts(TrajectoryCosts):
+    """``trajopt_costs.TrajectoryCosts`` with fixed-shape world and self-collision parts (module docstring):
     the smoothness and limit terms are its own."""
 
     def __init__(self, robot, world, cfg, q_min, q_max, max_obstacles: int):

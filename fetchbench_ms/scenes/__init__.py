@@ -5,7 +5,8 @@
     spec = generate("Desk", seed=3, overrides={"desk.height": 0.75})
 """
 from .params import ParamSpec
-from .registry import SCENE_TYPES, SceneType, generate, get_scene_type, scene_types
+from .registry import SCENE_TYPES, generate, get_scene_type, scene_types
+from .scene_type import SceneType
 from .spec import SUPPORT_LABELS, CameraTargetRegion, Material, Part, RobotRegion, SceneSpec, SupportSurface
 
 __all__ = [

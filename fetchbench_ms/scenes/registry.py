@@ -1,12 +1,12 @@
 """The scene-type registry: name -> generator, and the one entry point ``generate``."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 
-from .params import ParamSpec, sample_params
+from .params import sample_params
+from .scene_type import REGISTERED, SceneType
 from .spec import SceneSpec
 
 #: The 13 scene types of the FetchBench paper, in the paper's order.
@@ -27,29 +27,6 @@ SCENE_TYPES = (
 )
 
 
-@dataclass(frozen=True)
-class SceneType:
-    """A procedural generator: declared parameters + a pure function of their values."""
-
-    name: str
-    params: tuple[ParamSpec, ...]
-    # Builds the scene from a complete dict of parameter values. Pure: no randomness.
-    build: Callable[[dict[str, float]], SceneSpec]
-    # Support labels this type always offers (the paper's appendix table).
-    support_labels: tuple[str, ...]
-    description: str = ""
-
-
-_REGISTRY: dict[str, SceneType] = {}
-
-
-def register_scene_type(scene_type: SceneType) -> SceneType:
-    if scene_type.name in _REGISTRY:
-        raise ValueError(f"scene type {scene_type.name!r} registered twice")
-    _REGISTRY[scene_type.name] = scene_type
-    return scene_type
-
-
 def _ensure_loaded() -> None:
     # The type modules register themselves on import; importing the package loads them.
     from . import types  # noqa: F401
@@ -57,14 +34,14 @@ def _ensure_loaded() -> None:
 
 def get_scene_type(name: str) -> SceneType:
     _ensure_loaded()
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown scene type {name!r}; valid: {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name]
+    if name not in REGISTERED:
+        raise ValueError(f"unknown scene type {name!r}; valid: {', '.join(sorted(REGISTERED))}")
+    return REGISTERED[name]
 
 
 def scene_types() -> dict[str, SceneType]:
     _ensure_loaded()
-    return dict(sorted(_REGISTRY.items()))
+    return dict(sorted(REGISTERED.items()))
 
 
 def as_rng(seed_or_rng: int | np.random.Generator) -> np.random.Generator:

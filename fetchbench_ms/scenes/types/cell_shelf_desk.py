@@ -7,7 +7,7 @@ from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.storage import build_cell_shelf, cell_shelf_params, cell_shelf_width
 from ..pieces.tables import build_desk, desk_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("desk", desk_params(width=(0.95, 1.2), depth=(0.55, 0.68))),

@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..params import prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.tables import build_desk, desk_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 from ..spec import SceneSpec
 
 PARAMS = (

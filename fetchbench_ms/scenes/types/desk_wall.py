@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.tables import build_desk, build_wall, build_wall_shelf, desk_params, wall_params, wall_shelf_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 MAX_SHELVES = 2
 

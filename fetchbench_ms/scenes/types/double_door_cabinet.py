@@ -7,7 +7,7 @@ from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.storage import build_doors, build_shelf_unit, door_params, shelf_unit_params
 from ..pieces.tables import build_wall, wall_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed(

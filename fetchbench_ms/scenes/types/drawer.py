@@ -5,7 +5,7 @@ from __future__ import annotations
 from ..params import prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.drawers import build_dresser, dresser_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("dresser", dresser_params(width=(0.7, 1.1), depth=(0.4, 0.52), cols=(1, 3), pull=(0.6, 0.85))),

@@ -7,7 +7,7 @@ from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.drawers import build_dresser, dresser_params
 from ..pieces.storage import build_shelf_unit, shelf_unit_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("dresser", dresser_params(width=(0.7, 1.0), depth=(0.34, 0.42), rows=(2, 3), cols=(2, 3), row_height=(0.14, 0.24), pull=(0.5, 0.7))),

@@ -7,7 +7,7 @@ from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.racks import build_cube_wall, cube_wall_params
 from ..pieces.storage import MAX_SUPPORT_SPAN
 from ..pieces.tables import build_wall, wall_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("cubes", cube_wall_params()),

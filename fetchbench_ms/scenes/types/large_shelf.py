@@ -6,7 +6,7 @@ from __future__ import annotations
 from ..params import prefixed, sub_params
 from ..pieces.builder import SceneBuilder, robot_params
 from ..pieces.storage import build_shelf_unit, shelf_unit_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("shelf", shelf_unit_params(width=(0.6, 0.9), depth=(0.28, 0.4), n_layers=(3, 5), gap=(0.22, 0.34), plinth=(0.03, 0.12))),

@@ -6,7 +6,7 @@ from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.storage import build_shelf_unit, shelf_unit_params
 from ..pieces.tables import build_desk, desk_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("desk", desk_params(width=(0.65, 0.9), depth=(0.5, 0.65))),

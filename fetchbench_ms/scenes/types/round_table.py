@@ -10,7 +10,7 @@ from ..params import ParamSpec, prefixed, sub_params
 from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.storage import basket_params, build_basket
 from ..pieces.tables import build_round_table, round_table_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 MAX_BASKETS = 2
 

@@ -7,7 +7,7 @@ from ..params import prefixed, sub_params
 from ..pieces.builder import SceneBuilder, rect, robot_params
 from ..pieces.racks import build_triangle_shelf, triangle_shelf_params
 from ..pieces.tables import build_desk, desk_params
-from ..registry import SceneType, register_scene_type
+from ..scene_type import SceneType, register_scene_type
 
 PARAMS = (
     *prefixed("desk", desk_params(width=(1.05, 1.25), depth=(0.55, 0.68))),

@@ -98,8 +98,6 @@ def counts_of(config: "TrajoptConfig") -> str:
     return "x".join(str(getattr(config, name)) for name in COUNT_FIELDS)
 
 
-
-
 @dataclass
 class TrajoptConfig:
     """The optimiser's work, in counts: the same on every device (the benchmark's rows must

@@ -1,8 +1,9 @@
 """The trajectory optimiser's Adam loop over fixed-shape tensors, replayable as a CUDA graph.
 
-``trajopt_costs.TrajectoryCosts`` measures only the sphere-obstacle and sphere-sphere pairs that can cost
-something: pair lists found by ``torch.nonzero``, whose lengths the host must read every
-iteration (on a GPU, a sync and dozens of small launches per call; most of a plan's time).
+``trajopt_costs.TrajectoryCosts`` measures only the sphere-obstacle and sphere-sphere pairs
+that can cost something: pair lists found by ``torch.nonzero``, whose lengths the host must
+read every iteration (on a GPU, a sync and dozens of small launches per call; most of a
+plan's time).
 ``FixedShapeCosts`` computes the same costs with every shape fixed by the problem sizes:
 
 - world: per configuration and robot link (``SphereGroups``: the link's spheres around
@@ -78,8 +79,8 @@ class _Groups:
 
 
 class FixedShapeCosts(TrajectoryCosts):
-    """``trajopt_costs.TrajectoryCosts`` with fixed-shape world and self-collision parts (module docstring):
-    the smoothness and limit terms are its own."""
+    """``trajopt_costs.TrajectoryCosts`` with fixed-shape world and self-collision parts (module
+    docstring): the smoothness and limit terms are its own."""
 
     def __init__(self, robot, world, cfg, q_min, q_max, max_obstacles: int):
         super().__init__(robot, world, cfg, q_min, q_max)

@@ -95,7 +95,7 @@ def check_id_fixes(id_fixes: Optional[dict], **given) -> None:
     was registered with (``fetchbench_ms.envs.ENV_KWARGS``)."""
     for key, fixed in (id_fixes or {}).items():
         if given.get(key) != fixed:
-            from . import ENV_KWARGS
+            from .env_ids import ENV_KWARGS
 
             env_id = next(i for i, kw in ENV_KWARGS.items() if kw == id_fixes)
             wanted = [i for i, kw in ENV_KWARGS.items() if kw == {key: given.get(key)}]

@@ -250,7 +250,7 @@ def _pregrasp_qpos(task: TaskSpec, distance: float) -> Optional[np.ndarray]:
 def curriculum_pool(env_id: str, curriculum, task_suite: Optional[str] = None) -> list[TaskSpec]:
     """The suite tasks an env ``env_id`` with this curriculum serves (before the curriculum
     is applied to them)."""
-    from . import ENV_KWARGS
+    from .env_ids import ENV_KWARGS
     from .task_source import resolve_task_source
 
     fixed = ENV_KWARGS[env_id]

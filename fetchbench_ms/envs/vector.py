@@ -52,7 +52,7 @@ def make_vec_env(env_id: str, num_envs: int, context: str = "spawn", wrappers: t
     and hands over ``final_obs`` / ``final_info``, as ManiSkill's GPU vector env does)."""
     import gymnasium as gym
 
-    from . import ENV_IDS
+    from .env_ids import ENV_IDS
 
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown FetchBench env id {env_id!r}; valid: {', '.join(ENV_IDS)}")

@@ -25,6 +25,8 @@ def test_bad_options_get_one_line_naming_the_choices_before_any_task():
     assert out.returncode == 2 and "trajopt_loop" in out.stderr and "graph" in out.stderr
     out = _run("--live-tensors", "3")
     assert out.returncode == 2 and "--live-tensors needs a CUDA device" in out.stderr
+    out = _run("--live-tensors", "-1")
+    assert out.returncode == 2 and "a number of lines >= 0, not -1" in out.stderr
 
 
 def test_live_memory_is_charged_to_the_innermost_package_frame(monkeypatch):

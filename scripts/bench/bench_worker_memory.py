@@ -79,7 +79,7 @@ def live_tensor_lines(top: int) -> list[str]:
         for block in segment["blocks"]:
             if block["state"] != "active_allocated":
                 continue
-            frames = block.get("frames") or []
+            frames = block.get("frames") or []  # innermost first
             ours = [f for f in frames if "fetchbench_ms" in f["filename"]]
             where = (f"{ours[0]['filename'].split('fetchbench_ms/')[-1]}:{ours[0]['line']} {ours[0]['name']}"
                      if ours else "(no fetchbench_ms frame)")
@@ -128,6 +128,8 @@ def main() -> None:
         trajopt.LOOPS[loop] = {**trajopt.LOOPS[loop], **config_overrides(args.config)}
 
     torch.set_num_threads(1)  # as a worker (evaluation.local)
+    if args.live_tensors < 0:
+        parser.error(f"--live-tensors: a number of lines >= 0, not {args.live_tensors}")
     if args.live_tensors and not torch.cuda.is_available():
         parser.error("--live-tensors needs a CUDA device (torch records CUDA allocations only)")
     if args.live_tensors:
@@ -171,7 +173,7 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"method": args.method, "pipeline": args.pipeline, "suite": args.suite, "tasks": args.tasks,
-                   "planner_options": options, "config": args.config,
+                       "planner_options": options, "config": args.config,
                        "device": run_device(), "torch_threads": torch.get_num_threads(),
                        "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
                        "cache_bounds": bounds, "per_task": rows}, f, indent=1)

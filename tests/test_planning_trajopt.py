@@ -573,6 +573,28 @@ def test_a_captured_block_updates_its_state_in_place_so_loops_can_share_one_pool
         TrajoptConfig(certify=0.0)
 
 
+def test_every_capture_warms_up_on_the_one_side_stream_of_its_device(monkeypatch):
+    """torch keeps a cuBLAS and a cuBLASLt workspace for every stream that ran a matrix
+    product and never frees them: a side stream per capture grew a worker's CUDA memory by
+    64 MB a capture. The warm-up stream is made once per process and device (a stand-in for
+    ``torch.cuda.Stream`` here: a CPU has no streams)."""
+    from fetchbench_ms.planning import trajopt_graph
+
+    made = []
+
+    class Stream:
+        def __init__(self, device=None):
+            made.append(device)
+
+    monkeypatch.setattr(torch.cuda, "Stream", Stream)
+    monkeypatch.setattr(trajopt_graph, "_WARMUP_STREAMS", {})
+    gpu0, gpu1 = torch.device("cuda", 0), torch.device("cuda", 1)
+    first = trajopt_graph.warmup_stream(gpu0)
+    assert all(trajopt_graph.warmup_stream(gpu0) is first for _ in range(5))
+    assert trajopt_graph.warmup_stream(gpu1) is not first
+    assert made == [gpu0, gpu1]
+
+
 def test_cuda_graph_loop_is_reused_across_problems_and_the_cache_stays_bounded(robot, shelf_problem):
     """``cuda_graph`` (on a CPU: the same bookkeeping, uncaptured): the worlds are padded to
     the graph capacities, so two different problems (other scenes, starts and goals) share

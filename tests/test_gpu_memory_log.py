@@ -77,3 +77,19 @@ def test_window_medians_smooth_a_swinging_series(tmp_path):
     assert s["gpus"]["0"]["first_window_mib"] == 1200 and s["gpus"]["0"]["last_window_mib"] == 1050
     assert s["gpus"]["0"]["window_change"] == pytest.approx(-0.125)
     assert gpu_memory.main([str(path), "--window", "-1"]) == 2
+
+
+def test_samples_where_every_worker_holds_only_its_context_are_start_up(tmp_path):
+    """At a run's start every worker may hold only its CUDA context (~40 MiB), so each holds a
+    quarter of the sample's own median: a worker counts as started from a quarter of the
+    run's median per process, and such samples are not the run's first."""
+    lines = []
+    lines += _sample(0, [80, 40], [(0, 1, 40), (0, 2, 40), (1, 3, 40)], 100)        # contexts only
+    lines += _sample(20, [1040, 40], [(0, 1, 1000), (0, 2, 40), (1, 3, 40)], 1000)  # one started
+    lines += _sample(40, [1900, 800], [(0, 1, 1000), (0, 2, 900), (1, 3, 800)], 2000)  # all up: first
+    lines += _sample(60, [2000, 850], [(0, 1, 1050), (0, 2, 950), (1, 3, 850)], 2100)
+    path = tmp_path / "start.log"
+    path.write_text("\n".join(lines) + "\n")
+    s = gpu_memory.summary(gpu_memory.read_samples(str(path)))
+    assert (s["samples"], s["seconds"]) == (2, 20)
+    assert s["gpus"]["0"]["first_mib"] == 1900 and s["per_process_mib"]["first"]["min"] == 800

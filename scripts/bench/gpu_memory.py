@@ -1,12 +1,12 @@
 """GPU and host memory over a long evaluation, from a log of ``scripts/bench/log_gpu_memory.sh``.
 
 Prints, for the samples taken while the run's workers were all up (the samples with the most
-processes on the GPUs, from the first in which each of them holds at least a quarter of their
-median: a worker starting up holds only its CUDA context), each GPU's memory used at the
-first and the last of them and the change, the medians of the samples within ``--window``
-seconds (60) of both ends and their change (a sample swings with what the workers' tasks hold
-at that moment), the per-process memory (min / median / max over
-the workers) at both ends, and the host's resident memory of all python3 processes; with
+processes on the GPUs, from the first in which each of them holds at least a quarter of the
+run's median per process: a worker starting up holds only its CUDA context), each GPU's
+memory used at the first and the last of them and the change, the medians of the samples
+within ``--window`` seconds (60) of both ends and their change (a sample swings with what
+the workers' tasks hold at that moment), the per-process memory (min / median / max over the
+workers) at both ends, and the host's resident memory of all python3 processes; with
 ``--json`` the same as one object:
 
     python scripts/bench/gpu_memory.py results/logs/ga-mesh-trajopt-paper-test6000-gpu-memory.log.gz
@@ -64,9 +64,13 @@ def summary(samples: list[dict], window: float = 60.0) -> dict:
         mib = [m for _, _, m in s["procs"]]
         return {"min": min(mib), "median": statistics.median(mib), "max": max(mib)}
 
-    def started(s):  # every process past its start-up (more than its CUDA context)
-        p = per_process(s)
-        return p["min"] >= p["median"] / 4
+    # A worker past its start-up holds more than its CUDA context: at least a quarter of the
+    # run's median per-process memory (not the sample's own median: in the first samples every
+    # worker may hold only its context).
+    typical = statistics.median(m for s in full for _, _, m in s["procs"])
+
+    def started(s):
+        return per_process(s)["min"] >= typical / 4
 
     full = full[next((i for i, s in enumerate(full) if started(s)), 0):]
     first, last = full[0], full[-1]

@@ -266,7 +266,7 @@ def test_other_robots_get_their_own_paper_figure_and_are_compared_only_with_them
 
 
 def test_task_times_compares_machine_kinds_on_the_tasks_they_share(tmp_path, capsys):
-    """scripts/bench/task_times.py: per method, the median and p90 seconds a task of each set,
+    """scripts/bench/task_times.py: per method, the median, p90 and mean seconds a task of each set,
     over the tasks every set has; a method missing from a set is left out; no common method
     exits 1 saying so."""
     from script_modules import load_script
@@ -281,7 +281,7 @@ def test_task_times_compares_machine_kinds_on_the_tasks_they_share(tmp_path, cap
     node = [run("node-rrt", [1.0, 2.0, 3.0])]
     assert times.main(["--set", "laptop=" + ",".join(map(str, laptop)), "--set", f"node={node[0]}"]) == 0
     out = capsys.readouterr().out
-    assert "| `ga-mesh-rrt` | 3 | 5.0 / 7.0 | 2.0 / 3.0 |" in out  # task 3 is the laptop's only
+    assert "| `ga-mesh-rrt` | 3 | 5.0 / 7.0 / 5.00 | 2.0 / 3.0 / 2.00 |" in out  # task 3 is the laptop's only
     assert "cgn-ptd-mppi" not in out
     assert times.main(["--set", f"laptop={laptop[1]}", "--set", f"node={node[0]}"]) == 1
     assert "nothing to compare" in capsys.readouterr().err

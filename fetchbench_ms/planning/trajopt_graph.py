@@ -308,8 +308,8 @@ _WARMUP_STREAMS: dict = {}
 def warmup_stream(device: torch.device):
     """The process's one side stream on ``device`` for the warm-up before a capture. One, not
     a new stream per capture: torch keeps a cuBLAS and a cuBLASLt workspace (32 MiB each on
-    an H200) for every stream that ever ran a matrix product and never frees them, so a
-    stream per capture held 64 MB more after each one, up to torch's pool of 32 streams."""
+    an H200) for every stream that ever ran a matrix product and never frees them: a stream
+    per capture would keep 64 MB more after each one, up to torch's pool of 32 streams."""
     if device not in _WARMUP_STREAMS:
         _WARMUP_STREAMS[device] = torch.cuda.Stream(device=device)
     return _WARMUP_STREAMS[device]

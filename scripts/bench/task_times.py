@@ -47,13 +47,14 @@ def load(folder: Path) -> tuple[str, dict[str, float]]:
 
 
 def table(sets: list[tuple[str, list[Path]]]) -> str:
-    """Markdown: per method, the median and 90th percentile of the seconds a task per set."""
+    """Markdown: per method, the median, 90th percentile and mean of the seconds a task per
+    set (the mean: the worker-seconds a task, what a run's wall time scales with)."""
     times: dict[str, dict[str, dict[str, float]]] = {}
     for label, folders in sets:
         for folder in folders:
             method, walls = load(folder)
             times.setdefault(method, {})[label] = walls
-    header = ["method", "tasks"] + [f"{label}: median / p90 s" for label, _ in sets]
+    header = ["method", "tasks"] + [f"{label}: median / p90 / mean s" for label, _ in sets]
     lines = ["| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
     for method in sorted(times):
         if len(times[method]) < len(sets):
@@ -65,7 +66,7 @@ def table(sets: list[tuple[str, list[Path]]]) -> str:
         for label, _ in sets:
             values = sorted(times[method][label][t] for t in common)
             p90 = values[min(len(values) - 1, int(round(0.9 * (len(values) - 1))))]
-            cells.append(f"{statistics.median(values):.1f} / {p90:.1f}")
+            cells.append(f"{statistics.median(values):.1f} / {p90:.1f} / {statistics.fmean(values):.2f}")
         lines.append(f"| `{method}` | {len(common)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

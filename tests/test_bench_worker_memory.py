@@ -50,3 +50,28 @@ def test_live_memory_is_charged_to_the_innermost_package_frame(monkeypatch):
     assert lines[0].split() == ["128.0", "MB", "2", "planning/trajopt.py:420", "_optimise"]
     assert lines[1].split() == ["2.0", "MB", "1", "planning/sense.py:9", "plan"]
     assert "(no fetchbench_ms frame)" in bench.live_tensor_lines(3)[2]
+
+
+def test_show_reprints_a_records_first_last_and_largest_figures(tmp_path, capsys):
+    import json
+
+    def row(rss, allocated, loops):
+        return {"task_id": "val/0000", "success": True, "rss_mb": rss, "cuda_allocated_mb": allocated,
+                "cuda_reserved_mb": 2 * allocated, "graph_loops": loops, "caches": {"a.cache": 3}}
+
+    rows = [row(100.0, 160.2, {"cached": 1, "new": 1, "evicted": 0}), row(180.0, 224.0, {"cached": 1, "new": 2, "evicted": 1}),
+            row(150.0, 160.2, {"cached": 1, "new": 3, "evicted": 2})]
+    record = {"method": "ga-mesh-trajopt", "pipeline": "paper", "suite": "val", "tasks": "0:3",
+              "planner_options": {"trajopt_loop": "graph"}, "config": ["graph_cache=1"], "device": "cuda",
+              "cache_bounds": {"a.cache": 8}, "per_task": rows}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(record))
+    assert bench.show([str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "ga-mesh-trajopt (paper trajopt_loop=graph --config graph_cache=1), val 0:3: 3 tasks on cuda" in out
+    assert "RSS after the first task 100 MB, after the last 150 MB, largest 180 MB" in out
+    assert "cuda_allocated_mb: first 160.2, last 160.2, largest 224.0" in out
+    assert "captured loops at the end: cached 1, new 3, evicted 2" in out and "a.cache 3/8" in out
+    (tmp_path / "bad.json").write_text("{}")
+    assert bench.show([str(tmp_path / "bad.json")]) == 1
+    assert "not a record of --json" in capsys.readouterr().err

@@ -20,6 +20,10 @@ the end prints the N Python lines of this package that hold the most live CUDA m
 live block charged to the innermost ``fetchbench_ms`` frame of its allocation): what a
 growing ``cuda_allocated_mb`` is made of.
 
+``--show JSON ...`` reprints the figures of ``--json`` records:
+
+    python scripts/bench/bench_worker_memory.py --show results/planning/worker-memory-*.json
+
 ``--planner-option`` is ``fetchbench eval``'s; ``--config FIELD=VALUE`` changes a
 ``TrajoptConfig`` field of the run's trajectory-optimiser loop (a diagnosis: such a run is
 not one of the tables' settings), e.g. ``--planner-option trajopt_loop=graph --config
@@ -101,7 +105,10 @@ def main() -> None:
     parser.add_argument("--live-tensors", type=int, default=0, metavar="N",
                         help="CUDA: record allocations and print the N lines holding the most live memory at the end")
     parser.add_argument("--json", default=None, metavar="PATH", help="write every task's figures here")
+    parser.add_argument("--show", nargs="+", metavar="JSON", help="reprint the figures of --json records and exit")
     args = parser.parse_args()
+    if args.show:
+        sys.exit(show(args.show))
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
@@ -153,32 +160,61 @@ def main() -> None:
         runner.close()
     if not rows:
         sys.exit("no task ran")
-    first, last = rows[0], rows[-1]
-    bounds = {c.name: c.bound for c in cache_sizes()}
-    print(f"\n{args.method} ({args.pipeline}), {args.suite} {args.tasks}: {len(rows)} tasks in "
-          f"{time.perf_counter() - start:.0f} s on {run_device()}")
-    print(f"RSS after the first task {first['rss_mb']:.0f} MB, after the last {last['rss_mb']:.0f} MB, "
-          f"largest {max(r['rss_mb'] for r in rows):.0f} MB")
-    for key in ("cuda_allocated_mb", "cuda_reserved_mb", "cuda_graph_pools_mb"):
-        if key in last:
-            print(f"{key}: first {first.get(key, 0.0):.1f}, last {last[key]:.1f}, "
-                  f"largest {max(r.get(key, 0.0) for r in rows):.1f}")
+    record = {"method": args.method, "pipeline": args.pipeline, "suite": args.suite, "tasks": args.tasks,
+              "planner_options": options, "config": args.config,
+              "device": run_device(), "torch_threads": torch.get_num_threads(),
+              "seconds": round(time.perf_counter() - start, 1),
+              "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
+              "cache_bounds": {c.name: c.bound for c in cache_sizes()}, "per_task": rows}
+    print()
+    print("\n".join(summary_lines(record)))
     if args.live_tensors:
         print("live CUDA memory by the line that allocated it:")
         print("\n".join(live_tensor_lines(args.live_tensors)))
-    if "graph_loops" in last:
-        print("captured loops at the end: " + ", ".join(f"{k} {v}" for k, v in last["graph_loops"].items()))
-    print("caches at the end (entries / bound): "
-          + ", ".join(f"{name} {size}/{bounds[name]}" for name, size in last["caches"].items()))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"method": args.method, "pipeline": args.pipeline, "suite": args.suite, "tasks": args.tasks,
-                       "planner_options": options, "config": args.config,
-                       "device": run_device(), "torch_threads": torch.get_num_threads(),
-                       "command": " ".join([os.path.basename(sys.executable)] + sys.argv),
-                       "cache_bounds": bounds, "per_task": rows}, f, indent=1)
+            json.dump(record, f, indent=1)
             f.write("\n")
         print(f"wrote {args.json}")
+
+
+def summary_lines(record: dict) -> list[str]:
+    """A run's figures (``--json``'s record) as printed at its end and by ``--show``: the
+    first, last and largest RSS and CUDA figures over its tasks, the captured loops and the
+    caches' sizes after the last task."""
+    rows = record["per_task"]
+    first, last = rows[0], rows[-1]
+    took = f" in {record['seconds']:.0f} s" if "seconds" in record else ""
+    options = "".join(f" {k}={v}" for k, v in (record.get("planner_options") or {}).items())
+    options += "".join(f" --config {c}" for c in record.get("config") or ())
+    lines = [f"{record['method']} ({record['pipeline']}{options}), {record['suite']} {record['tasks']}: "
+             f"{len(rows)} tasks{took} on {record['device']}",
+             f"RSS after the first task {first['rss_mb']:.0f} MB, after the last {last['rss_mb']:.0f} MB, "
+             f"largest {max(r['rss_mb'] for r in rows):.0f} MB"]
+    for key in ("cuda_allocated_mb", "cuda_reserved_mb", "cuda_graph_pools_mb"):
+        if key in last:
+            lines.append(f"{key}: first {first.get(key, 0.0):.1f}, last {last[key]:.1f}, "
+                         f"largest {max(r.get(key, 0.0) for r in rows):.1f}")
+    if "graph_loops" in last:
+        lines.append("captured loops at the end: " + ", ".join(f"{k} {v}" for k, v in last["graph_loops"].items()))
+    bounds = record.get("cache_bounds", {})
+    lines.append("caches at the end (entries / bound): "
+                 + ", ".join(f"{name} {size}/{bounds.get(name, '?')}" for name, size in last["caches"].items()))
+    return lines
+
+
+def show(paths: list[str]) -> int:
+    """Reprint the figures of ``--json`` records."""
+    for path in paths:
+        try:
+            with open(path) as f:
+                record = json.load(f)
+            lines = summary_lines(record)
+        except (OSError, ValueError, KeyError, IndexError) as error:
+            print(f"bench_worker_memory: {path}: not a record of --json ({error})", file=sys.stderr)
+            return 1
+        print(f"{path}:\n  " + "\n  ".join(lines))
+    return 0
 
 
 def run_device() -> str:

@@ -59,7 +59,8 @@ def test_show_reprints_a_records_first_last_and_largest_figures(tmp_path, capsys
         return {"task_id": "val/0000", "success": True, "rss_mb": rss, "cuda_allocated_mb": allocated,
                 "cuda_reserved_mb": 2 * allocated, "graph_loops": loops, "caches": {"a.cache": 3}}
 
-    rows = [row(100.0, 160.2, {"cached": 1, "new": 1, "evicted": 0}), row(180.0, 224.0, {"cached": 1, "new": 2, "evicted": 1}),
+    rows = [row(100.0, 160.2, {"cached": 1, "new": 1, "evicted": 0}),
+            row(180.0, 224.0, {"cached": 1, "new": 2, "evicted": 1}),
             row(150.0, 160.2, {"cached": 1, "new": 3, "evicted": 2})]
     record = {"method": "ga-mesh-trajopt", "pipeline": "paper", "suite": "val", "tasks": "0:3",
               "planner_options": {"trajopt_loop": "graph"}, "config": ["graph_cache=1"], "device": "cuda",

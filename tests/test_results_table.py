@@ -285,3 +285,16 @@ def test_task_times_compares_machine_kinds_on_the_tasks_they_share(tmp_path, cap
     assert "cgn-ptd-mppi" not in out
     assert times.main(["--set", f"laptop={laptop[1]}", "--set", f"node={node[0]}"]) == 1
     assert "nothing to compare" in capsys.readouterr().err
+
+
+def test_evaluation_md_prints_task_times_table_as_the_records_give_it(capsys):
+    """docs/evaluation.md's seconds-a-task table is `scripts/bench/task_times.py`'s output on
+    the shipped repeatability records, verbatim: a record re-run without the table reprinted
+    fails here."""
+    from script_modules import load_script
+
+    root = Path(__file__).resolve().parents[1]
+    times = load_script(root / "scripts/bench/task_times.py", "task_times")
+    assert times.main([]) == 0
+    table = capsys.readouterr().out.strip()
+    assert table.count("\n") >= 3 and table in (root / "docs/evaluation.md").read_text()
